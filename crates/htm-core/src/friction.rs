@@ -1,0 +1,89 @@
+//! Stribeck friction with the thesis's smoothed sign (eq. 3.2, 3.19), plus the asymmetric and
+//! pressure-dependent variants named in EFFECTS.md.
+
+/// Smoothed sign `sig(v) = v / (|v| + eps)` (thesis eq. 3.19): continuous through v = 0.
+#[inline]
+pub fn sig(v: f64, eps: f64) -> f64 {
+    v / (v.abs() + eps)
+}
+
+/// Friction parameters, SI.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Friction {
+    /// viscous coefficient B_v [N s/m]
+    pub viscous_n_s_m: f64,
+    /// Coulomb force for positive velocity [N]
+    pub coulomb_pos_n: f64,
+    /// Coulomb force for negative velocity [N]
+    pub coulomb_neg_n: f64,
+    /// static (breakaway excess) force F_s [N]
+    pub static_n: f64,
+    /// Stribeck velocity C_s [m/s]
+    pub stribeck_m_s: f64,
+    /// smoothing velocity eps of sig() [m/s]
+    pub smoothing_m_s: f64,
+    /// Coulomb growth with chamber pressure sum [N/Pa]
+    pub pressure_coeff_n_per_pa: f64,
+}
+
+impl Friction {
+    /// Friction force opposing motion [N] at velocity `v` [m/s] and chamber pressure sum
+    /// `p_sum` = p_a + p_b [Pa].
+    #[inline]
+    pub fn force(&self, v: f64, p_sum: f64) -> f64 {
+        let s = sig(v, self.smoothing_m_s);
+        // Direction-dependent Coulomb level blended smoothly: F+ for v >> eps, F- for v << -eps.
+        let mean = 0.5 * (self.coulomb_pos_n + self.coulomb_neg_n);
+        let half = 0.5 * (self.coulomb_pos_n - self.coulomb_neg_n);
+        let coulomb = mean + half * s + self.pressure_coeff_n_per_pa * p_sum;
+        let stribeck = self.static_n * (-v.abs() / self.stribeck_m_s).exp();
+        self.viscous_n_s_m * v + s * (coulomb + stribeck)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn thesis() -> Friction {
+        Friction {
+            viscous_n_s_m: 5017.35,
+            coulomb_pos_n: 792.33,
+            coulomb_neg_n: 792.33,
+            static_n: 102.61,
+            stribeck_m_s: 0.01,
+            smoothing_m_s: 1e-3,
+            pressure_coeff_n_per_pa: 0.0,
+        }
+    }
+
+    #[test]
+    fn friction_is_odd_and_continuous_through_zero() {
+        let f = thesis();
+        for v in [1e-6, 1e-4, 1e-3, 0.01, 0.1, 0.5] {
+            assert!((f.force(v, 0.0) + f.force(-v, 0.0)).abs() < 1e-9);
+        }
+        assert_eq!(f.force(0.0, 0.0), 0.0);
+        // the smoothed sign makes friction a steep but finite damper through zero
+        assert!((f.force(1e-9, 0.0) - f.force(-1e-9, 0.0)).abs() < 2e-9 * 1e6);
+    }
+
+    #[test]
+    fn friction_matches_eq_3_20_at_speed() {
+        let f = thesis();
+        let v: f64 = 0.3;
+        let expect = 5017.35 * v + (v / (v + 1e-3)) * (792.33 + 102.61 * (-v / 0.01).exp());
+        assert!((f.force(v, 0.0) - expect).abs() < 1e-9);
+    }
+
+    #[test]
+    fn asymmetric_coulomb_takes_each_level_by_direction() {
+        let mut f = thesis();
+        f.coulomb_pos_n = 900.0;
+        f.coulomb_neg_n = 500.0;
+        f.viscous_n_s_m = 0.0;
+        f.static_n = 0.0;
+        assert!((f.force(1.0, 0.0) - 900.0).abs() < 2.0);
+        assert!((f.force(-1.0, 0.0) + 500.0).abs() < 2.0);
+    }
+}

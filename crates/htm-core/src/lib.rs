@@ -1,0 +1,17 @@
+//! htm-core: the numerics of htm. Pure Rust over plain structs and slices; the `python`
+//! feature adds thin pyo3 bindings that own no logic.
+pub mod control;
+pub mod error;
+pub mod friction;
+pub mod hydraulics;
+pub mod machine;
+pub mod params;
+pub mod run;
+pub mod solver;
+
+#[cfg(feature = "python")]
+mod python;
+
+pub use error::{Error, Result};
+pub use machine::{Machine, Outputs};
+pub use params::Params;

@@ -1,0 +1,274 @@
+//! The plant: valve + chambers + double-rod cylinder + friction + gravity + specimen spring +
+//! end stops (thesis eq. 2.15-2.27 with the errata of NOTES.md), stepped one zero-order-hold
+//! command sample at a time.
+use crate::error::{Error, Result};
+use crate::friction::Friction;
+use crate::hydraulics::{orifice_flow, orifice_flow_ddp, smooth_opening, BulkModulus, ValveMap};
+use crate::params::Params;
+use crate::solver::{OdeSystem, Rodas4, Stats};
+
+/// State vector layout.
+pub const PA: usize = 0;
+pub const PB: usize = 1;
+pub const Y: usize = 2;
+pub const V: usize = 3;
+pub const SPOOL: usize = 4;
+pub const NX: usize = 5;
+
+/// Default relative tolerance of the plant integrator.
+pub const DEFAULT_RTOL: f64 = 1e-6;
+
+/// What the sensors of the rig would read (ideal sensors), SI.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Outputs {
+    /// piston position [m]
+    pub y: f64,
+    /// piston velocity [m/s]
+    pub v: f64,
+    /// chamber pressures, gauge [Pa]
+    pub p_a: f64,
+    pub p_b: f64,
+    /// supply pressure at the valve, gauge [Pa]
+    pub p_s: f64,
+    /// specimen (load cell) force, tension positive [N]
+    pub f: f64,
+    /// spool position [V equivalent]
+    pub spool: f64,
+}
+
+/// Plant equations with one held spool target.
+#[derive(Debug, Clone)]
+pub struct Plant {
+    pub p: Params,
+    k_edge: f64,
+    bulk: BulkModulus,
+    friction: Friction,
+    map: ValveMap,
+    /// spool target for the current sample [V equivalent]
+    pub target: f64,
+}
+
+impl Plant {
+    pub fn new(p: Params) -> Result<Self> {
+        p.validate()?;
+        let bulk = BulkModulus {
+            beta: p.bulk_modulus_pa,
+            k1: p.eggerth_k1_per_pa,
+            k2: p.eggerth_k2_per_pa,
+            lambda: p.eggerth_lambda,
+            air: p.air_fraction,
+            p_atm: p.atmospheric_pressure_pa,
+            p_cav: p.cavitation_pressure_pa,
+        };
+        let friction = Friction {
+            viscous_n_s_m: p.friction_viscous_n_s_m,
+            coulomb_pos_n: p.friction_coulomb_pos_n,
+            coulomb_neg_n: p.friction_coulomb_neg_n,
+            static_n: p.friction_static_n,
+            stribeck_m_s: p.friction_stribeck_m_s,
+            smoothing_m_s: p.friction_smoothing_m_s,
+            pressure_coeff_n_per_pa: p.friction_pressure_coeff_n_per_pa,
+        };
+        let map = ValveMap::new(&p.valve_map_command_v, &p.valve_map_spool_v);
+        Ok(Plant { k_edge: p.valve_edge_coeff(), bulk, friction, map, target: 0.0, p })
+    }
+
+    /// Static part of the valve (amplifier clip, null bias, dead band, map, polarity):
+    /// the spool position the command asks for. `backlash` is the play operator's memory.
+    pub fn spool_target(&self, u: f64, backlash: &mut f64) -> f64 {
+        let p = &self.p;
+        let umax = p.valve_max_command_v;
+        let mut c = u.clamp(-umax, umax) + p.valve_null_bias_v;
+        let h = p.valve_hysteresis_half_width_v;
+        if h > 0.0 {
+            *backlash = backlash.clamp(c - h, c + h);
+            c = *backlash;
+        }
+        let w = p.valve_deadband_half_width_v;
+        if w > 0.0 {
+            c = c.signum() * (c.abs() - w).max(0.0);
+        }
+        (p.valve_polarity * self.map.eval(c)).clamp(-umax, umax)
+    }
+
+    /// Metering-edge flows for spool `xs`: (P->A, A->T, P->B, B->T) openings.
+    #[inline]
+    fn openings(&self, xs: f64) -> (f64, f64) {
+        let (xu, w) = (self.p.valve_underlap_v, self.p.valve_lap_smoothing_v);
+        (smooth_opening(xu + xs, w), smooth_opening(xu - xs, w))
+    }
+
+    #[inline]
+    fn edge(&self, a: f64, dp: f64) -> f64 {
+        if self.p.valve_linear_flow > 0.5 {
+            // flow proportional to opening at the nominal drop, no load-pressure feedback
+            let dp0 = 0.5 * (self.p.supply_pressure_pa - self.p.tank_pressure_pa);
+            self.k_edge * a * dp0.sqrt()
+        } else {
+            orifice_flow(self.k_edge, a, dp, self.p.valve_transition_dp_pa)
+        }
+    }
+
+    /// Supply pressure at the valve: p_s0, or with sag the root of p_s = p_s0 - R*Q_in(p_s).
+    fn supply(&self, open_pa: f64, open_pb: f64, pa: f64, pb: f64) -> f64 {
+        let p = &self.p;
+        let r = p.supply_resistance_pa_s_per_m3;
+        if r <= 0.0 {
+            return p.supply_pressure_pa;
+        }
+        let dpt = p.valve_transition_dp_pa;
+        let mut ps = p.supply_pressure_pa;
+        for _ in 0..4 {
+            let q = self.edge(open_pa, ps - pa) + self.edge(open_pb, ps - pb);
+            let dq = if p.valve_linear_flow > 0.5 {
+                0.0
+            } else {
+                orifice_flow_ddp(self.k_edge, open_pa, ps - pa, dpt) + orifice_flow_ddp(self.k_edge, open_pb, ps - pb, dpt)
+            };
+            ps -= (ps - p.supply_pressure_pa + r * q) / (1.0 + r * dq);
+        }
+        ps
+    }
+
+    /// Specimen force, tension positive [N]: the specimen is stretched as y rises above its
+    /// zero-force position and pulls the piston back down.
+    #[inline]
+    pub fn specimen_force(&self, y: f64) -> f64 {
+        self.p.specimen_stiffness_n_m * (y - self.p.specimen_zero_force_position_m)
+    }
+
+    pub fn outputs(&self, x: &[f64; NX]) -> Outputs {
+        let (o1, o2) = self.openings(x[SPOOL]);
+        Outputs {
+            y: x[Y],
+            v: x[V],
+            p_a: x[PA],
+            p_b: x[PB],
+            p_s: self.supply(o1, o2, x[PA], x[PB]),
+            f: self.specimen_force(x[Y]),
+            spool: x[SPOOL],
+        }
+    }
+
+    /// A state at rest at position `y`: chamber pressures centred between supply and tank and
+    /// split so that the hydraulic force carries gravity and the specimen.
+    pub fn rest_state(&self, y: f64) -> [f64; NX] {
+        let p = &self.p;
+        let load = p.moving_mass_kg * p.gravity_m_s2 + self.specimen_force(y);
+        let mid = 0.5 * (p.supply_pressure_pa + p.tank_pressure_pa);
+        let a = 0.5 * (p.area_a_m2 + p.area_b_m2);
+        let half = 0.5 * load / a;
+        let lo = p.tank_pressure_pa;
+        let hi = p.supply_pressure_pa;
+        [(mid + half).clamp(lo, hi), (mid - half).clamp(lo, hi), y, 0.0, 0.0]
+    }
+}
+
+impl OdeSystem<NX> for Plant {
+    #[inline]
+    fn rhs(&self, x: &[f64; NX], dx: &mut [f64; NX]) {
+        let p = &self.p;
+        let (pa, pb, y, v, xs) = (x[PA], x[PB], x[Y], x[V], x[SPOOL]);
+        // Valve (eq. 2.15-2.16, general underlapped form, NOTES item 4)
+        let (open_pa, open_at) = self.openings(xs);
+        let (open_pb, open_bt) = (open_at, open_pa);
+        let ps = self.supply(open_pa, open_pb, pa, pb);
+        let pt = p.tank_pressure_pa;
+        let qa = self.edge(open_pa, ps - pa) - self.edge(open_at, pa - pt);
+        let qb = self.edge(open_pb, ps - pb) - self.edge(open_bt, pb - pt);
+        let q_leak = p.leakage_coeff_m3_per_s_pa * (pa - pb);
+        // Chambers (eq. 2.20-2.22)
+        let va = p.dead_volume_a_m3 + p.area_a_m2 * y.clamp(0.0, p.stroke_m);
+        let vb = p.dead_volume_b_m3 + p.area_b_m2 * (p.stroke_m - y).clamp(0.0, p.stroke_m);
+        dx[PA] = self.bulk.at(pa) / va * (qa - p.area_a_m2 * v - q_leak);
+        dx[PB] = self.bulk.at(pb) / vb * (qb + p.area_b_m2 * v + q_leak);
+        // Piston (eq. 2.23, 2.27)
+        let f_h = p.area_a_m2 * pa - p.area_b_m2 * pb;
+        let f_f = self.friction.force(v, pa + pb);
+        let f_g = p.moving_mass_kg * p.gravity_m_s2;
+        let mut f_stop = 0.0;
+        if y < 0.0 {
+            f_stop = (-y * p.end_stop_stiffness_n_m - v * p.end_stop_damping_n_s_m).max(0.0);
+        } else if y > p.stroke_m {
+            f_stop = ((p.stroke_m - y) * p.end_stop_stiffness_n_m - v * p.end_stop_damping_n_s_m).min(0.0);
+        }
+        dx[Y] = v;
+        dx[V] = (f_h - f_f - f_g - self.specimen_force(y) + f_stop) / p.moving_mass_kg;
+        dx[SPOOL] = if p.valve_tau_s > 0.0 { (self.target - xs) / p.valve_tau_s } else { 0.0 };
+    }
+
+    fn error_weights(&self) -> ([f64; NX], [f64; NX]) {
+        // Positions are judged absolutely (the offset of y says nothing about force accuracy).
+        ([1.0, 1.0, 0.0, 1.0, 1.0], [1.0e5, 1.0e5, 1.0e-3, 1.0e-2, 1.0])
+    }
+}
+
+/// A plant with its state, integrator and valve memory: the object a control loop steps.
+#[derive(Debug, Clone)]
+pub struct Machine {
+    pub plant: Plant,
+    pub x: [f64; NX],
+    pub t: f64,
+    pub solver: Rodas4,
+    backlash: f64,
+}
+
+impl Machine {
+    /// A machine at rest at mid-stroke (or the specimen's zero-force position when one is fitted).
+    pub fn new(p: Params) -> Result<Self> {
+        let plant = Plant::new(p)?;
+        let y0 = if plant.p.specimen_stiffness_n_m > 0.0 { plant.p.specimen_zero_force_position_m } else { 0.5 * plant.p.stroke_m };
+        let x = plant.rest_state(y0);
+        Ok(Machine { plant, x, t: 0.0, solver: Rodas4::new(DEFAULT_RTOL), backlash: 0.0 })
+    }
+
+    pub fn with_rtol(mut self, rtol: f64) -> Result<Self> {
+        if !(rtol.is_finite() && rtol > 0.0 && rtol < 1.0) {
+            return Err(Error::Parameter { field: "rtol".into(), value: rtol, allowed: "(0, 1)".into() });
+        }
+        self.solver.rtol = rtol;
+        Ok(self)
+    }
+
+    /// Replace the state; rejects non-finite values and negative absolute pressures.
+    pub fn set_state(&mut self, x: [f64; NX]) -> Result<()> {
+        let names = ["p_a", "p_b", "y", "v", "spool"];
+        for (i, v) in x.iter().enumerate() {
+            if !v.is_finite() {
+                return Err(Error::Input(format!("state `{}` is {v}", names[i])));
+            }
+        }
+        for i in [PA, PB] {
+            if x[i] + self.plant.p.atmospheric_pressure_pa < 0.0 {
+                return Err(Error::Input(format!("state `{}` = {} Pa is below absolute zero", names[i], x[i])));
+            }
+        }
+        self.x = x;
+        Ok(())
+    }
+
+    /// Apply command `u` [V] held for `dt` [s]; returns the sensor readings at the end.
+    pub fn step(&mut self, u: f64, dt: f64) -> Result<Outputs> {
+        if !u.is_finite() {
+            return Err(Error::Input(format!("valve command is {u} at t = {:.6} s", self.t)));
+        }
+        if !(dt.is_finite() && dt > 0.0) {
+            return Err(Error::Input(format!("time step dt = {dt} s must be > 0")));
+        }
+        self.plant.target = self.plant.spool_target(u, &mut self.backlash);
+        if self.plant.p.valve_tau_s == 0.0 {
+            self.x[SPOOL] = self.plant.target;
+        }
+        self.solver.advance(&self.plant, &mut self.x, dt)?;
+        self.t += dt;
+        Ok(self.outputs())
+    }
+
+    pub fn outputs(&self) -> Outputs {
+        self.plant.outputs(&self.x)
+    }
+
+    pub fn stats(&self) -> Stats {
+        self.solver.stats
+    }
+}

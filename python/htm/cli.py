@@ -1,0 +1,170 @@
+"""The `htm` command. Every subcommand has --help; bad input ends with a one-line error, exit 2."""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from htm import profiles
+from htm._core import Machine, Params
+from htm.errors import HtmError
+from htm.ident.records import Record, write_record
+from htm.params import parse_assignments, rig_metadata, with_overrides
+
+LAWS = {
+    "position_pff": "u[k] = clip(kp*(y_ref[k]-y[k]) + kff*(y_ref[k+1]-y_ref[k])/Ts, -u_max, u_max)",
+    "force_p": "u[k] = clip(kp*(f_ref[k]-f[k]), -u_max, u_max)",
+}
+
+
+def _params(args: argparse.Namespace) -> Params:
+    overrides = parse_assignments(args.param or [])
+    if getattr(args, "specimen_stiffness_n_m", None) is not None:
+        overrides["specimen_stiffness_n_m"] = args.specimen_stiffness_n_m
+    return with_overrides(Params(args.preset), overrides)
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    params = _params(args)
+    dt = 1.0 / args.rate
+    signal = profiles.build(args.profile, args.rate)
+    m = Machine(params)
+    if args.start_position_m is not None:
+        if not 0.0 <= args.start_position_m <= params["stroke_m"]:
+            raise HtmError(f"--start-position-m {args.start_position_m} is outside the stroke [0, {params['stroke_m']}] m")
+        m.state = m.rest_state(args.start_position_m)
+    controller = None
+    t0 = time.perf_counter()
+    if args.controller == "open":
+        tr = m.simulate(signal, dt)
+    else:
+        if args.kp is None:
+            raise HtmError(f"--controller {args.controller} needs --kp")
+        if args.controller == "position_pff":
+            controller = {"type": "position_pff", "kp_v_per_m": args.kp, "kff_v_per_m_s": args.kff or 0.0, "u_max_v": args.u_max}
+        else:
+            controller = {"type": "force_p", "kp_v_per_n": args.kp, "u_max_v": args.u_max}
+        tr = m.track(signal, dt, controller)
+        controller["law"] = LAWS[args.controller]
+    wall = time.perf_counter() - t0
+
+    columns = {k: tr[k] for k in ("t", "u", "y", "v", "p_a", "p_b", "p_s")}
+    specimen = None
+    if params["specimen_stiffness_n_m"] > 0:
+        columns["f"] = tr["f"]
+        specimen = {"stiffness_n_m": params["specimen_stiffness_n_m"]}
+    if args.controller == "position_pff":
+        columns["y_ref"] = signal
+    elif args.controller == "force_p":
+        columns["f_ref"] = signal
+    meta = {
+        "sample_rate_hz": args.rate,
+        "rig": rig_metadata(params),
+        "specimen": specimen,
+        "controller": controller,
+        "sensors": {},
+        "source": "htm simulate (ideal sensors)",
+    }
+    table, meta_path = write_record(Record(columns, meta, Path(args.out).name), args.out, compress=args.gz)
+    _print_summary(tr, dt, wall, controller, signal)
+    print(f"record: {table} + {meta_path}")
+    return 0
+
+
+def _print_summary(tr: dict, dt: float, wall: float, controller: dict | None, signal: np.ndarray) -> None:
+    n = len(tr["t"])
+    dur = n * dt
+    st = tr["stats"]
+    rows = [
+        ("simulated", f"{dur:.3f} s, {n} samples at {1 / dt:.0f} Hz"),
+        ("valve command", f"{tr['u'].min():+.3f} .. {tr['u'].max():+.3f} V"),
+        ("position", f"{tr['y'].min() * 1e3:.3f} .. {tr['y'].max() * 1e3:.3f} mm"),
+        ("velocity", f"{tr['v'].min() * 1e3:+.1f} .. {tr['v'].max() * 1e3:+.1f} mm/s"),
+        ("pressure A", f"{tr['p_a'].min() / 1e5:.1f} .. {tr['p_a'].max() / 1e5:.1f} bar"),
+        ("pressure B", f"{tr['p_b'].min() / 1e5:.1f} .. {tr['p_b'].max() / 1e5:.1f} bar"),
+    ]
+    if np.any(tr["f"] != 0):
+        rows.append(("specimen force", f"{tr['f'].min() / 1e3:.3f} .. {tr['f'].max() / 1e3:.3f} kN"))
+    if controller and controller["type"] == "position_pff":
+        e = signal - tr["y"]
+        rows.append(("tracking error", f"RMS {np.sqrt(np.mean(e**2)) * 1e3:.3f} mm, max {np.abs(e).max() * 1e3:.3f} mm"))
+    if controller and controller["type"] == "force_p":
+        e = signal - tr["f"]
+        rows.append(("force error", f"RMS {np.sqrt(np.mean(e**2)):.1f} N, max {np.abs(e).max():.1f} N"))
+    rows.append(("solver", f"{st['accepted_steps']} steps ({st['rejected_steps']} rejected), {wall * 1e3:.1f} ms wall, "
+                           f"{dur / max(wall, 1e-9):.0f}x real time"))
+    w = max(len(k) for k, _ in rows)
+    for k, v in rows:
+        print(f"{k:<{w}}  {v}")
+
+
+def cmd_params(args: argparse.Namespace) -> int:
+    p = Params(args.preset)
+    for f in Params.fields():
+        print(f"{f['name']:<36} {p[f['name']]:>12.6g} {f['unit']:<11} {f['doc']}")
+    c, s = p.valve_map
+    if c:
+        print("valve map (command V -> spool V): " + ", ".join(f"{a:g}->{b:.4g}" for a, b in zip(c, s)))
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="htm", description="Simulate, run, identify and review servo-hydraulic fatigue testing machines.")
+    sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    s = sub.add_parser("simulate", help="play a command profile on the simulated rig and write a record",
+                       description="Play a command profile (open loop) or track a reference (closed loop) on the "
+                                   "simulated rig; write a DATA_FORMAT.md record (BASE.csv + BASE.json).",
+                       epilog="profile segments: " + "; ".join(
+                           ["hold:value=V,duration=S", "ramp:start=A,end=B,duration=S",
+                            "sine:amplitude=A,frequency=HZ,duration=S[,offset=O,phase=RAD]", "csv:path=FILE[,column=u]"]))
+    s.add_argument("--profile", action="append", required=True, help="profile segments joined by ';' (repeatable)")
+    s.add_argument("--out", required=True, help="record base path (writes OUT.csv and OUT.json; never overwrites)")
+    s.add_argument("--rate", type=float, default=500.0, help="sample / control rate in Hz (default 500)")
+    s.add_argument("--controller", choices=["open", "position_pff", "force_p"], default="open",
+                   help="open: the profile is the valve command [V]; position_pff: a position reference [m]; "
+                        "force_p: a force reference [N]")
+    s.add_argument("--kp", type=float, help="proportional gain (V/m or V/N); negative for the thesis rig's polarity")
+    s.add_argument("--kff", type=float, help="velocity feed-forward gain for position_pff [V/(m/s)]")
+    s.add_argument("--u-max", type=float, default=10.0, help="command clip [V] (default 10)")
+    s.add_argument("--specimen-stiffness-n-m", type=float, help="fit a linear specimen spring [N/m]")
+    s.add_argument("--start-position-m", type=float, help="start at rest at this position [m] (default mid-stroke)")
+    s.add_argument("--param", action="append", metavar="NAME=VALUE", help="override a machine parameter (SI; see `htm params`)")
+    s.add_argument("--preset", choices=["thesis", "base"], default="thesis", help="parameter preset (default thesis)")
+    s.add_argument("--gz", action="store_true", help="write the table gzip-compressed (OUT.csv.gz)")
+    s.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("params", help="list machine parameters with units, defaults and sources",
+                       description="List every machine parameter of a preset with its unit and source.")
+    p.add_argument("--preset", choices=["thesis", "base"], default="thesis")
+    p.set_defaults(func=cmd_params)
+
+    for register in _extensions():
+        register(sub)
+    return ap
+
+
+def _extensions() -> list[Callable[[argparse._SubParsersAction], None]]:
+    """Subcommand groups that live with their packages (each adds its own parsers)."""
+    return []
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    func: Callable[[argparse.Namespace], int] = args.func
+    try:
+        return func(args)
+    except HtmError as e:
+        print(f"htm {args.command}: error: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:
+        print(f"htm {args.command}: error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,113 @@
+"""Command profiles: sequences of holds, ramps, sines and CSV segments sampled at a fixed rate.
+
+A profile is written as segments `KIND:key=value,...` joined by `;` (or given one per CLI flag):
+
+- `hold:value=1.0,duration=0.5`           constant
+- `ramp:start=0,end=2,duration=1`         linear from start to end
+- `sine:amplitude=1,frequency=2,offset=0,duration=3[,phase=0]`
+- `csv:path=FILE[,column=u]`              samples taken as they are (one per period)
+
+Values are in the unit of the signal being profiled (V for a valve command, m for a position
+reference, N for a force reference).
+"""
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from htm.errors import InputError
+
+_KEYS = {
+    "hold": ({"value", "duration"}, set()),
+    "step": ({"value", "duration"}, set()),
+    "ramp": ({"start", "end", "duration"}, set()),
+    "sine": ({"amplitude", "frequency", "duration"}, {"offset", "phase"}),
+    "csv": ({"path"}, {"column"}),
+}
+
+
+def _parse_segment(text: str) -> tuple[str, dict[str, str]]:
+    kind, _, rest = text.strip().partition(":")
+    kind = kind.strip().lower()
+    if kind not in _KEYS:
+        raise InputError(f"profile segment `{text}`: unknown kind `{kind}` (use {', '.join(_KEYS)})")
+    args: dict[str, str] = {}
+    for part in filter(None, (p.strip() for p in rest.split(","))):
+        k, sep, v = part.partition("=")
+        if not sep:
+            raise InputError(f"profile segment `{text}`: expected key=value, got `{part}`")
+        args[k.strip()] = v.strip()
+    required, optional = _KEYS[kind]
+    missing = required - args.keys()
+    unknown = args.keys() - required - optional
+    if missing:
+        raise InputError(f"profile segment `{text}`: missing {', '.join(sorted(missing))}")
+    if unknown:
+        raise InputError(f"profile segment `{text}`: unknown key(s) {', '.join(sorted(unknown))}")
+    return kind, args
+
+
+def _num(args: dict[str, str], key: str, text: str, positive: bool = False) -> float:
+    try:
+        v = float(args[key])
+    except ValueError:
+        raise InputError(f"profile segment `{text}`: {key} = `{args[key]}` is not a number") from None
+    if not np.isfinite(v) or (positive and v <= 0):
+        raise InputError(f"profile segment `{text}`: {key} = {v} must be {'> 0' if positive else 'finite'}")
+    return v
+
+
+def _read_csv(path: str, column: str | None, text: str) -> np.ndarray:
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"profile segment `{text}`: no file {p}")
+    with p.open(newline="") as fh:
+        rows = list(csv.reader(fh))
+    if len(rows) < 2:
+        raise InputError(f"profile segment `{text}`: {p} has no data rows")
+    header = [h.strip() for h in rows[0]]
+    col = column or ("u" if "u" in header else header[-1])
+    if col not in header:
+        raise InputError(f"profile segment `{text}`: {p} has no column `{col}` (columns: {', '.join(header)})")
+    i = header.index(col)
+    try:
+        values = np.array([float(r[i]) for r in rows[1:] if r], dtype=float)
+    except (ValueError, IndexError):
+        raise InputError(f"profile segment `{text}`: column `{col}` of {p} is not numeric") from None
+    if not np.all(np.isfinite(values)):
+        raise InputError(f"profile segment `{text}`: column `{col}` of {p} holds NaN or inf")
+    return values
+
+
+def build(spec: str | list[str], rate_hz: float) -> np.ndarray:
+    """Sample the profile at `rate_hz`; one value per control period."""
+    if not (np.isfinite(rate_hz) and rate_hz > 0):
+        raise InputError(f"sample rate {rate_hz} Hz must be > 0")
+    segments = spec.split(";") if isinstance(spec, str) else [s for item in spec for s in item.split(";")]
+    segments = [s for s in segments if s.strip()]
+    if not segments:
+        raise InputError("empty command profile")
+    dt = 1.0 / rate_hz
+    parts: list[np.ndarray] = []
+    for text in segments:
+        kind, a = _parse_segment(text)
+        if kind == "csv":
+            parts.append(_read_csv(a["path"], a.get("column"), text))
+            continue
+        n = int(round(_num(a, "duration", text, positive=True) / dt))
+        if n < 1:
+            raise InputError(f"profile segment `{text}`: duration shorter than one sample period ({dt} s)")
+        tk = np.arange(n) * dt
+        if kind in ("hold", "step"):
+            parts.append(np.full(n, _num(a, "value", text)))
+        elif kind == "ramp":
+            s0, s1 = _num(a, "start", text), _num(a, "end", text)
+            parts.append(s0 + (s1 - s0) * tk / (n * dt))
+        else:
+            amp, freq = _num(a, "amplitude", text), _num(a, "frequency", text, positive=True)
+            off = _num(a, "offset", text) if "offset" in a else 0.0
+            ph = _num(a, "phase", text) if "phase" in a else 0.0
+            parts.append(off + amp * np.sin(2 * np.pi * freq * tk + ph))
+    return np.concatenate(parts)

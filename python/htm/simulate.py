@@ -1,0 +1,35 @@
+"""Whole-run simulation helpers over the Rust plant: numpy in, numpy out, GIL released inside."""
+from __future__ import annotations
+
+from typing import Any, Mapping
+
+import numpy as np
+
+from htm._core import Machine, Params
+
+
+def _machine(params: Params | None, rtol: float | None, state: np.ndarray | None) -> Machine:
+    m = Machine(params, rtol)
+    if state is not None:
+        m.state = np.asarray(state, dtype=float)
+    return m
+
+
+def simulate(u: np.ndarray, dt: float, params: Params | None = None, *, rtol: float | None = None,
+             state: np.ndarray | None = None) -> dict[str, Any]:
+    """Play valve commands `u` [V], each held for `dt` [s], open loop.
+
+    Returns arrays `t, u, y, v, p_a, p_b, p_s, f` (sample k read at t[k] before u[k] is applied)
+    and solver `stats`. Starts at rest at mid-stroke unless `state` is given.
+    """
+    return _machine(params, rtol, state).simulate(np.ascontiguousarray(u, dtype=float), float(dt))
+
+
+def track(reference: np.ndarray, dt: float, controller: Mapping[str, Any], params: Params | None = None, *,
+          rtol: float | None = None, state: np.ndarray | None = None) -> dict[str, Any]:
+    """Track `reference` (m for `position_pff`, N for `force_p`) in closed loop at period `dt` [s].
+
+    `controller` is the DATA_FORMAT `controller` mapping, e.g.
+    ``{"type": "position_pff", "kp_v_per_m": -150, "kff_v_per_m_s": -14.3, "u_max_v": 10}``.
+    """
+    return _machine(params, rtol, state).track(np.ascontiguousarray(reference, dtype=float), float(dt), dict(controller))
