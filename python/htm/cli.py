@@ -30,6 +30,8 @@ def _params(args: argparse.Namespace) -> Params:
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     params = _params(args)
+    if not (np.isfinite(args.rate) and 0 < args.rate <= 1e5):
+        raise HtmError(f"--rate {args.rate} Hz is out of range: allowed (0, 100000] Hz")
     dt = 1.0 / args.rate
     signal = profiles.build(args.profile, args.rate)
     m = Machine(params)

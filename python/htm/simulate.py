@@ -33,3 +33,24 @@ def track(reference: np.ndarray, dt: float, controller: Mapping[str, Any], param
     ``{"type": "position_pff", "kp_v_per_m": -150, "kff_v_per_m_s": -14.3, "u_max_v": 10}``.
     """
     return _machine(params, rtol, state).track(np.ascontiguousarray(reference, dtype=float), float(dt), dict(controller))
+
+
+def steady_velocity(u: float, params: Params | None = None, *, settle_s: float = 0.06, window_s: float = 0.02,
+                    dt: float = 1e-3) -> float:
+    """Steady piston velocity [m/s] under constant command `u` [V], open loop (thesis Table 3.3).
+
+    The piston starts at rest near the end it moves away from, so the whole stroke is available;
+    the velocity is averaged over the last `window_s` of `settle_s`.
+    """
+    p = params or Params()
+    stroke = p["stroke_m"]
+    # Probe the direction with a short run from mid-stroke, then restart from the far end.
+    probe = Machine(p)
+    probe.state = probe.rest_state(0.5 * stroke)
+    v0 = probe.simulate(np.full(20, float(u)), dt)["v"][-1]
+    m = Machine(p)
+    m.state = m.rest_state(0.02 * stroke if v0 >= 0 else 0.98 * stroke)
+    n = int(round(settle_s / dt))
+    tr = m.simulate(np.full(n, float(u)), dt)
+    k = int(round(window_s / dt))
+    return float(np.mean(tr["v"][-k:]))

@@ -272,3 +272,31 @@ impl Machine {
         self.solver.stats
     }
 }
+
+#[cfg(test)]
+mod debug_tests {
+    use super::*;
+    #[test]
+    fn dbg_err_scaling() {
+        let mut p = Params::default();
+        p.specimen_stiffness_n_m = 1.04e8;
+        let mut m = Machine::new(p).unwrap();
+        m.x = m.plant.rest_state(0.1 + 20e3 / 1.04e8);
+        m.plant.target = m.plant.spool_target(-0.2, &mut 0.0);
+        m.x[SPOOL] = m.plant.target;
+        let mut f0 = [0.0; NX];
+        m.plant.rhs(&m.x, &mut f0);
+        let mut jac = [[0.0; NX]; NX];
+        m.plant.jacobian(&m.x, &f0, &mut jac);
+        eprintln!("f0 {:?}", f0);
+        for r in jac.iter() { eprintln!("{:?}", r); }
+        for h in [1e-3, 1e-4, 1e-5, 1e-6, 1e-7] {
+            let mut s = Rodas4::new(1e-6);
+            let mut x = m.x;
+            s.fixed_step = Some(h);
+            let (xn, err) = s.step(&m.plant, &x, &f0, &jac, h);
+            eprintln!("h {h:e} err {:?} dx {:?}", err, [xn[0]-x[0], xn[1]-x[1], xn[2]-x[2], xn[3]-x[3]]);
+            x[0] += 0.0;
+        }
+    }
+}

@@ -131,7 +131,7 @@ impl Rodas4 {
         Ok(())
     }
 
-    fn step<const N: usize, S: OdeSystem<N>>(&mut self, sys: &S, x: &[f64; N], f0: &[f64; N], jac: &[[f64; N]; N], h: f64) -> ([f64; N], [f64; N]) {
+    pub(crate) fn step<const N: usize, S: OdeSystem<N>>(&mut self, sys: &S, x: &[f64; N], f0: &[f64; N], jac: &[[f64; N]; N], h: f64) -> ([f64; N], [f64; N]) {
         // G = I/(h*gamma) - J, factorised once per step.
         let mut g = [[0.0; N]; N];
         for i in 0..N {
@@ -206,8 +206,11 @@ fn lu_factor<const N: usize>(a: &mut [[f64; N]; N]) -> [usize; N] {
 }
 
 fn lu_solve<const N: usize>(lu: &[[f64; N]; N], piv: &[usize; N], b: &mut [f64; N]) {
+    // Rows were swapped whole during factorisation, so apply every interchange first.
     for k in 0..N {
         b.swap(k, piv[k]);
+    }
+    for k in 0..N {
         for i in k + 1..N {
             b[i] -= lu[i][k] * b[k];
         }
@@ -223,6 +226,24 @@ fn lu_solve<const N: usize>(lu: &[[f64; N]; N], piv: &[usize; N], b: &mut [f64; 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn lu_solves_systems_that_need_pivoting() {
+        let a0 = [[1e-3, 2.0, 3.0, 0.5], [4.0, 1e-4, 6.0, 1.0], [7.0, 8.0, 1e-5, 2.0], [1.0, 9.0, 2.0, 1e-6]];
+        let x_true = [1.0, -2.0, 3.0, -4.0];
+        let mut b = [0.0; 4];
+        for i in 0..4 {
+            for j in 0..4 {
+                b[i] += a0[i][j] * x_true[j];
+            }
+        }
+        let mut a = a0;
+        let piv = lu_factor(&mut a);
+        lu_solve(&a, &piv, &mut b);
+        for i in 0..4 {
+            assert!((b[i] - x_true[i]).abs() < 1e-9, "{b:?}");
+        }
+    }
 
     /// Van der Pol-like stiff test plus a harmonic oscillator: x'' = -w^2 x.
     struct Osc(f64);
