@@ -3,9 +3,10 @@
 //! command sample at a time.
 use crate::error::{Error, Result};
 use crate::friction::Friction;
-use crate::hydraulics::{orifice_flow, orifice_flow_ddp, smooth_opening, BulkModulus, ValveMap};
+use crate::friction::sig;
+use crate::hydraulics::{orifice_flow, orifice_flow_ddp, smooth_opening, smooth_opening_dx, BulkModulus, ValveMap};
 use crate::params::Params;
-use crate::solver::{OdeSystem, Rodas4, Stats};
+use crate::solver::{fd_jacobian, OdeSystem, Rodas4, Stats};
 
 /// State vector layout.
 pub const PA: usize = 0;
@@ -197,6 +198,74 @@ impl OdeSystem<NX> for Plant {
         dx[SPOOL] = if p.valve_tau_s > 0.0 { (self.target - xs) / p.valve_tau_s } else { 0.0 };
     }
 
+    /// Analytic Jacobian (finite differences only with supply sag, whose p_s is implicit).
+    fn jacobian(&self, x: &[f64; NX], f0: &[f64; NX], jac: &mut [[f64; NX]; NX]) -> u64 {
+        let p = &self.p;
+        if p.supply_resistance_pa_s_per_m3 > 0.0 {
+            return fd_jacobian(self, x, f0, jac);
+        }
+        let (pa, pb, y, v, xs) = (x[PA], x[PB], x[Y], x[V], x[SPOOL]);
+        let (xu, w) = (p.valve_underlap_v, p.valve_lap_smoothing_v);
+        let (o1, o2) = (smooth_opening(xu + xs, w), smooth_opening(xu - xs, w));
+        let (do1, do2) = (smooth_opening_dx(xu + xs, w), -smooth_opening_dx(xu - xs, w));
+        let (ps, pt, k, dpt) = (p.supply_pressure_pa, p.tank_pressure_pa, self.k_edge, p.valve_transition_dp_pa);
+        let linear = p.valve_linear_flow > 0.5;
+        // flow per unit opening and its pressure derivative for one edge
+        let per_open = |dp: f64| if linear { k * (0.5 * (ps - pt)).sqrt() } else { orifice_flow(k, 1.0, dp, dpt) };
+        let ddp = |a: f64, dp: f64| if linear { 0.0 } else { orifice_flow_ddp(k, a, dp, dpt) };
+        let qa = o1 * per_open(ps - pa) - o2 * per_open(pa - pt);
+        let qb = o2 * per_open(ps - pb) - o1 * per_open(pb - pt);
+        let dqa_dpa = -ddp(o1, ps - pa) - ddp(o2, pa - pt);
+        let dqb_dpb = -ddp(o2, ps - pb) - ddp(o1, pb - pt);
+        let dqa_dxs = per_open(ps - pa) * do1 - per_open(pa - pt) * do2;
+        let dqb_dxs = per_open(ps - pb) * do2 - per_open(pb - pt) * do1;
+        let c = p.leakage_coeff_m3_per_s_pa;
+        let ql = c * (pa - pb);
+        let inside = y > 0.0 && y < p.stroke_m;
+        let va = p.dead_volume_a_m3 + p.area_a_m2 * y.clamp(0.0, p.stroke_m);
+        let vb = p.dead_volume_b_m3 + p.area_b_m2 * (p.stroke_m - y).clamp(0.0, p.stroke_m);
+        let (dva, dvb) = if inside { (p.area_a_m2, -p.area_b_m2) } else { (0.0, 0.0) };
+        let dbeta = |pp: f64| {
+            let h = 1e-6 * (pp.abs() + p.atmospheric_pressure_pa);
+            (self.bulk.at(pp + h) - self.bulk.at(pp - h)) / (2.0 * h)
+        };
+        let (ba, bb) = (self.bulk.at(pa), self.bulk.at(pb));
+        let na = qa - p.area_a_m2 * v - ql;
+        let nb = qb + p.area_b_m2 * v + ql;
+        jac[PA] = [dbeta(pa) / va * na + ba / va * (dqa_dpa - c), ba / va * c, -ba * na / (va * va) * dva, -ba * p.area_a_m2 / va, ba / va * dqa_dxs];
+        jac[PB] = [bb / vb * c, dbeta(pb) / vb * nb + bb / vb * (dqb_dpb - c), -bb * nb / (vb * vb) * dvb, bb * p.area_b_m2 / vb, bb / vb * dqb_dxs];
+        jac[Y] = [0.0, 0.0, 0.0, 1.0, 0.0];
+        // friction derivatives
+        let fr = &self.friction;
+        let eps = fr.smoothing_m_s;
+        let s = sig(v, eps);
+        let ds = eps / ((v.abs() + eps) * (v.abs() + eps));
+        let mean = 0.5 * (fr.coulomb_pos_n + fr.coulomb_neg_n);
+        let half = 0.5 * (fr.coulomb_pos_n - fr.coulomb_neg_n);
+        let e = fr.static_n * (-v.abs() / fr.stribeck_m_s).exp();
+        let level = mean + half * s + fr.pressure_coeff_n_per_pa * (pa + pb) + e;
+        let dff_dv = fr.viscous_n_s_m + ds * level + s * (half * ds - e * v.signum() / fr.stribeck_m_s);
+        let dff_dpsum = fr.pressure_coeff_n_per_pa * s;
+        let (mut dstop_dy, mut dstop_dv) = (0.0, 0.0);
+        if (y < 0.0 && -y * p.end_stop_stiffness_n_m - v * p.end_stop_damping_n_s_m > 0.0)
+            || (y > p.stroke_m && (p.stroke_m - y) * p.end_stop_stiffness_n_m - v * p.end_stop_damping_n_s_m < 0.0)
+        {
+            dstop_dy = -p.end_stop_stiffness_n_m;
+            dstop_dv = -p.end_stop_damping_n_s_m;
+        }
+        let m = p.moving_mass_kg;
+        jac[V] = [
+            (p.area_a_m2 - dff_dpsum) / m,
+            (-p.area_b_m2 - dff_dpsum) / m,
+            (-p.specimen_stiffness_n_m + dstop_dy) / m,
+            (-dff_dv + dstop_dv) / m,
+            0.0,
+        ];
+        jac[SPOOL] = [0.0, 0.0, 0.0, 0.0, if p.valve_tau_s > 0.0 { -1.0 / p.valve_tau_s } else { 0.0 }];
+        let _ = f0;
+        0
+    }
+
     fn error_weights(&self) -> ([f64; NX], [f64; NX]) {
         // Positions are judged absolutely (the offset of y says nothing about force accuracy).
         ([1.0, 1.0, 0.0, 1.0, 1.0], [1.0e5, 1.0e5, 1.0e-3, 1.0e-2, 1.0])
@@ -274,29 +343,62 @@ impl Machine {
 }
 
 #[cfg(test)]
-mod debug_tests {
+mod tests {
     use super::*;
+
+    fn check(p: Params, states: &[[f64; NX]], target: f64) {
+        let mut plant = Plant::new(p).unwrap();
+        plant.target = target;
+        for x in states {
+            let mut f0 = [0.0; NX];
+            plant.rhs(x, &mut f0);
+            let (mut ja, mut jf) = ([[0.0; NX]; NX], [[0.0; NX]; NX]);
+            plant.jacobian(x, &f0, &mut ja);
+            // central differences as the yardstick
+            for j in 0..NX {
+                let h = 1e-6 * x[j].abs().max([1e3, 1e3, 1e-6, 1e-6, 1e-6][j]);
+                let (mut xp, mut xm) = (*x, *x);
+                xp[j] += h;
+                xm[j] -= h;
+                let (mut fp, mut fm) = ([0.0; NX], [0.0; NX]);
+                plant.rhs(&xp, &mut fp);
+                plant.rhs(&xm, &mut fm);
+                for i in 0..NX {
+                    jf[i][j] = (fp[i] - fm[i]) / (2.0 * h);
+                }
+            }
+            for i in 0..NX {
+                let row_scale = jf[i].iter().map(|v| v.abs()).fold(0.0, f64::max).max(1e-9);
+                for j in 0..NX {
+                    assert!((ja[i][j] - jf[i][j]).abs() <= 1e-4 * jf[i][j].abs() + 1e-8 * row_scale,
+                        "d f{i}/d x{j}: analytic {} vs numeric {} at {x:?}", ja[i][j], jf[i][j]);
+                }
+            }
+        }
+    }
+
     #[test]
-    fn dbg_err_scaling() {
+    fn analytic_jacobian_matches_differences_with_every_effect() {
+        let states = [
+            [1.35e7, 5.5e6, 0.1002, 3e-3, 0.02],
+            [9.5e6, 9.4e6, 0.05, -0.2, -1.3],
+            [1.8e7, 2e5, 0.19, 0.45, 4.0],
+            [5e4, 1.85e7, 0.01, -2e-4, -0.01],
+        ];
         let mut p = Params::default();
         p.specimen_stiffness_n_m = 1.04e8;
-        let mut m = Machine::new(p).unwrap();
-        m.x = m.plant.rest_state(0.1 + 20e3 / 1.04e8);
-        m.plant.target = m.plant.spool_target(-0.2, &mut 0.0);
-        m.x[SPOOL] = m.plant.target;
-        let mut f0 = [0.0; NX];
-        m.plant.rhs(&m.x, &mut f0);
-        let mut jac = [[0.0; NX]; NX];
-        m.plant.jacobian(&m.x, &f0, &mut jac);
-        eprintln!("f0 {:?}", f0);
-        for r in jac.iter() { eprintln!("{:?}", r); }
-        for h in [1e-3, 1e-4, 1e-5, 1e-6, 1e-7] {
-            let mut s = Rodas4::new(1e-6);
-            let mut x = m.x;
-            s.fixed_step = Some(h);
-            let (xn, err) = s.step(&m.plant, &x, &f0, &jac, h);
-            eprintln!("h {h:e} err {:?} dx {:?}", err, [xn[0]-x[0], xn[1]-x[1], xn[2]-x[2], xn[3]-x[3]]);
-            x[0] += 0.0;
-        }
+        check(p.clone(), &states, 0.3);
+        p.valve_tau_s = 0.005;
+        p.leakage_coeff_m3_per_s_pa = 1e-11;
+        p.friction_coulomb_pos_n = 900.0;
+        p.friction_coulomb_neg_n = 600.0;
+        p.friction_pressure_coeff_n_per_pa = 1e-5;
+        p.air_fraction = 0.01;
+        check(p.clone(), &states, -0.7);
+        p.valve_linear_flow = 1.0;
+        p.eggerth_k1_per_pa = 1.0 / 1.6e9;
+        p.eggerth_k2_per_pa = 1e-10;
+        p.eggerth_lambda = 1.0;
+        check(p, &states, 1.1);
     }
 }
