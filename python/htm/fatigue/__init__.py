@@ -1,0 +1,1 @@
+"""ASTM E647 reduction, crack-growth law fitting, closing-the-loop analysis and test reports."""
