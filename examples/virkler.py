@@ -55,7 +55,7 @@ def main() -> int:
             ["RMS life error, per-specimen life fits (N(a) over the whole test)", pct(s["life_fit_rms_rel_before"]), pct(s["life_fit_rms_rel_after"])],
             ["life predicted from first 20 %: RMS error, shape from the other 39 specimens, C from own data",
              pct(s["prediction_rms_rel_loo_paris"]), pct(s["prediction_rms_rel_loo_after"])],
-            ["life predicted from first 20 %: mean |error|, same", pct(s["prediction_mean_abs_rel_loo_paris"]), pct(s["prediction_mean_abs_rel_loo_after"])],
+            ["life predicted from first 20 %: mean abs error, same", pct(s["prediction_mean_abs_rel_loo_paris"]), pct(s["prediction_mean_abs_rel_loo_after"])],
             ["life predicted from first 20 %: RMS error, Paris C and m from own first 20 % only", pct(s["prediction_rms_rel_own_paris"]), "-"],
         ]), "",
         "## Residual structure (Paris, pooled)", "",
