@@ -152,7 +152,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _extensions() -> list[Callable[[argparse._SubParsersAction], None]]:
     """Subcommand groups that live with their packages (each adds its own parsers)."""
-    return []
+    from htm.fatigue import cli as fatigue_cli
+
+    return [fatigue_cli.register]
 
 
 def main(argv: Sequence[str] | None = None) -> int:

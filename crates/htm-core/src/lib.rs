@@ -1,6 +1,7 @@
 //! htm-core: the numerics of htm. Pure Rust over plain structs and slices; the `python`
 //! feature adds thin pyo3 bindings that own no logic.
 pub mod control;
+pub mod crack;
 pub mod error;
 pub mod friction;
 pub mod hydraulics;
@@ -8,6 +9,7 @@ pub mod machine;
 pub mod params;
 pub mod run;
 pub mod solver;
+pub mod specimen;
 
 #[cfg(feature = "python")]
 mod python;

@@ -12,8 +12,11 @@ use crate::run::{self, Trace};
 use crate::solver::{OdeSystem, Stats};
 use crate::Error;
 
+mod fatigue;
+
 // Submodules add their own classes and functions here.
-pub(crate) fn register_extensions(_m: &Bound<'_, PyModule>) -> PyResult<()> {
+pub(crate) fn register_extensions(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    fatigue::register(m)?;
     Ok(())
 }
 

@@ -1,0 +1,272 @@
+"""Reports: plots (matplotlib, Agg), the E647 reduction report, and the fatigue test report
+(Table B.1-style table, a–N, da/dN–ΔK with the fitted law, ±2 % force-band statistics, specimen and
+loading data, validity summary) in Markdown and standalone HTML with embedded plots."""
+from __future__ import annotations
+
+import base64
+import csv
+import html
+import io
+from pathlib import Path
+
+import numpy as np
+
+from htm.fatigue.data import CrackData, Setup
+from htm.fatigue.e647 import Reduced, paris_region_ii, reduce, summary, threshold
+from htm.fatigue.laws import Model, Points, fit_rate
+
+REDUCED_COLUMNS = ("cycles", "a_m", "a_fit_m", "dadn_m_per_cycle", "delta_k_mpa_sqrt_m", "kmax_mpa_sqrt_m", "valid", "reasons")
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def write_reduced_csv(path: Path, reds: list[Reduced], with_specimen: bool) -> None:
+    cols = (("specimen",) if with_specimen else ()) + REDUCED_COLUMNS
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(cols)
+        for rd in reds:
+            for i in range(len(rd)):
+                row = [f"{rd.cycles[i]:.10g}", f"{rd.a_m[i]:.9g}", _g(rd.a_fit_m[i]), _g(rd.dadn_m_per_cycle[i]),
+                       _g(rd.delta_k_pa_sqrt_m[i] / 1e6), _g(rd.kmax_pa_sqrt_m[i] / 1e6), int(rd.valid[i]), rd.reasons[i]]
+                w.writerow(([rd.specimen] if with_specimen else []) + row)
+
+
+def _g(v: float) -> str:
+    return "" if not np.isfinite(v) else f"{v:.9g}"
+
+
+def plot_a_n(path: Path, datas: list[CrackData], reds: list[Reduced] | None = None, model: Model | None = None,
+             setup: Setup | None = None) -> Path:
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    for d in datas:
+        ax.plot(d.cycles, d.a_m * 1e3, ".", ms=2.5, label=None if len(datas) > 6 else f"specimen {d.specimen}")
+        if model is not None and setup is not None:
+            try:
+                curve = model.life_curve(setup, d.a_m)
+                ok = np.isfinite(curve)
+                ax.plot(d.cycles[0] + curve[ok], d.a_m[ok] * 1e3, "-", lw=0.8, color="k", alpha=0.6)
+            except Exception:  # noqa: BLE001 — plot what can be drawn
+                pass
+    ax.set_xlabel("cycles N")
+    ax.set_ylabel("crack size a [mm]")
+    ax.grid(alpha=0.3)
+    if len(datas) <= 6:
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_dadn_dk(path: Path, reds: list[Reduced], models: dict[str, Model] | None = None, r_ratio: float = 0.0,
+                 band: float | None = None) -> Path:
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6.4, 4.6))
+    for rd in reds:
+        m = rd.mask(False)
+        v = m & rd.valid
+        ax.loglog(rd.delta_k_pa_sqrt_m[v] / 1e6, rd.dadn_m_per_cycle[v], ".", ms=2.5, color="C0")
+        ax.loglog(rd.delta_k_pa_sqrt_m[m & ~rd.valid] / 1e6, rd.dadn_m_per_cycle[m & ~rd.valid], "x", ms=3, color="C3")
+    allk = np.concatenate([rd.delta_k_pa_sqrt_m[rd.mask(False)] for rd in reds])
+    allkm = np.concatenate([rd.kmax_pa_sqrt_m[rd.mask(False)] for rd in reds])
+    if models and allk.size:
+        dk = np.geomspace(allk.min(), allk.max(), 200)
+        km = dk * allkm.max() / allk.max()
+        for i, (name, mod) in enumerate(models.items()):
+            rate = mod.rate(dk, km, r_ratio)
+            ax.loglog(dk / 1e6, rate, "-", color=f"C{i + 1}", lw=1.5, label=name)
+            if band:
+                ax.fill_between(dk / 1e6, rate * 10 ** -band, rate * 10 ** band, color=f"C{i + 1}", alpha=0.12)
+        ax.legend(fontsize=8)
+    ax.set_xlabel("ΔK [MPa·√m]")
+    ax.set_ylabel("da/dN [m/cycle]")
+    ax.grid(alpha=0.3, which="both")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_residual(path: Path, x: np.ndarray, r: np.ndarray, bins: list[dict], xlabel: str, bins_after: list[dict] | None = None) -> Path:
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6.4, 3.8))
+    ax.plot(x, r, ".", ms=1.5, alpha=0.3, color="0.5")
+    ax.errorbar([b["x_mean"] for b in bins], [b["residual_mean"] for b in bins],
+                yerr=[2 * b["residual_se"] for b in bins], fmt="o-", color="C3", label="Paris: binned mean ± 2 SE")
+    if bins_after:
+        ax.errorbar([b["x_mean"] for b in bins_after], [b["residual_mean"] for b in bins_after],
+                    yerr=[2 * b["residual_se"] for b in bins_after], fmt="s-", color="C2", label="refit law")
+    ax.axhline(0, color="k", lw=0.8)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("log10(measured / model) da/dN")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def md_table(header: list[str], rows: list[list]) -> str:
+    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    out += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
+    return "\n".join(out)
+
+
+def markdown_to_html(md: str, images: dict[str, Path], title: str) -> str:
+    """Minimal Markdown (headings, tables, lists, paragraphs, images) to standalone HTML; images are
+    embedded as base64 PNG."""
+    body: list[str] = []
+    lines = md.splitlines()
+    i = 0
+    while i < len(lines):
+        ln = lines[i]
+        if ln.startswith("|"):
+            rows = []
+            while i < len(lines) and lines[i].startswith("|"):
+                if not set(lines[i].replace("|", "").strip()) <= set("-: "):
+                    rows.append([c.strip() for c in lines[i].strip().strip("|").split("|")])
+                i += 1
+            body.append("<table>" + "".join(
+                "<tr>" + "".join(f"<{'th' if j == 0 else 'td'}>{html.escape(c)}</{'th' if j == 0 else 'td'}>" for c in r) + "</tr>"
+                for j, r in enumerate(rows)) + "</table>")
+            continue
+        if ln.startswith("!["):
+            name = ln[ln.index("(") + 1:ln.index(")")]
+            p = images.get(name)
+            if p is not None and Path(p).exists():
+                data = base64.b64encode(Path(p).read_bytes()).decode()
+                body.append(f'<p><img alt="{html.escape(name)}" src="data:image/png;base64,{data}"></p>')
+        elif ln.startswith("#"):
+            lvl = len(ln) - len(ln.lstrip("#"))
+            body.append(f"<h{lvl}>{html.escape(ln[lvl:].strip())}</h{lvl}>")
+        elif ln.startswith("- "):
+            body.append(f"<ul><li>{html.escape(ln[2:])}</li></ul>")
+        elif ln.strip():
+            body.append(f"<p>{html.escape(ln)}</p>")
+        i += 1
+    css = ("body{font-family:sans-serif;max-width:60em;margin:2em auto;}table{border-collapse:collapse;font-size:90%}"
+           "td,th{border:1px solid #bbb;padding:2px 6px;text-align:right}img{max-width:100%}")
+    return f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title><style>{css}</style></head><body>{''.join(body)}</body></html>"
+
+
+def e647_report(out: Path, datas: list[CrackData], setup: Setup, reds: list[Reduced], n: int) -> Path:
+    """Write DIR/report.md (and plots) for an `htm e647` reduction."""
+    out = Path(out)
+    a_n = plot_a_n(out / "a_n.png", datas)
+    pf = None
+    try:
+        pf = paris_region_ii(reds)
+    except Exception:  # noqa: BLE001 — too few valid points for a fit: the report says so
+        pass
+    models = {}
+    if pf is not None:
+        models["Paris (region II, valid points)"] = Model("paris", {"log10_c": np.log10(pf.c_mpa), "m": pf.m})
+    dadn = plot_dadn_dk(out / "dadn_dk.png", reds, models, setup.r_ratio)
+    lines = ["# ASTM E647 reduction", "", "## Specimen and loading", "",
+             md_table(["quantity", "value"], [
+                 ["geometry", setup.geometry.upper()], ["W [mm]", f"{setup.width_m * 1e3:.3f}"],
+                 ["B [mm]", f"{setup.thickness_m * 1e3:.3f}"], ["ΔP [kN]", f"{setup.delta_p_n / 1e3:.4g}"],
+                 ["Pmax [kN]", f"{setup.pmax_n / 1e3:.4g}"], ["R", f"{setup.r_ratio:g}"],
+                 ["method", f"incremental polynomial, n = {n} ({2 * n + 1} points)"],
+                 ["σ_ys", f"{setup.yield_strength_pa / 1e6:g} MPa" if setup.yield_strength_pa else "not given (size criterion not checked)"]]),
+             "", "## Validity", ""]
+    rows = []
+    for rd in reds:
+        s = summary(rd)
+        th = threshold(rd)
+        rows.append([rd.specimen, s["points"], s["valid"], ", ".join(f"{k}: {v}" for k, v in sorted(s["reasons"].items())) or "-",
+                     f"{th['delta_k_th_pa_sqrt_m'] / 1e6:.3g} MPa·√m" if th["reached"] else "not reached"])
+    lines += [md_table(["specimen", "points", "valid", "invalid reasons", "ΔK_th (E647)"], rows), ""]
+    if pf is not None:
+        lines += ["## Region-II Paris fit", "",
+                  f"da/dN = C·ΔK^m with C = {pf.c_mpa:.4e} (m/cycle)/(MPa·√m)^m (log10 C ± {pf.se_log10_c:.3g}), "
+                  f"m = {pf.m:.4f} ± {pf.se_m:.3g}; {pf.npoints} points, ΔK {pf.dk_range_mpa[0]:.3g}–{pf.dk_range_mpa[1]:.3g} MPa·√m, "
+                  f"RMS log10 error {pf.rms_log10:.4f}.", ""]
+    lines += ["## Plots", "", f"![a-N]({a_n.name})", "", f"![da/dN-dK]({dadn.name})", ""]
+    p = out / "report.md"
+    p.write_text("\n".join(lines))
+    return p
+
+
+def force_band(pmax_meas: np.ndarray, pmin_meas: np.ndarray, pmax_n: float, pmin_n: float, band: float = 0.02) -> dict:
+    """ISO 12108 / E647 ±2 % force check: fraction of cycles whose peak and valley force stay within
+    ±band·ΔP... of their targets (band relative to the target amplitude), and the worst deviation."""
+    dp = abs(pmax_n - pmin_n) or abs(pmax_n)
+    e_max = (np.asarray(pmax_meas) - pmax_n) / dp
+    e_min = (np.asarray(pmin_meas) - pmin_n) / dp
+    inside = (np.abs(e_max) <= band) & (np.abs(e_min) <= band)
+    return {"cycles": int(len(e_max)), "fraction_inside": float(inside.mean()) if len(inside) else float("nan"),
+            "max_peak_dev_rel": float(np.max(np.abs(e_max))) if len(e_max) else float("nan"),
+            "max_valley_dev_rel": float(np.max(np.abs(e_min))) if len(e_min) else float("nan"),
+            "rms_peak_dev_rel": float(np.sqrt(np.mean(e_max ** 2))) if len(e_max) else float("nan"), "band": band}
+
+
+def write_test_report(out: str | Path, table: dict, setup: Setup, *, specimen_info: dict | None = None,
+                loading_info: dict | None = None, n: int = 3, law: str = "paris", title: str = "Fatigue crack growth test") -> dict:
+    """The report of a test run (to be called by `htm run`): `table` has per-cycle or a–N columns
+    `cycles`, `a_m` and optionally `pmax_n`, `pmin_n` (measured peak/valley force per cycle).
+    Writes OUT/report.md, OUT/report.html (plots embedded), OUT/reduced.csv and the plots; returns
+    paths and the numbers reported."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    cycles = np.asarray(table["cycles"], float)
+    a = np.asarray(table["a_m"], float)
+    data = CrackData(str((specimen_info or {}).get("id", "1")), cycles, a)
+    # E647 reduction works on crack-size readings; thin per-cycle tables to readings ≥ 0.25 mm apart
+    keep = [0]
+    for i in range(1, len(a)):
+        if a[i] - a[keep[-1]] >= 0.25e-3:
+            keep.append(i)
+    thin = CrackData(data.specimen, cycles[keep], a[keep])
+    rd = reduce(thin, setup, n=n)
+    write_reduced_csv(out / "reduced.csv", [rd], False)
+    pts = Points.from_reduced([rd], only_valid=True)
+    model = fit_rate(law, pts, setup.r_ratio, window_points=2 * n + 1)
+    rms = model.fit["rms_log10_rate"]
+    a_n = plot_a_n(out / "a_n.png", [data], model=model, setup=setup)
+    dadn = plot_dadn_dk(out / "dadn_dk.png", [rd], {f"{law} fit": model}, setup.r_ratio, band=2 * rms)
+    fb = None
+    if "pmax_n" in table and "pmin_n" in table:
+        fb = force_band(table["pmax_n"], table["pmin_n"], setup.pmax_n, setup.pmax_n * setup.r_ratio)
+    s = summary(rd)
+    th = threshold(rd)
+    spec_rows = [["geometry", setup.geometry.upper()], ["W [mm]", f"{setup.width_m * 1e3:.3f}"],
+                 ["B [mm]", f"{setup.thickness_m * 1e3:.3f}"]] + [[k, v] for k, v in (specimen_info or {}).items()]
+    load_rows = [["Pmax [kN]", f"{setup.pmax_n / 1e3:.4g}"], ["ΔP [kN]", f"{setup.delta_p_n / 1e3:.4g}"],
+                 ["R", f"{setup.r_ratio:g}"]] + [[k, v] for k, v in (loading_info or {}).items()]
+    b1 = [[i + 1, f"{rd.cycles[i]:.4g}", f"{rd.a_m[i] * 1e3:.3f}", f"{rd.a_fit_m[i] * 1e3:.3f}" if np.isfinite(rd.a_fit_m[i]) else "",
+           f"{rd.dadn_m_per_cycle[i] * 1e3:.3e}" if np.isfinite(rd.dadn_m_per_cycle[i]) else "",
+           f"{rd.delta_k_pa_sqrt_m[i] / 1e6:.3f}" if np.isfinite(rd.delta_k_pa_sqrt_m[i]) else "",
+           "yes" if rd.valid[i] else rd.reasons[i]] for i in range(len(rd))]
+    params = ", ".join(f"{k} = {v:.5g}" + (f" ± {model.se[k]:.2g}" if k in model.se else "") for k, v in model.params.items())
+    lines = [f"# {title}", "", "## Specimen", "", md_table(["quantity", "value"], spec_rows), "",
+             "## Loading", "", md_table(["quantity", "value"], load_rows), ""]
+    if fb is not None:
+        lines += ["## Force control (±2 % band)", "",
+                  md_table(["cycles", "inside ±2 %", "max peak dev", "max valley dev", "RMS peak dev"],
+                           [[fb["cycles"], f"{100 * fb['fraction_inside']:.2f} %", f"{100 * fb['max_peak_dev_rel']:.3f} %",
+                             f"{100 * fb['max_valley_dev_rel']:.3f} %", f"{100 * fb['rms_peak_dev_rel']:.3f} %"]]), ""]
+    lines += ["## Validity summary", "",
+              f"{s['valid']} of {s['points']} reduced points valid; invalid: "
+              + (", ".join(f"{k} ({v})" for k, v in sorted(s["reasons"].items())) or "none") + ". "
+              + (f"ΔK_th (E647) = {th['delta_k_th_pa_sqrt_m'] / 1e6:.3g} MPa·√m." if th["reached"] else "ΔK_th not reached."), "",
+              f"## Fitted law ({law})", "", f"{params}; RMS log10 da/dN error {rms:.4f} over {model.fit['npoints']} valid points "
+              f"(band in the plot: ±2 RMS).", "",
+              "## Plots", "", f"![a-N]({a_n.name})", "", f"![da/dN-dK]({dadn.name})", "",
+              "## Reduced data (E647 Table X1.2 / thesis Table B.1 layout)", "",
+              md_table(["row", "N", "a [mm]", "â [mm]", "da/dN [mm/cycle]", "ΔK [MPa·√m]", "valid"], b1), ""]
+    md = "\n".join(lines)
+    (out / "report.md").write_text(md)
+    (out / "report.html").write_text(markdown_to_html(md, {a_n.name: a_n, dadn.name: dadn}, title))
+    return {"markdown": out / "report.md", "html": out / "report.html", "reduced": out / "reduced.csv",
+            "model": model, "force_band": fb, "validity": s}
