@@ -43,16 +43,22 @@ def _table_path(base: Path) -> Path:
     raise RecordError(f"no table for record {base} (looked for .csv, .csv.gz, .parquet)")
 
 
-def write_record(record: Record, base: str | Path, *, compress: bool = False) -> tuple[Path, Path]:
-    """Write `BASE.csv` (or `.csv.gz`) and `BASE.json`; returns both paths. Refuses to overwrite."""
+def write_record(record: Record, base: str | Path, *, compress: bool = False, parquet: bool = False) -> tuple[Path, Path]:
+    """Write `BASE.csv` (`.csv.gz` with `compress`, `.parquet` with `parquet`) and `BASE.json`;
+    returns both paths. Refuses to overwrite."""
     base = Path(base)
-    table = base.with_name(base.name + (".csv.gz" if compress else ".csv"))
+    suffix = ".parquet" if parquet else ".csv.gz" if compress else ".csv"
+    table = base.with_name(base.name + suffix)
     meta_path = base.with_name(base.name + ".json")
     for p in (table, meta_path):
         if p.exists():
             raise RecordError(f"{p} exists; refusing to overwrite a record")
     base.parent.mkdir(parents=True, exist_ok=True)
     cols = list(record.columns)
+    if parquet:
+        pa, pq = _pyarrow()
+        pq.write_table(pa.table({c: np.asarray(record.columns[c], dtype=float) for c in cols}), table)
+        return table, _write_meta(record, meta_path)
     data = np.column_stack([np.asarray(record.columns[c], dtype=float) for c in cols])
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
@@ -65,9 +71,22 @@ def write_record(record: Record, base: str | Path, *, compress: bool = False) ->
             fh.write(text)
     else:
         table.write_text(text)
+    return table, _write_meta(record, meta_path)
+
+
+def _write_meta(record: Record, meta_path: Path) -> Path:
     meta = {"format": FORMAT, **{k: v for k, v in record.meta.items() if k != "format"}}
     meta_path.write_text(json.dumps(meta, indent=2) + "\n")
-    return table, meta_path
+    return meta_path
+
+
+def _pyarrow():
+    try:
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+    except ImportError:
+        raise RecordError("Parquet records need pyarrow (pip install pyarrow)") from None
+    return pa, pq
 
 
 def read_record(path: str | Path, meta: str | Path | None = None) -> Record:
@@ -90,11 +109,11 @@ def read_record(path: str | Path, meta: str | Path | None = None) -> Record:
     if md.get("format") != FORMAT:
         raise RecordError(f"metadata {meta_path}: format is {md.get('format')!r}, expected {FORMAT!r}")
     if table.name.endswith(".parquet"):
+        _, pq = _pyarrow()
         try:
-            import pyarrow.parquet as pq
-        except ImportError:
-            raise RecordError("reading Parquet records needs pyarrow (pip install pyarrow)") from None
-        t = pq.read_table(table)
+            t = pq.read_table(table)
+        except Exception as e:  # pyarrow raises several types for a damaged file
+            raise RecordError(f"table {table} is not a readable Parquet file: {e}") from None
         columns = {c: np.asarray(t.column(c).to_numpy(zero_copy_only=False), dtype=float) for c in t.column_names}
     else:
         opener = gzip.open if table.name.endswith(".gz") else open
@@ -111,3 +130,88 @@ def read_record(path: str | Path, meta: str | Path | None = None) -> Record:
             raise RecordError(f"table {table}: rows do not match the {len(header)} header columns")
         columns = {h: data[:, i] for i, h in enumerate(header)}
     return Record(columns=columns, meta=md, name=name)
+
+
+# Plausible magnitudes of each SI channel, to catch a column written in mm, bar, mm/s or kN.
+_UNIT_HINTS = {
+    "y": ("position", "m", "mm"),
+    "y_ref": ("position reference", "m", "mm"),
+    "v": ("velocity", "m/s", "mm/s"),
+    "p_a": ("pressure", "Pa", "bar or MPa"),
+    "p_b": ("pressure", "Pa", "bar or MPa"),
+    "p_s": ("pressure", "Pa", "bar or MPa"),
+}
+
+
+def validate_record(rec: Record, *, max_nan_run_s: float = 0.5, max_nan_fraction: float = 0.2,
+                    min_samples: int = 50) -> list[str]:
+    """Check a record against DATA_FORMAT.md before anything is fitted to it.
+
+    Raises RecordError for what makes the record unusable (missing columns, non-uniform or
+    non-increasing time, a sample rate that disagrees with the metadata, a channel in the wrong
+    unit by ~1e3, long NaN runs, too few samples). Returns warnings for what is tolerable (isolated
+    dropped samples).
+    """
+    name = rec.name
+    cols = rec.columns
+    for c in REQUIRED:
+        if c not in cols:
+            raise RecordError(f"record `{name}`: required column `{c}` is missing (DATA_FORMAT.md)")
+    t = np.asarray(cols["t"], dtype=float)
+    if len(t) < min_samples:
+        raise RecordError(f"record `{name}`: only {len(t)} samples; at least {min_samples} are needed to identify anything")
+    if not np.all(np.isfinite(t)):
+        raise RecordError(f"record `{name}`: column `t` holds NaN/inf at row {int(np.argmax(~np.isfinite(t)))}")
+    dt = np.diff(t)
+    if np.any(dt <= 0):
+        k = int(np.argmax(dt <= 0))
+        raise RecordError(f"record `{name}`: time does not increase at row {k + 1} (t = {t[k]} then {t[k + 1]} s)")
+    dt0 = float(np.median(dt))
+    worst = float(np.max(np.abs(dt - dt0)))
+    if worst > 0.01 * dt0:
+        k = int(np.argmax(np.abs(dt - dt0)))
+        raise RecordError(f"record `{name}`: sampling is not uniform: step {dt[k]:.6g} s at row {k + 1} vs median {dt0:.6g} s "
+                          "(DATA_FORMAT.md requires uniform sampling; resample first)")
+    rate = rec.meta.get("sample_rate_hz")
+    if rate is not None:
+        if not (isinstance(rate, (int, float)) and rate > 0):
+            raise RecordError(f"record `{name}`: metadata sample_rate_hz = {rate!r} must be a positive number")
+        if abs(1.0 / dt0 - rate) > 0.01 * rate:
+            raise RecordError(f"record `{name}`: metadata says {rate} Hz but the time column is sampled at {1.0 / dt0:.6g} Hz")
+    rig = rec.meta.get("rig") or {}
+    stroke = rig.get("stroke_m")
+    supply = rig.get("supply_pressure_pa")
+    warnings: list[str] = []
+    max_run = max(1, int(round(max_nan_run_s / dt0)))
+    for c, values in cols.items():
+        x = np.asarray(values, dtype=float)
+        bad = ~np.isfinite(x)
+        if bad.all():
+            raise RecordError(f"record `{name}`: column `{c}` holds no finite value")
+        if bad.any():
+            run = _longest_run(bad)
+            if run > max_run or bad.mean() > max_nan_fraction:
+                raise RecordError(f"record `{name}`: column `{c}` has {int(bad.sum())} NaN samples, the longest run {run} "
+                                  f"samples ({run * dt0:.3g} s); allowed: runs up to {max_nan_run_s} s and {max_nan_fraction:.0%} in all")
+            warnings.append(f"column `{c}`: {int(bad.sum())} dropped samples (NaN), longest run {run}")
+        if c not in _UNIT_HINTS:
+            continue
+        what, si, other = _UNIT_HINTS[c]
+        peak = float(np.nanmax(np.abs(x)))
+        if c in ("y", "y_ref") and stroke and peak > 5 * stroke:
+            raise RecordError(f"record `{name}`: {what} `{c}` reaches {peak:g}, beyond 5x the stroke {stroke} m: "
+                              f"the column looks like {other}; convert it to {si}")
+        if c == "v" and peak > 20.0:
+            raise RecordError(f"record `{name}`: velocity `v` reaches {peak:g} m/s: the column looks like {other}; convert it to {si}")
+        if c.startswith("p_") and supply and peak < 1e-3 * supply:
+            raise RecordError(f"record `{name}`: pressure `{c}` peaks at {peak:g} Pa against a {supply:g} Pa supply: "
+                              f"the column looks like {other}; convert it to {si}")
+    return warnings
+
+
+def _longest_run(mask: np.ndarray) -> int:
+    best = cur = 0
+    for m in mask:
+        cur = cur + 1 if m else 0
+        best = max(best, cur)
+    return best
