@@ -153,8 +153,9 @@ def build_parser() -> argparse.ArgumentParser:
 def _extensions() -> list[Callable[[argparse._SubParsersAction], None]]:
     """Subcommand groups that live with their packages (each adds its own parsers)."""
     from htm.fatigue import cli as fatigue_cli
+    from htm.ident import cli as ident_cli
 
-    return [fatigue_cli.register]
+    return [fatigue_cli.register, ident_cli.register]
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -26,6 +26,20 @@ pub struct Friction {
     pub pressure_coeff_n_per_pa: f64,
 }
 
+impl From<&crate::params::Params> for Friction {
+    fn from(p: &crate::params::Params) -> Self {
+        Friction {
+            viscous_n_s_m: p.friction_viscous_n_s_m,
+            coulomb_pos_n: p.friction_coulomb_pos_n,
+            coulomb_neg_n: p.friction_coulomb_neg_n,
+            static_n: p.friction_static_n,
+            stribeck_m_s: p.friction_stribeck_m_s,
+            smoothing_m_s: p.friction_smoothing_m_s,
+            pressure_coeff_n_per_pa: p.friction_pressure_coeff_n_per_pa,
+        }
+    }
+}
+
 impl Friction {
     /// Friction force opposing motion [N] at velocity `v` [m/s] and chamber pressure sum
     /// `p_sum` = p_a + p_b [Pa].

@@ -61,15 +61,7 @@ impl Plant {
             p_atm: p.atmospheric_pressure_pa,
             p_cav: p.cavitation_pressure_pa,
         };
-        let friction = Friction {
-            viscous_n_s_m: p.friction_viscous_n_s_m,
-            coulomb_pos_n: p.friction_coulomb_pos_n,
-            coulomb_neg_n: p.friction_coulomb_neg_n,
-            static_n: p.friction_static_n,
-            stribeck_m_s: p.friction_stribeck_m_s,
-            smoothing_m_s: p.friction_smoothing_m_s,
-            pressure_coeff_n_per_pa: p.friction_pressure_coeff_n_per_pa,
-        };
+        let friction = Friction::from(&p);
         let map = ValveMap::new(&p.valve_map_command_v, &p.valve_map_spool_v);
         Ok(Plant { k_edge: p.valve_edge_coeff(), bulk, friction, map, target: 0.0, p })
     }

@@ -128,7 +128,7 @@ def read_record(path: str | Path, meta: str | Path | None = None) -> Record:
             raise RecordError(f"table {table}: non-numeric value ({e})") from None
         if data.ndim != 2 or data.shape[1] != len(header):
             raise RecordError(f"table {table}: rows do not match the {len(header)} header columns")
-        columns = {h: data[:, i] for i, h in enumerate(header)}
+        columns = {h: np.ascontiguousarray(data[:, i]) for i, h in enumerate(header)}
     return Record(columns=columns, meta=md, name=name)
 
 

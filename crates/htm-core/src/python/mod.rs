@@ -13,10 +13,12 @@ use crate::solver::{OdeSystem, Stats};
 use crate::Error;
 
 mod fatigue;
+mod ident;
 
 // Submodules add their own classes and functions here.
 pub(crate) fn register_extensions(m: &Bound<'_, PyModule>) -> PyResult<()> {
     fatigue::register(m)?;
+    ident::register(m)?;
     Ok(())
 }
 

@@ -1,0 +1,71 @@
+"""`htm identify RECORD --out DIR`: the thesis's chapter-3 identification with a report."""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from htm.ident.classic import identify, stribeck_basis, SMOOTHING_M_S
+from htm.ident.records import read_record
+
+
+def cmd_identify(args: argparse.Namespace) -> int:
+    rec = read_record(args.record, args.meta)
+    result = identify(rec)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "identification.json").write_text(json.dumps(result, indent=2) + "\n")
+    lines = [f"# Identification of `{rec.name}`", "", f"{result['segments']} constant-velocity segments.", ""]
+    vg = result["velocity_gain"]
+    lines += [f"Velocity gain {vg['gain_m_s_per_v'] * 1e3:.2f} mm/s per V, hydraulic null at {vg['null_command_v']:+.3f} V (R² {vg['r2']:.4f}).", ""]
+    if "friction" in result:
+        lines += ["| model | method | parameters | R² |", "|---|---|---|---|"]
+        for name, fit in result["friction"].items():
+            ps = ", ".join(f"{k} = {v:.4g}" for k, v in fit["params"].items())
+            lines.append(f"| {name} | {fit['method']} | {ps} | {fit['r2']:.6f} |")
+        off = result["offset"]
+        lines += ["", f"Offset term (eq. 3.16): {off['offset_n']:.1f} N = {off['as_chamber_a_pressure_pa'] / 1e5:.2f} bar on chamber A; "
+                      f"R² {off['r2_without']:.4f} without it, {off['r2_with']:.6f} with it. A large offset that the fit needs "
+                      "points to a pressure-transducer offset or a wrong nominal mass (the thesis found 4 bar on p_a).",
+                  "", f"Moving mass from acceleration: {result['mass']['moving_mass_kg']:.2f} kg (R² {result['mass']['r2']:.3f}, "
+                      f"{result['mass']['samples']} samples).", "", "![friction](friction.png)"]
+        _plot(result, out / "friction.png")
+    (out / "report.md").write_text("\n".join(lines) + "\n")
+    print(f"identified {rec.name}: {result['segments']} segments; wrote {out / 'identification.json'}, {out / 'report.md'}")
+    return 0
+
+
+def _plot(result: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    v = np.array(result["points"]["v_m_s"])
+    f = np.array(result["points"]["f_n"])
+    fit = result["friction"]["stribeck_sig"]["params"]
+    vv = np.linspace(v.min(), v.max(), 400)
+    model = stribeck_basis(vv, fit["stribeck_m_s"], SMOOTHING_M_S) @ [fit["viscous_n_s_m"], fit["coulomb_n"], fit["static_n"]]
+    fig, ax = plt.subplots(figsize=(6, 4))
+    ax.plot(v * 1e3, f, "o", label="F_h - F_g at constant velocity")
+    ax.plot(vv * 1e3, model + fit["offset_n"], "-", label="Stribeck (sig) + offset")
+    ax.plot(vv * 1e3, model, "--", label="Stribeck (sig), offset removed")
+    ax.set_xlabel("velocity [mm/s]")
+    ax.set_ylabel("force [N]")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("identify", help="classic identification (friction, offsets, velocity gain, mass) from a record",
+                       description="Thesis chapter-3 identification of a DATA_FORMAT.md record: constant-velocity "
+                                   "segments, friction fits with an offset term, velocity gain, moving mass.")
+    p.add_argument("record", help="record table (NAME.csv, NAME.csv.gz or NAME.parquet)")
+    p.add_argument("--meta", help="metadata JSON (default: NAME.json beside the table)")
+    p.add_argument("--out", required=True, help="output directory")
+    p.set_defaults(func=cmd_identify)
+
