@@ -152,9 +152,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _extensions() -> list[Callable[[argparse._SubParsersAction], None]]:
     """Subcommand groups that live with their packages (each adds its own parsers)."""
+    from htm import run as run_cli
     from htm.fatigue import cli as fatigue_cli
 
-    return [fatigue_cli.register]
+    return [fatigue_cli.register, run_cli.register]
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -12,11 +12,13 @@ use crate::run::{self, Trace};
 use crate::solver::{OdeSystem, Stats};
 use crate::Error;
 
+mod engine;
 mod fatigue;
 
 // Submodules add their own classes and functions here.
 pub(crate) fn register_extensions(m: &Bound<'_, PyModule>) -> PyResult<()> {
     fatigue::register(m)?;
+    engine::register(m)?;
     Ok(())
 }
 
