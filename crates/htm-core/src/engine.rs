@@ -528,6 +528,7 @@ pub fn run_test(cfg: &TestConfig, mode: ExecMode, progress: Option<&AtomicU64>, 
     steps.sort_by_key(|s| s.0);
     let mut next_step = 0usize;
     let mut since_jump = 0u64;
+    let mut prev_err = (f64::NAN, f64::NAN);
     let end: EndReason;
 
     loop {
@@ -613,6 +614,9 @@ pub fn run_test(cfg: &TestConfig, mode: ExecMode, progress: Option<&AtomicU64>, 
         }
         run.push(phase_i as u8, res.fmax, res.fmin, t, dk, kmax, dadn, ev);
         let (last_fmax, last_fmin, last_ev) = (res.fmax, res.fmin, ev);
+        // settled: peak and range errors changed by < 0.01 % of target over the last cycle
+        let settled = (pe - prev_err.0).abs() < 1e-4 && (de - prev_err.1).abs() < 1e-4;
+        prev_err = (pe, de);
         if let Some(r) = stop {
             end = r;
             break;
@@ -639,7 +643,8 @@ pub fn run_test(cfg: &TestConfig, mode: ExecMode, progress: Option<&AtomicU64>, 
         run.set_stiffness(false)?;
 
         // cycle jump
-        if mode == ExecMode::Jump && !starting && since_jump >= cfg.jump.settle_cycles && res.fmax > 0.0 {
+        let ready = since_jump >= cfg.jump.settle_cycles && (settled || since_jump >= 10 * cfg.jump.settle_cycles);
+        if mode == ExecMode::Jump && !starting && ready && res.fmax > 0.0 {
             let ph = cfg.phases[phase_i];
             let t_now = targets(cfg, &ph, a_phase0, run.a)?;
             let (rmax, rmin) = (last_fmax / t_now.0, if t_now.1 != 0.0 { last_fmin / t_now.1 } else { f64::NAN });
@@ -816,7 +821,7 @@ pub(crate) mod tests {
         assert!(r.k_sp_n_m[n - 1] < 0.8 * r.k_sp_n_m[0], "K_sp must fall as the crack grows");
         assert!(r.events[..20].iter().all(|e| e & events::START != 0));
         let j = run_test(&cfg, ExecMode::Jump, None, None).unwrap();
-        assert!(j.cycles_simulated * 5 < o.cycles_simulated, "jump resolved {} of {}", j.cycles_simulated, o.cycles);
+        assert!(j.cycles_simulated * 3 < o.cycles_simulated, "jump resolved {} of {}", j.cycles_simulated, o.cycles);
         let err = (j.cycles as f64 / o.cycles as f64 - 1.0).abs();
         assert!(err < 0.01, "jump {} vs full {}", j.cycles, o.cycles);
     }
