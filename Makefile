@@ -14,9 +14,7 @@ $(VENV)/.installed: $(SOURCES)
 	touch $@
 
 run: setup
-	$(VENV)/bin/htm simulate --controller position_pff --kp -150 --kff -14.3 --rate 500 \
-	  --profile "hold:value=0.1,duration=0.5;ramp:start=0.1,end=0.15,duration=1;hold:value=0.15,duration=0.5;sine:amplitude=0.01,frequency=2,offset=0.15,duration=2" \
-	  --out out/demo-$$(date +%Y%m%d-%H%M%S)
+	$(VENV)/bin/htm run examples/ct_constant_force.toml --out out/ct-$$(date +%Y%m%d-%H%M%S)
 
 test: setup test-rust test-python
 
@@ -28,6 +26,7 @@ test-python: setup
 
 bench: setup
 	$(PY) benchmarks/plant_throughput.py
+	$(PY) benchmarks/million_cycles.py
 
 clean:
 	rm -rf $(VENV) target out

@@ -2,6 +2,7 @@
 //! feature adds thin pyo3 bindings that own no logic.
 pub mod control;
 pub mod crack;
+pub mod engine;
 pub mod error;
 pub mod friction;
 pub mod hydraulics;
@@ -10,6 +11,7 @@ pub mod params;
 pub mod run;
 pub mod solver;
 pub mod specimen;
+pub mod waveform;
 
 #[cfg(feature = "python")]
 mod python;

@@ -16,7 +16,7 @@ fn elastic(youngs_modulus_pa: f64, poisson_ratio: f64) -> Material {
     Material { youngs_modulus_pa, poisson_ratio, ..Material::default() }
 }
 
-fn law_from(d: &Bound<'_, PyDict>) -> PyResult<Law> {
+pub(super) fn law_from(d: &Bound<'_, PyDict>) -> PyResult<Law> {
     let get = |k: &str| -> PyResult<f64> {
         d.get_item(k)?.ok_or_else(|| InputError::new_err(format!("growth law needs `{k}`")))?.extract()
     };

@@ -12,12 +12,14 @@ use crate::run::{self, Trace};
 use crate::solver::{OdeSystem, Stats};
 use crate::Error;
 
+mod engine;
 mod fatigue;
 mod ident;
 
 // Submodules add their own classes and functions here.
 pub(crate) fn register_extensions(m: &Bound<'_, PyModule>) -> PyResult<()> {
     fatigue::register(m)?;
+    engine::register(m)?;
     ident::register(m)?;
     Ok(())
 }

@@ -1,0 +1,207 @@
+//! Thin bindings of the fatigue test engine: a config dict in (SI, keys as in `htm.spec`), the
+//! per-cycle table and summary out; the run releases the GIL and reports progress atomically.
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+
+use numpy::PyArray1;
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyList};
+
+use super::fatigue::law_from;
+use super::{py_err, InputError, PyParams};
+use crate::engine::{self, Action, ControllerSpec, ExecMode, JumpConfig, Limits, Mode, Outcome, Phase, TestConfig};
+use crate::params::Params;
+use crate::specimen::{Geometry, Material, Specimen};
+use crate::waveform::{Envelope, Waveform};
+
+/// Progress of a running test (cycles so far) and a cancel switch; share it with `run_test`.
+#[pyclass(name = "Progress", module = "htm._core", from_py_object)]
+#[derive(Clone, Default)]
+pub struct PyProgress {
+    cycles: Arc<AtomicU64>,
+    cancel: Arc<AtomicBool>,
+}
+
+#[pymethods]
+impl PyProgress {
+    #[new]
+    fn new() -> Self {
+        Self::default()
+    }
+    #[getter]
+    fn cycles(&self) -> u64 {
+        self.cycles.load(Ordering::Relaxed)
+    }
+    fn cancel(&self) {
+        self.cancel.store(true, Ordering::Relaxed);
+    }
+}
+
+fn need<'py, T: FromPyObjectOwned<'py>>(d: &Bound<'py, PyDict>, k: &str) -> PyResult<T> {
+    d.get_item(k)?.ok_or_else(|| InputError::new_err(format!("test config needs `{k}`")))?.extract().map_err(Into::into)
+}
+
+fn opt<'py, T: FromPyObjectOwned<'py>>(d: &Bound<'py, PyDict>, k: &str, default: T) -> PyResult<T> {
+    match d.get_item(k)? {
+        Some(v) if !v.is_none() => v.extract().map_err(Into::into),
+        _ => Ok(default),
+    }
+}
+
+fn action(s: &str, field: &str) -> PyResult<Action> {
+    match s {
+        "flag" => Ok(Action::Flag),
+        "stop" => Ok(Action::Stop),
+        other => Err(InputError::new_err(format!("{field} = `{other}`: use \"flag\" or \"stop\""))),
+    }
+}
+
+fn config_from(d: &Bound<'_, PyDict>) -> PyResult<TestConfig> {
+    let params = match d.get_item("params")? {
+        Some(p) if !p.is_none() => p.extract::<PyParams>()?.inner,
+        _ => Params::default(),
+    };
+    let specimen = Specimen::new(Geometry::parse(&need::<String>(d, "geometry")?).map_err(py_err)?, need(d, "width_m")?, need(d, "thickness_m")?).map_err(py_err)?;
+    let material = Material {
+        youngs_modulus_pa: need(d, "youngs_modulus_pa")?,
+        poisson_ratio: need(d, "poisson_ratio")?,
+        yield_strength_pa: need(d, "yield_strength_pa")?,
+        fracture_toughness_pa_sqrt_m: need(d, "fracture_toughness_pa_sqrt_m")?,
+    };
+    let law = law_from(&need::<Bound<'_, PyDict>>(d, "law")?)?;
+    let waveform = match need::<String>(d, "waveform")?.as_str() {
+        "sine" => Waveform::Sine,
+        "triangle" => Waveform::Triangle,
+        "trapezoid" => Waveform::Trapezoid { rise: need(d, "rise_fraction")?, hold: need(d, "hold_fraction")? },
+        other => return Err(InputError::new_err(format!("waveform `{other}`: use sine, triangle or trapezoid"))),
+    };
+    let mut phases = Vec::new();
+    for ph in need::<Bound<'_, PyList>>(d, "phases")?.iter() {
+        let ph = ph.cast_into::<PyDict>()?;
+        let mode = match need::<String>(&ph, "mode")?.as_str() {
+            "constant_force" => Mode::ConstantForce { delta_f_n: need(&ph, "delta_f_n")? },
+            "constant_delta_k" => Mode::ConstantDeltaK { delta_k: need(&ph, "delta_k")? },
+            "k_gradient" => Mode::KGradient { delta_k0: need(&ph, "delta_k")?, c_per_m: need(&ph, "k_gradient_per_m")? },
+            other => return Err(InputError::new_err(format!("phase mode `{other}`: use constant_force, constant_delta_k or k_gradient"))),
+        };
+        phases.push(Phase { mode, r_ratio: need(&ph, "r_ratio")?, end_a_m: need(&ph, "end_a_m")?, tolerance: need(&ph, "tolerance")? });
+    }
+    let c = need::<Bound<'_, PyDict>>(d, "controller")?;
+    let controller = match need::<String>(&c, "type")?.as_str() {
+        "demodulation" => ControllerSpec::Demod { velocity_gain_m_s_per_v: opt(&c, "velocity_gain_m_s_per_v", None)? },
+        "force_p" => ControllerSpec::ForceP { kp_v_per_n: need(&c, "kp_v_per_n")?, u_offset_v: opt(&c, "u_offset_v", 0.0)? },
+        other => return Err(InputError::new_err(format!("controller type `{other}`: use demodulation or force_p"))),
+    };
+    let dj = JumpConfig::default();
+    Ok(TestConfig {
+        params,
+        rtol: opt(d, "rtol", 1e-4)?,
+        specimen,
+        material,
+        law,
+        a0_m: need(d, "a0_m")?,
+        waveform,
+        frequency_hz: need(d, "frequency_hz")?,
+        control_rate_hz: opt(d, "control_rate_hz", 1000.0)?,
+        phases,
+        controller,
+        envelope: Envelope { mean_cycles: opt(d, "start_mean_cycles", 5.0)?, amplitude_cycles: opt(d, "start_amplitude_cycles", 20.0)?, stop_cycles: opt(d, "stop_cycles", 3.0)? },
+        limits: Limits {
+            max_cycles: opt(d, "max_cycles", 100_000_000u64)?,
+            size_criterion: action(&opt(d, "size_criterion_action", "flag".to_string())?, "size_criterion_action")?,
+            tolerance_cycles: opt(d, "tolerance_cycles", 10u64)?,
+            tolerance_action: action(&opt(d, "tolerance_action", "flag".to_string())?, "tolerance_action")?,
+            stroke_margin_m: opt(d, "stroke_margin_m", 1e-3)?,
+        },
+        stiffness_steps: opt(d, "stiffness_steps", Vec::<(u64, f64)>::new())?,
+        jump: JumpConfig {
+            max_da_m: opt(d, "jump_max_da_m", dj.max_da_m)?,
+            max_rel_change: opt(d, "jump_max_rel_change", dj.max_rel_change)?,
+            settle_cycles: opt(d, "jump_settle_cycles", dj.settle_cycles)?,
+            min_jump_cycles: opt(d, "jump_min_cycles", dj.min_jump_cycles)?,
+        },
+    })
+}
+
+fn mode_from(s: &str) -> PyResult<ExecMode> {
+    match s {
+        "full" => Ok(ExecMode::Full),
+        "jump" => Ok(ExecMode::Jump),
+        other => Err(InputError::new_err(format!("mode `{other}`: use full or jump"))),
+    }
+}
+
+fn outcome_dict<'py>(py: Python<'py>, o: Outcome) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("end_reason", o.end_reason.name())?;
+    d.set_item("cycles", o.cycles)?;
+    d.set_item("a_end_m", o.a_end_m)?;
+    d.set_item("max_abs_df_err_pct", o.max_abs_df_err_pct)?;
+    d.set_item("max_abs_peak_err_pct", o.max_abs_peak_err_pct)?;
+    d.set_item("cycles_simulated", o.cycles_simulated)?;
+    d.set_item("size_criterion_cycle", o.size_criterion_cycle)?;
+    d.set_item("velocity_gain_m_s_per_v", o.velocity_gain_m_s_per_v)?;
+    if let Some(g) = o.demod_gains {
+        let gd = PyDict::new(py);
+        gd.set_item("plant_gain_n_per_s_v", g.plant_gain_n_per_s_v)?;
+        gd.set_item("k1", g.k1)?;
+        gd.set_item("kp2", g.kp2)?;
+        gd.set_item("ki2", g.ki2)?;
+        gd.set_item("window", g.window)?;
+        d.set_item("demod_gains", gd)?;
+    }
+    let r = o.records;
+    let t = PyDict::new(py);
+    t.set_item("cycle", PyArray1::from_vec(py, r.cycle))?;
+    t.set_item("phase", PyArray1::from_vec(py, r.phase))?;
+    t.set_item("events", PyArray1::from_vec(py, r.events))?;
+    for (k, v) in [
+        ("fmax_n", r.fmax_n), ("fmin_n", r.fmin_n), ("fmax_target_n", r.fmax_target_n), ("fmin_target_n", r.fmin_target_n),
+        ("peak_err_pct", r.peak_err_pct), ("df_err_pct", r.df_err_pct), ("a_m", r.a_m), ("delta_k_pa_sqrt_m", r.delta_k),
+        ("delta_k_target_pa_sqrt_m", r.delta_k_target), ("kmax_pa_sqrt_m", r.kmax), ("dadn_m_per_cycle", r.dadn_m),
+        ("k_sp_n_m", r.k_sp_n_m), ("ctrl_u1_v", r.ctrl_u1_v), ("ctrl_u2_v", r.ctrl_u2_v),
+    ] {
+        t.set_item(k, PyArray1::from_vec(py, v))?;
+    }
+    d.set_item("table", t)?;
+    Ok(d)
+}
+
+/// Run one fatigue test (config dict, SI) in `mode` "full" or "jump"; the GIL is released.
+#[pyfunction]
+#[pyo3(signature = (config, mode = "full", progress = None))]
+fn run_test<'py>(py: Python<'py>, config: &Bound<'py, PyDict>, mode: &str, progress: Option<PyProgress>) -> PyResult<Bound<'py, PyDict>> {
+    let cfg = config_from(config)?;
+    let mode = mode_from(mode)?;
+    let prog = progress.unwrap_or_default();
+    let o = py.detach(|| engine::run_test(&cfg, mode, Some(&prog.cycles), Some(&prog.cancel))).map_err(py_err)?;
+    outcome_dict(py, o)
+}
+
+/// Check a config without running it (raises ParameterError/InputError naming the field).
+#[pyfunction]
+fn validate_test(config: &Bound<'_, PyDict>) -> PyResult<()> {
+    config_from(config)?.validate().map_err(py_err)
+}
+
+/// Run many tests on `threads` cores (0 = all) with the GIL released; results in input order.
+#[pyfunction]
+#[pyo3(signature = (configs, mode = "full", threads = 0))]
+fn run_batch<'py>(py: Python<'py>, configs: &Bound<'py, PyList>, mode: &str, threads: usize) -> PyResult<Bound<'py, PyList>> {
+    let cfgs = configs.iter().map(|c| config_from(&c.cast_into::<PyDict>()?)).collect::<PyResult<Vec<_>>>()?;
+    let mode = mode_from(mode)?;
+    let outs = py.detach(|| engine::run_batch(&cfgs, mode, threads));
+    let l = PyList::empty(py);
+    for o in outs {
+        l.append(outcome_dict(py, o.map_err(py_err)?)?)?;
+    }
+    Ok(l)
+}
+
+pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PyProgress>()?;
+    m.add_function(wrap_pyfunction!(run_test, m)?)?;
+    m.add_function(wrap_pyfunction!(validate_test, m)?)?;
+    m.add_function(wrap_pyfunction!(run_batch, m)?)?;
+    Ok(())
+}

@@ -1,0 +1,287 @@
+"""Fatigue test specifications: TOML in, validated dataclasses, the engine's config dict out.
+
+Every value is SI (names carry units). Errors raise `SpecError` naming the field, the value and
+the allowed range, before anything runs; unknown keys are rejected.
+"""
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from htm import _core
+from htm.errors import HtmError, SpecError
+from htm.params import thesis_rig, with_overrides
+
+MODES = ("constant_force", "constant_delta_k", "k_gradient")
+WAVEFORMS = ("sine", "triangle", "trapezoid")
+E647_MIN_K_GRADIENT_PER_M = -80.0  # −0.08 mm⁻¹
+
+
+@dataclass
+class Loading:
+    mode: str
+    r_ratio: float
+    end_a_m: float
+    tolerance: float
+    delta_f_n: float | None = None
+    delta_k_pa_sqrt_m: float | None = None
+    k_gradient_per_m: float = 0.0
+
+
+@dataclass
+class TestSpec:
+    """A whole fatigue crack growth test (see examples/ct_constant_force.toml)."""
+
+    name: str
+    geometry: str
+    width_m: float
+    thickness_m: float
+    a0_m: float
+    material: dict[str, float]
+    law: dict[str, Any]
+    waveform: str
+    frequency_hz: float
+    control_rate_hz: float
+    phases: list[Loading]
+    controller: dict[str, Any]
+    end: dict[str, Any]
+    start: dict[str, float]
+    rig_overrides: dict[str, float] = field(default_factory=dict)
+    rig_preset: str = "thesis"
+    waveform_shape: dict[str, float] = field(default_factory=dict)
+    rtol: float = 1e-4
+    mode: str = "jump"
+    stiffness_steps: list[tuple[int, float]] = field(default_factory=list)
+
+    def params(self) -> _core.Params:
+        try:
+            return with_overrides(_core.Params(self.rig_preset), self.rig_overrides)
+        except HtmError as e:
+            raise SpecError(f"rig: {e}") from None
+
+    def to_config(self) -> dict[str, Any]:
+        """The engine's config dict (SI)."""
+        phases = []
+        for ph in self.phases:
+            d: dict[str, Any] = {"mode": ph.mode, "r_ratio": ph.r_ratio, "end_a_m": ph.end_a_m, "tolerance": ph.tolerance}
+            if ph.mode == "constant_force":
+                d["delta_f_n"] = ph.delta_f_n
+            else:
+                d["delta_k"] = ph.delta_k_pa_sqrt_m
+                d["k_gradient_per_m"] = ph.k_gradient_per_m
+            phases.append(d)
+        cfg: dict[str, Any] = {
+            "params": self.params(), "rtol": self.rtol, "geometry": self.geometry, "width_m": self.width_m,
+            "thickness_m": self.thickness_m, "a0_m": self.a0_m, **self.material, "law": dict(self.law),
+            "waveform": self.waveform, **self.waveform_shape, "frequency_hz": self.frequency_hz,
+            "control_rate_hz": self.control_rate_hz, "phases": phases, "controller": dict(self.controller),
+            "start_mean_cycles": self.start["mean_cycles"], "start_amplitude_cycles": self.start["amplitude_cycles"],
+            "stop_cycles": self.start["stop_cycles"], "max_cycles": self.end["max_cycles"],
+            "size_criterion_action": self.end["size_criterion"], "tolerance_cycles": self.end["tolerance_cycles"],
+            "tolerance_action": self.end["tolerance_action"], "stiffness_steps": list(self.stiffness_steps),
+        }
+        return cfg
+
+
+# ---- parsing helpers -------------------------------------------------------------------------
+
+def _table(d: dict, key: str, where: str, required: bool = True) -> dict:
+    v = d.get(key)
+    if v is None:
+        if required:
+            raise SpecError(f"[{where}] is missing")
+        return {}
+    if not isinstance(v, dict):
+        raise SpecError(f"{where} must be a table, got {v!r}")
+    return v
+
+
+def _keys(d: dict, allowed: set[str], where: str) -> None:
+    unknown = sorted(set(d) - allowed)
+    if unknown:
+        raise SpecError(f"{where}: unknown key{'s' if len(unknown) > 1 else ''} {', '.join(unknown)}; "
+                        f"allowed: {', '.join(sorted(allowed))}")
+
+
+def _num(d: dict, key: str, where: str, lo: float | None = None, hi: float | None = None, *, default: Any = ...,
+         lo_open: bool = False, hi_open: bool = False, unit: str = "") -> float:
+    if key not in d:
+        if default is ...:
+            raise SpecError(f"{where}.{key} is missing")
+        return default
+    v = d[key]
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise SpecError(f"{where}.{key} = {v!r} must be a number{f' in {unit}' if unit else ''}")
+    v = float(v)
+    bad = not math.isfinite(v)
+    if lo is not None:
+        bad |= v <= lo if lo_open else v < lo
+    if hi is not None:
+        bad |= v >= hi if hi_open else v > hi
+    if bad:
+        rng = f"{'(' if lo_open else '['}{'-inf' if lo is None else f'{lo:g}'}, {'inf' if hi is None else f'{hi:g}'}{')' if hi_open or hi is None else ']'}"
+        raise SpecError(f"{where}.{key} = {v:g} is out of range: allowed {rng}{f' {unit}' if unit else ''}")
+    return v
+
+
+def _int(d: dict, key: str, where: str, lo: int, default: int) -> int:
+    v = d.get(key, default)
+    if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+        raise SpecError(f"{where}.{key} = {v!r} must be an integer ≥ {lo}")
+    return v
+
+
+def _choice(d: dict, key: str, where: str, choices: tuple[str, ...], default: str | None = None) -> str:
+    v = d.get(key, default)
+    if v is None:
+        raise SpecError(f"{where}.{key} is missing: one of {', '.join(choices)}")
+    if v not in choices:
+        raise SpecError(f"{where}.{key} = {v!r} is not allowed: one of {', '.join(choices)}")
+    return v
+
+
+def _loading(d: dict, where: str, end_a_m: float, tolerance: float) -> Loading:
+    _keys(d, {"mode", "r_ratio", "delta_f_n", "delta_k_pa_sqrt_m", "k_gradient_per_m", "end_a_m", "tolerance"}, where)
+    mode = _choice(d, "mode", where, MODES)
+    r = _num(d, "r_ratio", where, -1.0, 1.0, hi_open=True)
+    ph = Loading(mode=mode, r_ratio=r, end_a_m=_num(d, "end_a_m", where, 0.0, lo_open=True, default=end_a_m, unit="m"),
+                 tolerance=_num(d, "tolerance", where, 0.0, 0.2, lo_open=True, default=tolerance))
+    if mode == "constant_force":
+        ph.delta_f_n = _num(d, "delta_f_n", where, 0.0, lo_open=True, unit="N")
+        if "delta_k_pa_sqrt_m" in d or "k_gradient_per_m" in d:
+            raise SpecError(f"{where}: mode constant_force takes delta_f_n, not delta_k_pa_sqrt_m / k_gradient_per_m")
+    else:
+        ph.delta_k_pa_sqrt_m = _num(d, "delta_k_pa_sqrt_m", where, 0.0, lo_open=True, unit="Pa·√m")
+        if "delta_f_n" in d:
+            raise SpecError(f"{where}: mode {mode} takes delta_k_pa_sqrt_m, not delta_f_n")
+        if mode == "k_gradient":
+            ph.k_gradient_per_m = _num(d, "k_gradient_per_m", where, E647_MIN_K_GRADIENT_PER_M, unit="1/m (ASTM E647: C ≥ −0.08 mm⁻¹)")
+        elif "k_gradient_per_m" in d:
+            raise SpecError(f"{where}: k_gradient_per_m needs mode = \"k_gradient\"")
+    return ph
+
+
+def parse(doc: dict, name: str = "test") -> TestSpec:
+    """Validate a parsed TOML document into a `TestSpec` (raises SpecError)."""
+    _keys(doc, {"specimen", "material", "law", "loading", "precrack", "controller", "end", "start", "rig", "run", "stiffness_steps"}, "spec")
+    sp = _table(doc, "specimen", "specimen")
+    _keys(sp, {"geometry", "width_m", "thickness_m", "a0_m"}, "specimen")
+    geometry = _choice(sp, "geometry", "specimen", ("ct", "mt"))
+    width = _num(sp, "width_m", "specimen", 0.0, 2.0, lo_open=True, unit="m")
+    thickness = _num(sp, "thickness_m", "specimen", 0.0, width, lo_open=True, unit="m")
+    alo, ahi = (0.2, 0.975) if geometry == "ct" else (0.0, 0.95)
+    scale = 1.0 if geometry == "ct" else 2.0
+    a0 = _num(sp, "a0_m", "specimen", alo * width / scale, ahi * width / scale, unit=f"m (a/W in [{alo}, {ahi}])")
+    mat = _table(doc, "material", "material")
+    _keys(mat, {"youngs_modulus_pa", "poisson_ratio", "yield_strength_pa", "fracture_toughness_pa_sqrt_m"}, "material")
+    material = {
+        "youngs_modulus_pa": _num(mat, "youngs_modulus_pa", "material", 1e8, 1e13, lo_open=True, hi_open=True, unit="Pa"),
+        "poisson_ratio": _num(mat, "poisson_ratio", "material", 0.0, 0.5, hi_open=True),
+        "yield_strength_pa": _num(mat, "yield_strength_pa", "material", 0.0, lo_open=True, unit="Pa"),
+        "fracture_toughness_pa_sqrt_m": _num(mat, "fracture_toughness_pa_sqrt_m", "material", 0.0, lo_open=True, unit="Pa·√m"),
+    }
+    law = _table(doc, "law", "law")
+    _keys(law, {"law", "c", "m", "kc", "n", "p", "q", "dk_th", "k_crit", "f_open"}, "law")
+    _choice(law, "law", "law", ("paris", "forman", "nasgro"))
+    end = _table(doc, "end", "end")
+    _keys(end, {"a_over_w", "max_cycles", "size_criterion", "tolerance_cycles", "tolerance_action"}, "end")
+    a_end = _num(end, "a_over_w", "end", alo, ahi, unit=f"(a/W in [{alo}, {ahi}])") * width / scale
+    end_d = {"max_cycles": _int(end, "max_cycles", "end", 1, 100_000_000),
+             "size_criterion": _choice(end, "size_criterion", "end", ("flag", "stop"), "flag"),
+             "tolerance_cycles": _int(end, "tolerance_cycles", "end", 0, 10),
+             "tolerance_action": _choice(end, "tolerance_action", "end", ("flag", "stop"), "flag")}
+    ld = _table(doc, "loading", "loading")
+    wave_keys = {"waveform", "frequency_hz", "control_rate_hz", "rise_fraction", "hold_fraction"}
+    ld_main = {k: v for k, v in ld.items() if k not in wave_keys}
+    waveform = _choice(ld, "waveform", "loading", WAVEFORMS, "sine")
+    shape: dict[str, float] = {}
+    if waveform == "trapezoid":
+        rise = _num(ld, "rise_fraction", "loading", 0.0, 0.5, lo_open=True)
+        shape = {"rise_fraction": rise, "hold_fraction": _num(ld, "hold_fraction", "loading", 0.0, 1.0 - 2.0 * rise)}
+    elif "rise_fraction" in ld or "hold_fraction" in ld:
+        raise SpecError("loading: rise_fraction / hold_fraction need waveform = \"trapezoid\"")
+    freq = _num(ld, "frequency_hz", "loading", 0.0, lo_open=True, unit="Hz")
+    rate = _num(ld, "control_rate_hz", "loading", 16.0 * freq, 1e5, default=1000.0, unit=f"Hz (≥ 16 samples per cycle at {freq:g} Hz)")
+    if "end_a_m" in ld_main:
+        raise SpecError("loading.end_a_m: the test ends at [end] a_over_w")
+    phases = []
+    pre = _table(doc, "precrack", "precrack", required=False)
+    if pre:
+        if "end_a_m" not in pre:
+            raise SpecError("precrack.end_a_m is missing: the crack length at which precracking ends [m]")
+        phases.append(_loading(pre, "precrack", math.nan, 0.05))
+    phases.append(_loading(ld_main, "loading", a_end, 0.02))
+    a_prev = a0
+    for ph, where in zip(phases, ["precrack", "loading"] if pre else ["loading"]):
+        if not (a_prev < ph.end_a_m <= ahi * width / scale):
+            raise SpecError(f"{where}: ends at a = {ph.end_a_m * 1e3:.3f} mm, which must lie in "
+                            f"({a_prev * 1e3:.3f}, {ahi * width / scale * 1e3:.3f}] mm")
+        a_prev = ph.end_a_m
+    ctrl = _table(doc, "controller", "controller", required=False) or {"type": "demodulation"}
+    _keys(ctrl, {"type", "velocity_gain_m_s_per_v", "kp_v_per_n", "u_offset_v"}, "controller")
+    ctype = _choice(ctrl, "type", "controller", ("demodulation", "force_p"), "demodulation")
+    controller: dict[str, Any] = {"type": ctype}
+    if ctype == "force_p":
+        controller["kp_v_per_n"] = _num(ctrl, "kp_v_per_n", "controller", -1.0, 1.0)
+        controller["u_offset_v"] = _num(ctrl, "u_offset_v", "controller", -10.0, 10.0, default=0.0, unit="V")
+    elif "velocity_gain_m_s_per_v" in ctrl:
+        controller["velocity_gain_m_s_per_v"] = _num(ctrl, "velocity_gain_m_s_per_v", "controller", -10.0, 10.0, unit="m/s per V")
+    st = _table(doc, "start", "start", required=False)
+    _keys(st, {"mean_cycles", "amplitude_cycles", "stop_cycles"}, "start")
+    start = {"mean_cycles": _num(st, "mean_cycles", "start", 0.0, 1e4, default=5.0),
+             "amplitude_cycles": _num(st, "amplitude_cycles", "start", 0.0, 1e4, default=20.0),
+             "stop_cycles": _num(st, "stop_cycles", "start", 0.0, 1e4, default=3.0)}
+    rig = _table(doc, "rig", "rig", required=False)
+    _keys(rig, {"preset", "overrides"}, "rig")
+    preset = _choice(rig, "preset", "rig", ("thesis", "base"), "thesis")
+    overrides = rig.get("overrides", {})
+    if not isinstance(overrides, dict):
+        raise SpecError("rig.overrides must be a table of parameter = value (SI)")
+    run = _table(doc, "run", "run", required=False)
+    _keys(run, {"mode", "rtol"}, "run")
+    steps = doc.get("stiffness_steps", [])
+    if not (isinstance(steps, list) and all(isinstance(s, list) and len(s) == 2 for s in steps)):
+        raise SpecError("stiffness_steps must be a list of [cycle, factor] pairs")
+    spec = TestSpec(
+        name=name, geometry=geometry, width_m=width, thickness_m=thickness, a0_m=a0, material=material, law=dict(law),
+        waveform=waveform, waveform_shape=shape, frequency_hz=freq, control_rate_hz=rate, phases=phases,
+        controller=controller, end=end_d, start=start, rig_overrides={k: float(v) for k, v in overrides.items()},
+        rig_preset=preset, rtol=_num(run, "rtol", "run", 1e-8, 1e-2, default=1e-4),
+        mode=_choice(run, "mode", "run", ("full", "jump"), "jump"),
+        stiffness_steps=[(int(c), float(f)) for c, f in steps],
+    )
+    # what only the core can judge (rig limits, Kmax vs K_IC, law constants): checked now, not later
+    try:
+        _core.validate_test(spec.to_config())
+    except SpecError:
+        raise
+    except HtmError as e:
+        raise SpecError(_explain(str(e))) from None
+    return spec
+
+
+def _explain(msg: str) -> str:
+    """Map the core's config field names back to the spec's."""
+    names = {"phases[0].": "first loading phase: ", "phases[1].": "loading: ", "start Kmax": "Kmax at the start of the phase",
+             "frequency_hz": "loading.frequency_hz", "a0_m": "specimen.a0_m"}
+    for k, v in names.items():
+        msg = msg.replace(f"`{k}", f"`{v}")
+    return msg
+
+
+def load(path: str | Path) -> TestSpec:
+    """Read and validate a TOML test spec."""
+    p = Path(path)
+    try:
+        doc = tomllib.loads(p.read_text())
+    except FileNotFoundError:
+        raise SpecError(f"spec file {p} does not exist") from None
+    except tomllib.TOMLDecodeError as e:
+        raise SpecError(f"{p}: not valid TOML: {e}") from None
+    return parse(doc, p.stem)
+
+
+__all__ = ["TestSpec", "Loading", "parse", "load", "thesis_rig"]
