@@ -195,7 +195,11 @@ def test_htm_run_writes_outputs_and_rejects_bad_spec(tmp_path, capsys):
     import pyarrow.parquet as pq
     t = pq.read_table(out / "cycles.parquet")
     assert {"cycle", "fmax_n", "fmin_n", "a_m", "delta_k_pa_sqrt_m", "k_sp_n_m", "dadn_m_per_cycle", "events"} <= set(t.column_names)
-    assert (out / "report.md").exists()
+    # the E647 test report of the run (issue 4 item 6): B.1-style table, plots, force band, validity
+    md = (out / "report.md").read_text()
+    assert "±2 % band" in md and "Validity summary" in md and "Table B.1" in md and "![da/dN-dK]" in md
+    html = (out / "report.html").read_text()
+    assert html.count("data:image/png;base64,") >= 2
     assert "target_crack_length" in capsys.readouterr().out
     bad = tmp_path / "bad.toml"
     bad.write_text(EXAMPLE.read_text().replace("r_ratio = 0.1", "r_ratio = 1.2"))
