@@ -208,3 +208,21 @@ def test_htm_run_writes_outputs_and_rejects_bad_spec(tmp_path, capsys):
     assert "loading.r_ratio" in err and "Traceback" not in err
     assert not (tmp_path / "b").exists()
     assert load(EXAMPLE).mode == "jump"
+
+
+@pytest.mark.parametrize("wave,extra", [("triangle", ""), ("trapezoid", "rise_fraction = 0.2\nhold_fraction = 0.3\n")])
+def test_triangle_and_trapezoid_tests_run_to_the_end_and_flag_force_errors(tmp_path, wave, extra, capsys):
+    text = EXAMPLE.read_text().replace('waveform = "sine"', f'waveform = "{wave}"\n{extra}')
+    spec = tmp_path / f"{wave}.toml"
+    spec.write_text(text)
+    out = tmp_path / wave
+    assert main(["run", str(spec), "--out", str(out), "--quiet"]) == 0, capsys.readouterr().err
+    s = json.loads((out / "summary.json").read_text())
+    assert s["end_reason"] == "target_crack_length"
+    # The demodulation carrier is sinusoidal, so the sharp peaks of these waveforms are not held
+    # to +-2 % yet (known gap of issue 3); the per-cycle table must say so rather than hide it.
+    import pyarrow.parquet as pq
+    t = pq.read_table(out / "cycles.parquet").to_pydict()
+    assert len(t["df_err_pct"]) == len(t["cycle"]) > 100
+    assert all(x == x for x in t["df_err_pct"] + t["peak_err_pct"]), "an error for every cycle, no NaN"
+    assert 0.0 < s["max_abs_df_err_pct"] < 100.0 and 0.0 < s["max_abs_peak_err_pct"] < 100.0
