@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import csv
 import os
+import subprocess
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -101,12 +102,24 @@ class CrackData:
 
 
 def shared_dir() -> Path:
-    """The shared reference-data folder: $HTM_SHARED, else <repo>/../shared."""
+    """The shared reference-data folder: $HTM_SHARED, else <repo>/../shared, else (for a clone
+    of a local checkout) <origin>/../shared. Raises RecordError when none holds the data."""
     env = os.environ.get("HTM_SHARED")
     if env:
         return Path(env)
     repo = Path(__file__).resolve().parents[3]
-    return repo.parent / "shared"
+    candidates = [repo.parent / "shared"]
+    try:
+        url = subprocess.run(["git", "-C", str(repo), "config", "--get", "remote.origin.url"],
+                             capture_output=True, text=True, timeout=5).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        url = ""
+    if url and Path(url).is_dir():
+        candidates.append(Path(url).resolve().parent / "shared")
+    for c in candidates:
+        if (c / "data").is_dir():
+            return c
+    raise RecordError(f"reference data not found in {', '.join(map(str, candidates))}: set HTM_SHARED to the shared/ folder")
 
 
 def read_a_n(path: str | Path) -> list[CrackData]:
