@@ -157,9 +157,10 @@ impl Plant {
     }
 }
 
-impl OdeSystem<NX> for Plant {
+impl Plant {
+    /// State derivative under spool target `target` [V equivalent] (the held sample's input).
     #[inline]
-    fn rhs(&self, x: &[f64; NX], dx: &mut [f64; NX]) {
+    pub fn derivatives(&self, x: &[f64; NX], target: f64, dx: &mut [f64; NX]) {
         let p = &self.p;
         let (pa, pb, y, v, xs) = (x[PA], x[PB], x[Y], x[V], x[SPOOL]);
         // Valve (eq. 2.15-2.16, general underlapped form, NOTES item 4)
@@ -187,7 +188,14 @@ impl OdeSystem<NX> for Plant {
         }
         dx[Y] = v;
         dx[V] = (f_h - f_f - f_g - self.specimen_force(y) + f_stop) / p.moving_mass_kg;
-        dx[SPOOL] = if p.valve_tau_s > 0.0 { (self.target - xs) / p.valve_tau_s } else { 0.0 };
+        dx[SPOOL] = if p.valve_tau_s > 0.0 { (target - xs) / p.valve_tau_s } else { 0.0 };
+    }
+}
+
+impl OdeSystem<NX> for Plant {
+    #[inline]
+    fn rhs(&self, x: &[f64; NX], dx: &mut [f64; NX]) {
+        self.derivatives(x, self.target, dx)
     }
 
     /// Analytic Jacobian (finite differences only with supply sag, whose p_s is implicit).

@@ -234,14 +234,13 @@ impl PyMachine {
     fn rhs<'py>(&self, py: Python<'py>, x: PyReadonlyArray1<'_, f64>, u: f64) -> PyResult<Bound<'py, PyArray1<f64>>> {
         let s = x.as_slice()?;
         let mut arr: [f64; NX] = s.try_into().map_err(|_| InputError::new_err(format!("state needs {NX} values")))?;
-        let mut plant = self.inner.plant.clone();
-        let mut memory = 0.0;
-        plant.target = plant.spool_target(u, &mut memory);
+        let plant = &self.inner.plant;
+        let target = plant.spool_target(u, &mut 0.0);
         if plant.p.valve_tau_s == 0.0 {
-            arr[crate::machine::SPOOL] = plant.target;
+            arr[crate::machine::SPOOL] = target;
         }
         let mut dx = [0.0; NX];
-        plant.rhs(&arr, &mut dx);
+        plant.derivatives(&arr, target, &mut dx);
         Ok(PyArray1::from_slice(py, &dx))
     }
 
