@@ -7,6 +7,7 @@ pub mod error;
 pub mod friction;
 pub mod hydraulics;
 pub mod machine;
+pub mod outer_loop;
 pub mod params;
 pub mod run;
 pub mod solver;

@@ -15,12 +15,14 @@ use crate::Error;
 mod engine;
 mod fatigue;
 mod ident;
+mod outer_loop;
 
 // Submodules add their own classes and functions here.
 pub(crate) fn register_extensions(m: &Bound<'_, PyModule>) -> PyResult<()> {
     fatigue::register(m)?;
     engine::register(m)?;
     ident::register(m)?;
+    outer_loop::register(m)?;
     Ok(())
 }
 
