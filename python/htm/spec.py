@@ -284,4 +284,45 @@ def load(path: str | Path) -> TestSpec:
     return parse(doc, p.stem)
 
 
-__all__ = ["TestSpec", "Loading", "parse", "load", "thesis_rig"]
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        return repr(v) if math.isfinite(v) else ("nan" if math.isnan(v) else ("inf" if v > 0 else "-inf"))
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise SpecError(f"cannot write {v!r} to TOML")
+
+
+def dumps(doc: dict[str, Any]) -> str:
+    """A spec document (as `parse` takes it) as TOML text; `loads(dumps(doc)) == doc`."""
+    lines = [f"{k} = {_toml_value(v)}" for k, v in doc.items() if not isinstance(v, dict)]
+
+    def table(name: str, d: dict[str, Any]) -> None:
+        lines.append(f"\n[{name}]")
+        lines.extend(f"{k} = {_toml_value(v)}" for k, v in d.items() if not isinstance(v, dict))
+        for k, v in d.items():
+            if isinstance(v, dict):
+                table(f"{name}.{k}", v)
+
+    for k, v in doc.items():
+        if isinstance(v, dict):
+            table(k, v)
+    return "\n".join(lines).lstrip("\n") + "\n"
+
+
+def save(doc: dict[str, Any], path: str | Path, name: str = "test") -> TestSpec:
+    """Validate `doc` and write it as TOML to `path` (refuses to overwrite); returns the spec."""
+    spec = parse(doc, name)
+    p = Path(path)
+    if p.exists():
+        raise SpecError(f"{p} exists; refusing to overwrite a spec")
+    p.write_text(dumps(doc))
+    return spec
+
+
+__all__ = ["TestSpec", "Loading", "parse", "load", "dumps", "save", "thesis_rig"]

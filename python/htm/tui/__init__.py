@@ -1,0 +1,1 @@
+"""The `htm-tui` operator console (Textual): setup, install, run, results, diagnose."""
