@@ -2,12 +2,14 @@
 //! feature adds thin pyo3 bindings that own no logic.
 pub mod control;
 pub mod crack;
+pub mod cyclic;
 pub mod engine;
 pub mod error;
 pub mod friction;
 pub mod hydraulics;
 pub mod machine;
 pub mod params;
+pub mod rig;
 pub mod run;
 pub mod solver;
 pub mod specimen;
