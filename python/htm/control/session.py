@@ -234,16 +234,19 @@ class Session:
         return self._do(f, "tare load cell")
 
     def start(self, spec, f0_n: float | None = None) -> None:
-        """Start the test `spec` (htm.spec.TestSpec) with a smooth ramp-in from the present force."""
+        """Start the test `spec` (htm.spec.TestSpec) with a smooth ramp-in from the present force.
+        The controller is built here (its gain design takes milliseconds), then swapped in."""
+        self._motion_allowed()
         cfg = spec.to_config()
         cfg["params"] = with_overrides(_core.Params(self.cfg.rig_preset), self.cfg.rig_overrides)
+        lp = self.loop
+        ctrl = _core.CyclicController(lp.rate_hz, self.cfg.position or None)
+        f0 = lp.meas["f"] if f0_n is None else f0_n
+        ctrl.start_test(cfg, 0.0 if math.isnan(f0) else f0)
 
         def f() -> None:
             self._motion_allowed()
-            lp = self.loop
-            f0 = lp.meas["f"] if f0_n is None else f0_n
-            lp.ctrl.start_test(cfg, 0.0 if math.isnan(f0) else f0)
-            lp.ctrl.command_limit_v = math.inf
+            lp.ctrl = ctrl
             lp.energise()
         self._do(f, f"start test {spec.name}")
 
