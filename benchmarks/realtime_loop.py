@@ -44,7 +44,8 @@ def realtime(rate_hz: float, seconds: float, priority: int) -> dict:
         s.start(spec)
         time.sleep(seconds)
         snap = s.snapshot()
-        return {**snap["timing"], "cycles": snap["cycles"], "interlock": snap["interlock"]}
+        trips = [e["message"] for e in s.events_since(0) if e["kind"] == "trip"]
+        return {**snap["timing"], "cycles": snap["cycles"], "interlock": snap["interlock"], "trips": trips[:5]}
     finally:
         s.close()
 
