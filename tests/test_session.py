@@ -65,14 +65,17 @@ def test_estop_latches_until_reset_and_refuses_motion():
 
 def test_realtime_thread_runs_a_test_with_a_decimated_feed():
     spec = load(ROOT / "examples" / "ct_constant_force.toml")
-    s = Session().open(virtual_config("realtime"), virtual=True, specimen=specimen_of(spec))
+    # timing is the benchmark's business: on a loaded shared machine a late TPDO must not end this
+    # functional test, so freshness and heartbeat get slack here
+    slack = {"transducer_silent": {"hi": 200.0}, "heartbeat": {"hi": 2.0}, "position_plausibility": {"hi": 1.0}}
+    s = Session().open(virtual_config("realtime", limits=slack), virtual=True, specimen=specimen_of(spec))
     try:
         s.start(spec)
         time.sleep(2.0)
         s.hold()
         time.sleep(0.3)
         snap = s.snapshot()
-        assert snap["state"] == "holding" and snap["cycles"] >= 10
+        assert snap["state"] == "holding" and snap["cycles"] >= 10, [e["message"] for e in s.events_since(0)]
         feed = s.feed_since(0)
         rate = len(feed) / (feed[-1]["t_s"] - feed[0]["t_s"])
         assert 15.0 <= rate <= 21.0, f"feed at {rate:.1f} Hz"

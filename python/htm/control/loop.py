@@ -5,6 +5,7 @@ a wall-clock schedule on a dedicated thread (sleep to just before the deadline, 
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections import deque
 from typing import Any, Callable
@@ -20,6 +21,17 @@ ERROR_WINDOW = 50  # periods over which CAN error frames are counted
 SPIN_NS = 300_000  # real time: sleep until this long before the deadline, then spin
 FEED_HZ = 20.0
 LOCKSTEP_REPLY_S = 0.05  # lock-step against a rig in another process: its answer to one SYNC
+
+
+def set_priority(priority: int, log: EventLog | None = None) -> None:
+    """Give the calling thread SCHED_FIFO `priority` (0: leave it); logs when the OS refuses."""
+    if priority <= 0:
+        return
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (OSError, AttributeError) as e:
+        if log is not None:
+            log.add(0, "warning", f"real-time priority {priority} refused: {e}")
 
 
 class ControlLoop:
@@ -184,6 +196,7 @@ class ControlLoop:
 
     def run_realtime(self, seconds: float | None = None, stop: Callable[[], bool] | None = None) -> None:
         """Wall-clock periods on this thread until `seconds` pass or `stop()` is true."""
+        set_priority(self.cfg.loop.priority, self.log)
         period_ns = round(self.dt * 1e9)
         perf, sleep = time.perf_counter_ns, time.sleep
         t0 = perf()

@@ -100,6 +100,8 @@ class LoopConfig:
     safe_command_v: float = 1.0
     # real time: how long to wait for the TPDO after SYNC, as a fraction of the period
     tpdo_wait: float = 0.4
+    # real time: SCHED_FIFO priority of the loop thread (and the in-process rig's); 0 = normal
+    priority: int = 0
 
 
 @dataclass(frozen=True)
@@ -220,12 +222,13 @@ def parse_config(doc: dict[str, Any], base: Path | None = None) -> RigConfig:
     analog = AnalogConfig(backend, device, channels, cal)
 
     lp = doc.get("loop", {})
-    _keys(lp, {"rate_hz", "mode", "safe_command_v", "tpdo_wait"}, "loop")
+    _keys(lp, {"rate_hz", "mode", "safe_command_v", "tpdo_wait", "priority"}, "loop")
     mode = lp.get("mode", "realtime")
     if mode not in ("realtime", "lockstep"):
         raise _err(f"loop.mode = {mode!r}: use realtime or lockstep")
     loop = LoopConfig(_num(lp, "rate_hz", "loop", 500.0, 50.0, 5000.0, "Hz"), mode,
-                      _num(lp, "safe_command_v", "loop", 1.0, 0.0, 10.0, "V"), _num(lp, "tpdo_wait", "loop", 0.4, 0.0, 0.9))
+                      _num(lp, "safe_command_v", "loop", 1.0, 0.0, 10.0, "V"), _num(lp, "tpdo_wait", "loop", 0.4, 0.0, 0.9),
+                      int(_num(lp, "priority", "loop", 0, 0, 99, "(SCHED_FIFO; 0 = normal)")))
 
     lim = doc.get("limits", {})
     _keys(lim, set(DEFAULT_LIMITS), "limits")

@@ -53,6 +53,10 @@ class VirtualRig:
 
     # -- one plant period per SYNC ------------------------------------------------------------
     def _on_sync(self) -> tuple[float, float]:
+        if self.periods == 0 and self.cfg.loop.mode == "realtime":
+            from htm.control.loop import set_priority
+
+            set_priority(self.cfg.loop.priority)
         f = self.faults
         u = self.daq.output(self._valve)
         self.valve_command_v = u
