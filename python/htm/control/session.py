@@ -62,10 +62,13 @@ class Session:
 
     # -- life cycle ---------------------------------------------------------------------------------
     def open(self, config: RigConfig | str | Path | None = None, *, virtual: bool | None = None,
-             specimen: dict[str, Any] | None = None, thread: bool = True, mode: str | None = None) -> "Session":
+             specimen: dict[str, Any] | None = None, thread: bool = True, mode: str | None = None,
+             paced: bool = False) -> "Session":
         """Validate the configuration, open the bus and the DAQ, check the transducer over SDO, start
         it (NMT) and the loop. `None` = an in-process virtual rig; `virtual=True` puts one behind
-        any config. Nothing is energised until a motion or a test is commanded."""
+        any config. `paced=True` with a lock-step in-process rig keeps the deterministic device path
+        (the loop pumps the rig) but runs the periods on the wall clock, as the console does.
+        Nothing is energised until a motion or a test is commanded."""
         if isinstance(config, (str, Path)):
             config = load_config(config)
         cfg = config or virtual_config(mode or "realtime")
@@ -73,6 +76,7 @@ class Session:
             raise DeviceError(f"mode {mode!r} differs from the config's loop.mode {cfg.loop.mode!r}")
         virtual = config is None if virtual is None else virtual
         self.cfg = cfg
+        self._paced = paced
         params = with_overrides(_core.Params(cfg.rig_preset), cfg.rig_overrides)
         try:
             if virtual:
@@ -99,7 +103,7 @@ class Session:
                      f"{cfg.loop.mode} at {cfg.loop.rate_hz:g} Hz")
         if thread:
             self._thread = threading.Thread(target=self._run, name="htm-control-loop", daemon=True)
-            if cfg.loop.mode == "realtime":
+            if cfg.loop.mode == "realtime" or paced:
                 sys.setswitchinterval(5e-4)  # other threads must not hold the GIL for 5 ms
             self._thread.start()
         return self
@@ -121,7 +125,7 @@ class Session:
     def _run(self) -> None:
         lp = self.loop
         try:
-            if self.cfg.loop.mode == "realtime":
+            if self.cfg.loop.mode == "realtime" or self._paced:
                 lp.run_realtime()
             else:
                 while not lp.stop_requested:

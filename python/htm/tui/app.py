@@ -1,27 +1,61 @@
-"""The console application: one tab per workflow, handset-like keys, a help screen."""
+"""The console application: one tab per workflow, handset-like keys, a help screen.
+
+The control loop runs on its own thread inside `htm.control.session.Session`; the console only
+polls it (snapshot, decimated feed, new cycles, new events) at `POLL_HZ` and sends commands from
+worker threads, so the loop never waits for the UI and a slow screen never piles up messages.
+"""
 from __future__ import annotations
 
 import argparse
 import sys
-from typing import Any
+import time
+from typing import Any, Callable
 
+from textual import work
 from textual.app import App, ComposeResult
 from textual.binding import Binding
 from textual.containers import VerticalScroll
 from textual.screen import ModalScreen
-from textual.widgets import Footer, Header, Markdown, TabbedContent, TabPane
+from textual.widgets import Footer, Header, Markdown, RichLog, TabbedContent, TabPane
 
+from htm.errors import HtmError
+from htm.tui.install import InstallPane
+from htm.tui.runpane import RunPane
 from htm.tui.setup import SetupPane
+
+POLL_HZ = 10.0  # ≤ 20 Hz: the console's view of the loop
+PROTECT_FORCE_N = 2000.0  # specimen protect of the built-in virtual rig
+
+
+def virtual_rig_config(rate_hz: float = 500.0):
+    """The built-in virtual rig: in-process, lock-step device path, specimen protect at 2 kN."""
+    from htm.devices.config import virtual_config
+
+    return virtual_config("lockstep", rate_hz, position={"protect_force_n": PROTECT_FORCE_N})
 
 KEYS = """\
 # htm-tui keys
 
+Like a controller handset: the keys act on the tab you are in; E-stop works everywhere.
+
 | key | where | action |
 |---|---|---|
+| **F12** or **ctrl+e** | anywhere | **E-STOP**: valve null, amplifier off, supply unloaded; latched until reset |
 | F1 or ? | anywhere | this help |
 | F2 … F6 | anywhere | Setup, Install, Run, Results, Diagnose |
-| ctrl+s | Setup | simulate the spec on the fast engine |
-| q | anywhere | quit (refused while a test runs) |
+| ctrl+s | anywhere | simulate the Setup spec on the fast engine (predicted life, force errors) |
+| ↑ / ↓ | Install | jog up / down at the jog rate (position control, specimen protect on) |
+| space | Install | stop jogging |
+| [ / ] | Install | step down / up by the step size |
+| + / − | Install | faster / slower jog rate and larger / smaller step |
+| t | Install | tare the load cell |
+| m | Install | move to the start position |
+| o | Install | position control on (holds where the piston is) |
+| s | Run | start the test (smooth ramp-in) |
+| h / r | Run | hold (freeze at mean) / resume |
+| x | Run | stop (ramp to mean, then null) |
+| ctrl+r | Run | reset interlocks whose condition has gone |
+| q | anywhere | quit (the loop stops safely: valve null, amplifier off) |
 
 Escape closes this screen.
 """
@@ -29,7 +63,7 @@ Escape closes this screen.
 
 class HelpScreen(ModalScreen[None]):
     BINDINGS = [Binding("escape,f1,question_mark", "app.pop_screen", "close")]
-    DEFAULT_CSS = "HelpScreen { align: center middle; } HelpScreen > VerticalScroll { width: 90; height: 80%; border: thick $accent; background: $surface; }"
+    DEFAULT_CSS = "HelpScreen { align: center middle; } HelpScreen > VerticalScroll { width: 100; height: 90%; border: thick $accent; background: $surface; }"
 
     def compose(self) -> ComposeResult:
         with VerticalScroll():
@@ -40,26 +74,129 @@ class HtmApp(App[None]):
     TITLE = "htm"
     SUB_TITLE = "servo-hydraulic fatigue testing"
     BINDINGS = [
+        Binding("f12,ctrl+e", "estop", "E-STOP", priority=True),
         Binding("f1,question_mark", "help", "help"),
-        Binding("f2", "tab('setup')", "setup"),
+        Binding("f2", "tab('setup')", "setup", show=False),
         Binding("f3", "tab('install')", "install", show=False),
         Binding("f4", "tab('run')", "run", show=False),
         Binding("f5", "tab('results')", "results", show=False),
         Binding("f6", "tab('diagnose')", "diagnose", show=False),
         Binding("ctrl+s", "simulate", "simulate"),
-        Binding("q", "quit_safely", "quit"),
+        Binding("q", "quit", "quit"),
     ]
+    CSS = "#events { height: 6; border-top: solid $accent; }"
 
-    def __init__(self, *, config: Any = None, **kw: Any) -> None:
+    def __init__(self, *, config: Any = None, session: Any = None, session_factory: Callable[[], Any] | None = None,
+                 poll: bool = True, **kw: Any) -> None:
         super().__init__(**kw)
+        # the simulated DAQ lives in shared memory, whose tracker process must be forked while
+        # the standard streams are still real files (Textual replaces them once it runs)
+        from multiprocessing import resource_tracker
+
+        resource_tracker.ensure_running()
         self.config = config
+        self.session = session
+        self._factory = session_factory
+        self._poll_on = poll
+        self._last_period = 0
+        self._last_cycle = 0
+        self._last_event = 0
+        self.key_latency_ms: list[float] = []
 
     def compose(self) -> ComposeResult:
         yield Header()
         with TabbedContent(initial="setup", id="tabs"):
             with TabPane("Setup F2", id="setup"):
                 yield SetupPane(id="setup-pane")
+            with TabPane("Install F3", id="install"):
+                yield InstallPane(id="install-pane")
+            with TabPane("Run F4", id="run"):
+                yield RunPane(id="run-pane")
+        yield RichLog(id="events", markup=True, max_lines=500)
         yield Footer()
+
+    def on_mount(self) -> None:
+        if self.session is None:
+            self._open_session()
+        if self._poll_on:
+            self.set_interval(1.0 / POLL_HZ, self.poll)
+
+    # ---- the session (rig + loop) ------------------------------------------------------------
+    def _open_session(self) -> None:
+        from htm.control.session import Session, specimen_of
+
+        try:
+            if self._factory is not None:
+                self.session = self._factory()
+            else:
+                spec = self.current_spec()
+                specimen = specimen_of(spec) if spec else None
+                if self.config:
+                    self.session = Session().open(self.config, specimen=specimen)
+                else:  # the built-in virtual rig: in-process, paced to the wall clock, protect on
+                    self.session = Session().open(virtual_rig_config(), virtual=True, specimen=specimen, paced=True)
+            where = "hardware config " + str(self.config) if self.config else "the virtual rig"
+            self.log_event(f"[green]connected to {where}[/]")
+        except Exception as e:  # the console stays up without a rig and says why
+            self.session = None
+            self.log_event(f"[red]rig not available: {e}[/]")
+            self.notify(f"rig not available: {e}", severity="error", timeout=10)
+
+    def current_spec(self):
+        return self.query_one(SetupPane).spec
+
+    def log_event(self, text: str) -> None:
+        self.query_one("#events", RichLog).write(text)
+
+    def poll(self) -> None:
+        """Read what the loop published since the last poll and hand it to the panes."""
+        s = self.session
+        if s is None or getattr(s, "loop", None) is None:
+            return
+        snap = s.snapshot()
+        feed = s.feed_since(self._last_period)
+        rows = s.cycles_since(self._last_cycle)
+        events = s.events_since(self._last_event)
+        if feed:
+            self._last_period = feed[-1]["period"]
+        if rows:
+            self._last_cycle = rows[-1]["cycle"]
+        self._last_event += len(events)
+        for e in events:
+            color = {"trip": "red", "estop": "b red", "reset": "green"}.get(e.get("kind", ""), "white")
+            self.log_event(f"[{color}]{e.get('period', 0):>9} {e.get('kind', '')}: {e.get('message', '')}[/]")
+        run = self.query_one(RunPane)
+        run.add_feed(feed)
+        run.add_cycles(rows)
+        active = self.query_one("#tabs", TabbedContent).active
+        if active == "run":
+            run.update_live(snap, s.detectors())
+        elif active == "install":
+            self.query_one(InstallPane).update_live(snap)
+
+    def command(self, name: str, *args: Any) -> None:
+        """Send session command `name` (a `Session` method) from a worker thread."""
+        if self.session is None or getattr(self.session, "loop", None) is None:
+            self.notify(f"{name}: no rig connected", severity="error")
+            return
+        self._command(getattr(self.session, name), name, *args)
+
+    @work(thread=True, group="commands")
+    def _command(self, fn: Callable[..., Any], name: str, *args: Any) -> None:
+        """Run a session command off the UI thread; refusals become notifications."""
+        try:
+            fn(*args)
+        except HtmError as e:
+            self.call_from_thread(self.notify, f"{name} refused: {e}", severity="error")
+        except TimeoutError:
+            self.call_from_thread(self.notify, f"{name}: the loop did not answer", severity="error")
+
+    # ---- actions ----------------------------------------------------------------------------
+    def action_estop(self) -> None:
+        # straight from the UI thread: Session.estop only sets the latch the loop checks
+        if self.session is not None and getattr(self.session, "loop", None) is not None:
+            self.session.estop()
+            self.log_event("[b red]E-STOP pressed[/]")
 
     def action_help(self) -> None:
         self.push_screen(HelpScreen())
@@ -68,16 +205,28 @@ class HtmApp(App[None]):
         tabs = self.query_one("#tabs", TabbedContent)
         if tabs.query(f"#{tab}"):
             tabs.active = tab
+            pane = {"install": InstallPane, "run": RunPane}.get(tab)
+            if pane is not None:
+                self.query_one(pane).focus()
 
     def action_simulate(self) -> None:
         self.query_one(SetupPane).action_simulate()
 
-    def action_quit_safely(self) -> None:
+    async def action_quit(self) -> None:
+        if self.session is not None:
+            self.session.close()
+            self.session = None
         self.exit()
+
+    def on_unmount(self) -> None:
+        if self.session is not None:
+            self.session.close()
+            self.session = None
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="htm-tui", description="The htm operator console (virtual rig unless --config names hardware).")
+    ap = argparse.ArgumentParser(prog="htm-tui", description="The htm operator console: the built-in virtual rig, "
+                                 "or the hardware a rig configuration (TOML) names.")
     ap.add_argument("--config", help="rig configuration (TOML); default: the built-in virtual rig")
     args = ap.parse_args(argv)
     HtmApp(config=args.config).run()

@@ -1,0 +1,159 @@
+"""Run: live plots and numbers of the running test, start/hold/resume/stop/e-stop, and the
+limits/interlock panel with every detector, its state and action, and a reset."""
+from __future__ import annotations
+
+import math
+from collections import deque
+from typing import Any
+
+from textual import on
+from textual.app import ComposeResult
+from textual.binding import Binding
+from textual.containers import Grid, Horizontal, Vertical
+from textual.widgets import Button, DataTable, Static
+from textual_plotext import PlotextPlot
+
+FEED_KEEP = 200     # decimated samples shown (≈ 10 s at 20 Hz)
+CYCLES_KEEP = 2000  # per-cycle points shown
+
+
+class RunPane(Vertical):
+    can_focus = True
+    BINDINGS = [
+        Binding("s", "start", "start"),
+        Binding("h", "hold", "hold"),
+        Binding("r", "resume", "resume"),
+        Binding("x", "stop", "stop"),
+        Binding("ctrl+r", "reset", "reset interlocks"),
+    ]
+    DEFAULT_CSS = """
+    RunPane #run-bar { height: 3; }
+    RunPane #run-numbers { height: auto; border: round $accent; padding: 0 1; }
+    RunPane #plots { grid-size: 2 2; height: 1fr; min-height: 16; }
+    RunPane #detectors { height: 12; }
+    RunPane #estop { background: $error; }
+    """
+
+    def __init__(self, **kw: Any) -> None:
+        super().__init__(**kw)
+        self.t: deque[float] = deque(maxlen=FEED_KEEP)
+        self.force: deque[float] = deque(maxlen=FEED_KEEP)
+        self.cyc: dict[str, deque[float]] = {k: deque(maxlen=CYCLES_KEEP) for k in ("n", "fmax", "fmin", "tmax", "tmin", "a", "dk")}
+
+    def compose(self) -> ComposeResult:
+        with Horizontal(id="run-bar"):
+            yield Button("Start (s)", id="start", variant="success")
+            yield Button("Hold (h)", id="hold")
+            yield Button("Resume (r)", id="resume")
+            yield Button("Stop (x)", id="stop", variant="warning")
+            yield Button("E-STOP (F12)", id="estop", variant="error")
+            yield Button("Reset (ctrl+r)", id="reset")
+        yield Static("", id="run-numbers")
+        with Grid(id="plots"):
+            yield PlotextPlot(id="plot-force")
+            yield PlotextPlot(id="plot-peaks")
+            yield PlotextPlot(id="plot-a")
+            yield PlotextPlot(id="plot-dk")
+        yield DataTable(id="detectors", cursor_type="row", zebra_stripes=True)
+
+    def on_mount(self) -> None:
+        t = self.query_one("#detectors", DataTable)
+        t.add_columns("detector", "channel", "limits", "value", "state", "action", "latched")
+        for pid, title in (("plot-force", "force [kN] vs time [s]"), ("plot-peaks", "peak/valley [kN] vs cycle, ±2 % band"),
+                           ("plot-a", "crack length a [mm] vs cycle"), ("plot-dk", "ΔK [MPa·√m] vs cycle")):
+            self.query_one(f"#{pid}", PlotextPlot).plt.title(title)
+
+    # ---- data from the app's poller (≤ 10 Hz, coalesced) ---------------------------------------
+    def add_feed(self, samples: list[dict[str, Any]]) -> None:
+        for s in samples:
+            self.t.append(s["t_s"])
+            self.force.append(s.get("f", math.nan) / 1e3)
+
+    def add_cycles(self, rows: list[dict[str, Any]]) -> None:
+        c = self.cyc
+        for r in rows:
+            c["n"].append(r["cycle"])
+            c["fmax"].append(r["fmax_n"] / 1e3)
+            c["fmin"].append(r["fmin_n"] / 1e3)
+            c["tmax"].append(r.get("fmax_target_n", math.nan) / 1e3)
+            c["tmin"].append(r.get("fmin_target_n", math.nan) / 1e3)
+            c["a"].append(r["a_m"] * 1e3)
+            c["dk"].append(r["delta_k_pa_sqrt_m"] / 1e6)
+
+    def update_live(self, snap: dict[str, Any], detectors: list[dict[str, Any]]) -> None:
+        tm = snap.get("timing") or {}
+        self.query_one("#run-numbers", Static).update(
+            f"[b]state[/] {snap['state']}   [b]cycles[/] {snap['cycles']:,}   [b]f[/] {snap['frequency_hz']:.2f} Hz   "
+            f"[b]a[/] {snap['a_m'] * 1e3:.3f} mm   [b]ΔK[/] {snap['delta_k_pa_sqrt_m'] / 1e6:.2f} MPa·√m   "
+            f"[b]K_sp[/] {snap['k_sp_n_m'] / 1e6:.1f} kN/mm\n"
+            f"[b]peak err[/] {snap['peak_err_pct']:+.2f} %   [b]ΔF err[/] {snap['df_err_pct']:+.2f} %   "
+            f"[b]amplifier[/] {'ON' if snap['amplifier'] else 'off'}   [b]interlock[/] {snap['interlock'] or 'none'}"
+            f"{'   [b red]E-STOP[/]' if snap.get('estop') else ''}   "
+            f"[b]loop[/] p99 {tm.get('p99_ms', math.nan):.3f} ms, overruns {tm.get('overruns', 0)}"
+            + (f"   [b]end[/] {snap['end_reason']}" if snap.get("end_reason") else ""))
+        self._plots()
+        self._detectors(detectors)
+
+    def _plots(self) -> None:
+        def draw(pid: str, series: list[tuple[list[float], list[float], str]]) -> None:
+            w = self.query_one(f"#{pid}", PlotextPlot)
+            plt = w.plt
+            plt.clear_data()
+            for x, y, label in series:
+                if x:
+                    plt.plot(x, y, label=label)
+            w.refresh()
+
+        c = {k: list(v) for k, v in self.cyc.items()}
+        draw("plot-force", [(list(self.t), list(self.force), "F")])
+        band = [(c["n"], [v * 1.02 for v in c["tmax"]], "+2 %"), (c["n"], [v * 0.98 for v in c["tmax"]], "−2 %")] if c["n"] else []
+        draw("plot-peaks", [(c["n"], c["fmax"], "peak"), (c["n"], c["fmin"], "valley"), *band])
+        draw("plot-a", [(c["n"], c["a"], "a")])
+        draw("plot-dk", [(c["n"], c["dk"], "ΔK")])
+
+    def _detectors(self, dets: list[dict[str, Any]]) -> None:
+        t = self.query_one("#detectors", DataTable)
+        rows = [(d["name"], d["channel"], f"[{d['lo']:.4g}, {d['hi']:.4g}]", f"{d['value']:.4g}",
+                 d["state"], d["action"], "LATCHED" if d["latched"] else "") for d in dets]
+        if t.row_count != len(rows):
+            t.clear()
+            for r in rows:
+                t.add_row(*r, key=r[0])
+            return
+        for r in rows:
+            for col, val in zip(t.columns, r):
+                t.update_cell(r[0], col, val)
+
+    # ---- commands ---------------------------------------------------------------------------
+    def _cmd(self, name: str, *args) -> None:
+        self.app.command(name, *args)  # type: ignore[attr-defined]
+
+    @on(Button.Pressed, "#start")
+    def action_start(self) -> None:
+        spec = self.app.current_spec()  # type: ignore[attr-defined]
+        if spec is None:
+            self.notify("the spec in Setup is not valid", severity="error")
+            return
+        for d in self.cyc.values():
+            d.clear()
+        self._cmd("start", spec)
+
+    @on(Button.Pressed, "#hold")
+    def action_hold(self) -> None:
+        self._cmd("hold")
+
+    @on(Button.Pressed, "#resume")
+    def action_resume(self) -> None:
+        self._cmd("resume")
+
+    @on(Button.Pressed, "#stop")
+    def action_stop(self) -> None:
+        self._cmd("stop")
+
+    @on(Button.Pressed, "#estop")
+    def _estop(self) -> None:
+        self.app.action_estop()  # type: ignore[attr-defined]
+
+    @on(Button.Pressed, "#reset")
+    def action_reset(self) -> None:
+        self._cmd("reset")
