@@ -19,7 +19,9 @@ from textual.screen import ModalScreen
 from textual.widgets import Footer, Header, Markdown, RichLog, TabbedContent, TabPane
 
 from htm.errors import HtmError
+from htm.tui.diagnose_pane import DiagnosePane
 from htm.tui.install import InstallPane
+from htm.tui.results import ResultsPane
 from htm.tui.runpane import RunPane
 from htm.tui.setup import SetupPane
 
@@ -55,6 +57,8 @@ Like a controller handset: the keys act on the tab you are in; E-stop works ever
 | h / r | Run | hold (freeze at mean) / resume |
 | x | Run | stop (ramp to mean, then null) |
 | ctrl+r | Run | reset interlocks whose condition has gone |
+| ctrl+l | Results | refresh the list of tests |
+| v | Results | open the selected test's rerun recording |
 | q | anywhere | quit (the loop stops safely: valve null, amplifier off) |
 
 Escape closes this screen.
@@ -87,7 +91,7 @@ class HtmApp(App[None]):
     CSS = "#events { height: 6; border-top: solid $accent; }"
 
     def __init__(self, *, config: Any = None, session: Any = None, session_factory: Callable[[], Any] | None = None,
-                 poll: bool = True, **kw: Any) -> None:
+                 poll: bool = True, store: Any = None, **kw: Any) -> None:
         super().__init__(**kw)
         # the simulated DAQ lives in shared memory, whose tracker process must be forked while
         # the standard streams are still real files (Textual replaces them once it runs)
@@ -95,6 +99,7 @@ class HtmApp(App[None]):
 
         resource_tracker.ensure_running()
         self.config = config
+        self.store_root = store
         self.session = session
         self._factory = session_factory
         self._poll_on = poll
@@ -112,6 +117,10 @@ class HtmApp(App[None]):
                 yield InstallPane(id="install-pane")
             with TabPane("Run F4", id="run"):
                 yield RunPane(id="run-pane")
+            with TabPane("Results F5", id="results"):
+                yield ResultsPane(self.store_root, id="results-pane")
+            with TabPane("Diagnose F6", id="diagnose"):
+                yield DiagnosePane(id="diagnose-pane")
         yield RichLog(id="events", markup=True, max_lines=500)
         yield Footer()
 
@@ -205,7 +214,7 @@ class HtmApp(App[None]):
         tabs = self.query_one("#tabs", TabbedContent)
         if tabs.query(f"#{tab}"):
             tabs.active = tab
-            pane = {"install": InstallPane, "run": RunPane}.get(tab)
+            pane = {"install": InstallPane, "run": RunPane, "results": ResultsPane}.get(tab)
             if pane is not None:
                 self.query_one(pane).focus()
 
@@ -228,8 +237,9 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="htm-tui", description="The htm operator console: the built-in virtual rig, "
                                  "or the hardware a rig configuration (TOML) names.")
     ap.add_argument("--config", help="rig configuration (TOML); default: the built-in virtual rig")
+    ap.add_argument("--store", help="test store folder (default: $HTM_STORE or ~/.local/share/htm/store)")
     args = ap.parse_args(argv)
-    HtmApp(config=args.config).run()
+    HtmApp(config=args.config, store=args.store).run()
     return 0
 
 

@@ -1,0 +1,80 @@
+"""Diagnose: pick a measurement record, run `htm diagnose` on it (in a worker), and show the
+findings with the error before and after each one."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from textual import on, work
+from textual.app import ComposeResult
+from textual.containers import Horizontal, Vertical
+from textual.widgets import Button, DataTable, Input, Static
+
+from htm.errors import HtmError
+
+TABLE_SUFFIXES = (".csv", ".csv.gz", ".parquet")
+
+
+def fmt_rmse(d: dict[str, float]) -> str:
+    units = {"y": ("mm", 1e3), "v": ("mm/s", 1e3), "p_a": ("bar", 1e-5), "p_b": ("bar", 1e-5), "p_s": ("bar", 1e-5), "f": ("N", 1.0)}
+    return ", ".join(f"{c} {v * units.get(c, ('', 1.0))[1]:.4g} {units.get(c, ('', 1.0))[0]}" for c, v in d.items())
+
+
+class DiagnosePane(Vertical):
+    DEFAULT_CSS = """
+    DiagnosePane #diag-bar { height: 3; }
+    DiagnosePane #diag-bar Input { width: 1fr; }
+    DiagnosePane #diag-status { height: auto; padding: 0 1; }
+    DiagnosePane #findings { height: 1fr; }
+    """
+
+    def compose(self) -> ComposeResult:
+        with Horizontal(id="diag-bar"):
+            yield Input(placeholder="record table (.csv, .csv.gz, .parquet) with its .json beside it", id="diag-record")
+            yield Input(placeholder="output folder", id="diag-out")
+            yield Button("Diagnose", id="diag-run", variant="primary")
+        yield Static("", id="diag-status")
+        yield DataTable(id="findings", zebra_stripes=True)
+
+    def on_mount(self) -> None:
+        self.query_one("#findings", DataTable).add_columns("#", "effect", "channel", "params", "RMSE before", "RMSE after", "evidence")
+
+    @on(Button.Pressed, "#diag-run")
+    def start(self) -> None:
+        rec = self.query_one("#diag-record", Input).value.strip()
+        out = self.query_one("#diag-out", Input).value.strip()
+        if not rec:
+            self.notify("type the path of a record", severity="warning")
+            return
+        out_dir = Path(out) if out else Path(rec).with_name(Path(rec).name.split(".")[0] + "-diagnosis")
+        self.query_one("#diag-status", Static).update(f"diagnosing {rec} → {out_dir} …")
+        self.query_one("#findings", DataTable).clear()
+        self._run(rec, out_dir)
+
+    @work(thread=True, exclusive=True, group="diagnose")
+    def _run(self, path: str, out_dir: Path) -> None:
+        from htm.ident.diagnose import diagnose
+        from htm.ident.records import read_record
+
+        try:
+            if out_dir.exists() and any(out_dir.iterdir()):
+                raise HtmError(f"{out_dir} is not empty; choose another output folder")
+            report = diagnose(read_record(path), out_dir=out_dir)
+        except (HtmError, OSError) as e:
+            self.app.call_from_thread(self.query_one("#diag-status", Static).update, f"[red]{e}[/]")
+            return
+        self.app.call_from_thread(self.show, report, out_dir)
+
+    def show(self, report: dict[str, Any], out_dir: Path) -> None:
+        t = self.query_one("#findings", DataTable)
+        t.clear()
+        for i, f in enumerate(report["findings"], 1):
+            params = ", ".join(f"{k} = {v:.4g}" for k, v in f["params"].items())
+            t.add_row(str(i), f["effect"], f["channel"] or "", params, fmt_rmse(f["rmse_before"]), fmt_rmse(f["rmse_after"]), f["evidence"])
+        n = len(report["findings"])
+        verdict = ("[b yellow]unexplained structure remains[/]" if report["unexplained"]
+                   else "[green]nothing systematic left unexplained[/]")
+        self.query_one("#diag-status", Static).update(
+            f"[b]{report['record']}[/]: {n} finding{'s' if n != 1 else ''}; {verdict}\n"
+            f"baseline RMSE {fmt_rmse(report['baseline']['rmse'])}\nfinal RMSE    {fmt_rmse(report['final']['rmse'])}\n"
+            f"report: {out_dir / 'report.md'}")
