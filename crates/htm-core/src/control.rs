@@ -2,6 +2,8 @@
 use crate::error::{Error, Result};
 use crate::machine::Outputs;
 
+pub mod limits;
+
 /// A sampled control law.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Controller {

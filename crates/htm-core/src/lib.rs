@@ -2,6 +2,7 @@
 //! feature adds thin pyo3 bindings that own no logic.
 pub mod control;
 pub mod crack;
+pub mod cyclic;
 pub mod engine;
 pub mod error;
 pub mod friction;
@@ -9,6 +10,7 @@ pub mod hydraulics;
 pub mod machine;
 pub mod outer_loop;
 pub mod params;
+pub mod rig;
 pub mod run;
 pub mod solver;
 pub mod specimen;

@@ -56,7 +56,7 @@ fn action(s: &str, field: &str) -> PyResult<Action> {
     }
 }
 
-fn config_from(d: &Bound<'_, PyDict>) -> PyResult<TestConfig> {
+pub(super) fn config_from(d: &Bound<'_, PyDict>) -> PyResult<TestConfig> {
     let params = match d.get_item("params")? {
         Some(p) if !p.is_none() => p.extract::<PyParams>()?.inner,
         _ => Params::default(),

@@ -12,6 +12,7 @@ use crate::run::{self, Trace};
 use crate::solver::{OdeSystem, Stats};
 use crate::Error;
 
+mod control;
 mod engine;
 mod fatigue;
 mod ident;
@@ -20,6 +21,7 @@ mod outer_loop;
 // Submodules add their own classes and functions here.
 pub(crate) fn register_extensions(m: &Bound<'_, PyModule>) -> PyResult<()> {
     fatigue::register(m)?;
+    control::register(m)?;
     engine::register(m)?;
     ident::register(m)?;
     outer_loop::register(m)?;

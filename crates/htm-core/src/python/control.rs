@@ -1,0 +1,338 @@
+//! Thin bindings of the real-time loop's Rust parts: the per-period controller (`Cyclic`), the
+//! limit detectors and the virtual rig's plant. One call per control period, no GIL release (µs).
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyList};
+
+use super::engine::config_from;
+use super::fatigue::law_from;
+use super::{py_err, InputError, PyParams};
+use crate::control::limits::{Action, Detector, Detectors};
+use crate::cyclic::{Cyclic, CycleResult, PositionGains};
+use crate::params::Params;
+use crate::rig::{CrackingSpecimen, RigPlant};
+use crate::specimen::{Geometry, Material, Specimen};
+
+fn opt_f(d: Option<&Bound<'_, PyDict>>, k: &str, default: f64) -> PyResult<f64> {
+    match d {
+        Some(d) => match d.get_item(k)? {
+            Some(v) if !v.is_none() => v.extract(),
+            _ => Ok(default),
+        },
+        None => Ok(default),
+    }
+}
+
+fn cycle_dict<'py>(py: Python<'py>, r: &CycleResult) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("cycle", r.cycle)?;
+    d.set_item("phase", r.phase)?;
+    d.set_item("starting", r.starting)?;
+    for (k, v) in [
+        ("fmax_n", r.fmax_n), ("fmin_n", r.fmin_n), ("fmax_target_n", r.fmax_target_n), ("fmin_target_n", r.fmin_target_n),
+        ("peak_err_pct", r.peak_err_pct), ("df_err_pct", r.df_err_pct), ("a_m", r.a_m), ("delta_k_pa_sqrt_m", r.delta_k),
+        ("kmax_pa_sqrt_m", r.kmax), ("dadn_m_per_cycle", r.dadn_m), ("k_sp_n_m", r.k_sp_n_m), ("ymin_m", r.ymin_m),
+        ("ymax_m", r.ymax_m), ("ctrl_u1_v", r.ctrl_u1_v), ("ctrl_u2_v", r.ctrl_u2_v),
+    ] {
+        d.set_item(k, v)?;
+    }
+    Ok(d)
+}
+
+/// The per-period controller: `u = ctrl.step(force_n, position_m)` once per control period.
+/// `position` holds the position-mode settings (keys of `PositionGains`, SI).
+#[pyclass(name = "CyclicController", module = "htm._core")]
+pub struct PyCyclic {
+    inner: Cyclic,
+}
+
+#[pymethods]
+impl PyCyclic {
+    #[new]
+    #[pyo3(signature = (rate_hz, position = None))]
+    fn new(rate_hz: f64, position: Option<&Bound<'_, PyDict>>) -> PyResult<Self> {
+        let d = PositionGains::default();
+        let g = PositionGains {
+            bandwidth_per_s: opt_f(position, "bandwidth_per_s", d.bandwidth_per_s)?,
+            velocity_gain_m_s_per_v: opt_f(position, "velocity_gain_m_s_per_v", d.velocity_gain_m_s_per_v)?,
+            integral_time_s: opt_f(position, "integral_time_s", d.integral_time_s)?,
+            max_speed_m_s: opt_f(position, "max_speed_m_s", d.max_speed_m_s)?,
+            protect_force_n: opt_f(position, "protect_force_n", d.protect_force_n)?,
+            protect_stiffness_n_m: opt_f(position, "protect_stiffness_n_m", d.protect_stiffness_n_m)?,
+            y_min_m: opt_f(position, "y_min_m", d.y_min_m)?,
+            y_max_m: opt_f(position, "y_max_m", d.y_max_m)?,
+            u_max_v: opt_f(position, "u_max_v", d.u_max_v)?,
+        };
+        Ok(PyCyclic { inner: Cyclic::new(rate_hz, g).map_err(py_err)? })
+    }
+
+    /// One period: measured force [N] and position [m] in, valve command [V] out.
+    fn step(&mut self, force_n: f64, position_m: f64) -> PyResult<f64> {
+        self.inner.step(force_n, position_m).map_err(py_err)
+    }
+
+    /// Start a force test (config dict as `run_test`'s, SI) from the measured force `f0_n`.
+    fn start_test(&mut self, py: Python<'_>, config: &Bound<'_, PyDict>, f0_n: f64) -> PyResult<()> {
+        let cfg = config_from(config)?;
+        let inner = &mut self.inner;
+        py.detach(|| inner.start_test(&cfg, f0_n)).map_err(py_err)
+    }
+
+    /// Position control holding `y_m`, bumpless from command `u_v`.
+    fn position(&mut self, y_m: f64, u_v: f64) {
+        self.inner.position(y_m, u_v)
+    }
+    fn jog(&mut self, rate_m_s: f64) -> PyResult<()> {
+        self.inner.jog(rate_m_s).map_err(py_err)
+    }
+    fn jog_step(&mut self, dm: f64) -> PyResult<()> {
+        self.inner.jog_step(dm).map_err(py_err)
+    }
+    fn move_to(&mut self, y_m: f64) -> PyResult<()> {
+        self.inner.move_to(y_m).map_err(py_err)
+    }
+    fn hold(&mut self) -> PyResult<()> {
+        self.inner.hold().map_err(py_err)
+    }
+    fn resume(&mut self) -> PyResult<()> {
+        self.inner.resume().map_err(py_err)
+    }
+    fn stop(&mut self) {
+        self.inner.stop()
+    }
+    fn idle(&mut self) {
+        self.inner.idle()
+    }
+
+    /// Largest |command| from now on [V] (a trip lowers it to the safe value).
+    #[getter]
+    fn get_command_limit_v(&self) -> f64 {
+        self.inner.command_limit_v
+    }
+    #[setter]
+    fn set_command_limit_v(&mut self, v: f64) -> PyResult<()> {
+        if !(v >= 0.0) {
+            return Err(InputError::new_err(format!("command_limit_v = {v}: allowed [0, inf] V")));
+        }
+        self.inner.command_limit_v = v;
+        Ok(())
+    }
+    #[getter]
+    fn state(&self) -> &'static str {
+        self.inner.state.name()
+    }
+    #[getter]
+    fn cycle(&self) -> u64 {
+        self.inner.cycle()
+    }
+    #[getter]
+    fn a_m(&self) -> f64 {
+        self.inner.a_m()
+    }
+    #[getter]
+    fn results(&self) -> u64 {
+        self.inner.results
+    }
+    #[getter]
+    fn u_null_v(&self) -> f64 {
+        self.inner.u_null
+    }
+    #[getter]
+    fn u_last_v(&self) -> f64 {
+        self.inner.u_last
+    }
+    #[getter]
+    fn end_reason(&self) -> Option<&'static str> {
+        self.inner.end_reason.map(|e| e.name())
+    }
+    #[getter]
+    fn protecting(&self) -> bool {
+        self.inner.protecting()
+    }
+    #[getter]
+    fn reference_m(&self) -> f64 {
+        self.inner.reference_m()
+    }
+    /// (Fmax, Fmin, ΔK) targets of the current cycle [N, N, Pa·√m], or None.
+    #[getter]
+    fn targets(&self) -> Option<(f64, f64, f64)> {
+        self.inner.targets()
+    }
+    /// The last closed test cycle as a dict, or None.
+    fn last_cycle<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        self.inner.last.as_ref().map(|r| cycle_dict(py, r)).transpose()
+    }
+    /// Test frequency actually run (a whole number of periods per cycle), samples per cycle,
+    /// the valve gain used and the demodulation gains.
+    fn info<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let d = PyDict::new(py);
+        d.set_item("rate_hz", self.inner.rate_hz)?;
+        d.set_item("frequency_hz", self.inner.frequency_hz())?;
+        d.set_item("samples_per_cycle", self.inner.samples_per_cycle())?;
+        d.set_item("velocity_gain_m_s_per_v", self.inner.velocity_gain())?;
+        if let Some(g) = self.inner.demod_gains() {
+            d.set_item("demod_k1", g.k1)?;
+            d.set_item("demod_kp2", g.kp2)?;
+            d.set_item("demod_ki2", g.ki2)?;
+        }
+        let p = self.inner.position_gains();
+        d.set_item("protect_force_n", p.protect_force_n)?;
+        d.set_item("max_speed_m_s", p.max_speed_m_s)?;
+        Ok(d)
+    }
+}
+
+/// Limit detectors: a list of dicts {name, channel, lo, hi, action, persist}.
+#[pyclass(name = "Detectors", module = "htm._core")]
+pub struct PyDetectors {
+    inner: Detectors,
+}
+
+#[pymethods]
+impl PyDetectors {
+    #[new]
+    fn new(items: &Bound<'_, PyList>) -> PyResult<Self> {
+        let mut list = Vec::new();
+        for it in items.iter() {
+            let d = it.cast_into::<PyDict>()?;
+            let get = |k: &str| -> PyResult<Bound<'_, PyAny>> { d.get_item(k)?.ok_or_else(|| InputError::new_err(format!("detector needs `{k}`"))) };
+            let name: String = get("name")?.extract()?;
+            let action = Action::parse(&get("action")?.extract::<String>()?).map_err(|e| InputError::new_err(format!("limits.{name}: {e}")))?;
+            let persist: u32 = match d.get_item("persist")? { Some(v) => v.extract()?, None => 1 };
+            list.push(Detector::new(&name, get("channel")?.extract()?, get("lo")?.extract()?, get("hi")?.extract()?, action, persist).map_err(py_err)?);
+        }
+        Ok(PyDetectors { inner: Detectors { list } })
+    }
+
+    /// Check all against `values` (indexed by channel); returns the indices that tripped now.
+    fn check(&mut self, values: Vec<f64>) -> Vec<usize> {
+        self.inner.check(&values)
+    }
+    /// Worst latched action ("indicate", "hold", "stop", "power_off") or None.
+    fn worst(&self) -> Option<&'static str> {
+        self.inner.worst().map(|a| a.name())
+    }
+    /// Clear the latches whose condition is gone; returns the names still out of band.
+    fn reset(&mut self) -> Vec<String> {
+        self.inner.reset()
+    }
+    fn set_enabled(&mut self, name: &str, enabled: bool) -> PyResult<()> {
+        let d = self.inner.list.iter_mut().find(|d| d.name == name).ok_or_else(|| InputError::new_err(format!("no detector `{name}`")))?;
+        d.enabled = enabled;
+        Ok(())
+    }
+    fn __len__(&self) -> usize {
+        self.inner.list.len()
+    }
+    /// Every detector: name, channel, lo, hi, action, persist, enabled, active, latched, trip_value.
+    fn describe<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
+        let out = PyList::empty(py);
+        for d in &self.inner.list {
+            let x = PyDict::new(py);
+            x.set_item("name", &d.name)?;
+            x.set_item("channel", d.channel)?;
+            x.set_item("lo", d.lo)?;
+            x.set_item("hi", d.hi)?;
+            x.set_item("action", d.action.name())?;
+            x.set_item("persist", d.persist)?;
+            x.set_item("enabled", d.enabled)?;
+            x.set_item("active", d.active)?;
+            x.set_item("latched", d.latched)?;
+            x.set_item("trip_value", d.trip_value)?;
+            out.append(x)?;
+        }
+        Ok(out)
+    }
+}
+
+/// The virtual rig's plant: machine + cracking specimen (dict with geometry, width_m,
+/// thickness_m, a0_m, the material keys, law, optional hysteresis_n) + supply response.
+#[pyclass(name = "RigPlant", module = "htm._core")]
+pub struct PyRigPlant {
+    inner: RigPlant,
+}
+
+#[pymethods]
+impl PyRigPlant {
+    #[new]
+    #[pyo3(signature = (params = None, specimen = None, rtol = 1e-4))]
+    fn new(params: Option<PyParams>, specimen: Option<&Bound<'_, PyDict>>, rtol: f64) -> PyResult<Self> {
+        let p = params.map(|p| p.inner).unwrap_or_else(Params::default);
+        let spec = match specimen {
+            None => None,
+            Some(d) => {
+                let need = |k: &str| -> PyResult<f64> { d.get_item(k)?.ok_or_else(|| InputError::new_err(format!("specimen needs `{k}`")))?.extract() };
+                let geom: String = d.get_item("geometry")?.ok_or_else(|| InputError::new_err("specimen needs `geometry`"))?.extract()?;
+                let s = Specimen::new(Geometry::parse(&geom).map_err(py_err)?, need("width_m")?, need("thickness_m")?).map_err(py_err)?;
+                let m = Material {
+                    youngs_modulus_pa: need("youngs_modulus_pa")?,
+                    poisson_ratio: need("poisson_ratio")?,
+                    yield_strength_pa: need("yield_strength_pa")?,
+                    fracture_toughness_pa_sqrt_m: need("fracture_toughness_pa_sqrt_m")?,
+                };
+                let law = law_from(&d.get_item("law")?.ok_or_else(|| InputError::new_err("specimen needs `law`"))?.cast_into::<PyDict>()?)?;
+                Some(CrackingSpecimen::new(s, m, law, need("a0_m")?, opt_f(Some(d), "hysteresis_n", 50.0)?).map_err(py_err)?)
+            }
+        };
+        let mut r = RigPlant::new(p, spec).map_err(py_err)?;
+        r.machine = r.machine.clone().with_rtol(rtol).map_err(py_err)?;
+        Ok(PyRigPlant { inner: r })
+    }
+
+    /// Hold valve command `u` [V] for `dt` [s]; returns (y, v, p_a, p_b, p_s, f) SI.
+    fn step(&mut self, u: f64, dt: f64) -> PyResult<(f64, f64, f64, f64, f64, f64)> {
+        let o = self.inner.step(u, dt).map_err(py_err)?;
+        Ok((o.y, o.v, o.p_a, o.p_b, o.p_s, o.f))
+    }
+    /// Sensor readings now: (y, v, p_a, p_b, p_s, f).
+    fn outputs(&self) -> (f64, f64, f64, f64, f64, f64) {
+        let o = self.inner.machine.outputs();
+        (o.y, o.v, o.p_a, o.p_b, o.p_s, o.f)
+    }
+    /// Relief-valve setpoint [Pa] (the supply follows with a 50 ms lag).
+    #[getter]
+    fn get_supply_setpoint_pa(&self) -> f64 {
+        self.inner.supply_setpoint_pa
+    }
+    #[setter]
+    fn set_supply_setpoint_pa(&mut self, v: f64) -> PyResult<()> {
+        if !(v.is_finite() && v >= 0.0) {
+            return Err(InputError::new_err(format!("supply_setpoint_pa = {v}: allowed [0, inf) Pa")));
+        }
+        self.inner.supply_setpoint_pa = v;
+        Ok(())
+    }
+    fn fracture(&mut self) {
+        self.inner.fracture()
+    }
+    #[getter]
+    fn t(&self) -> f64 {
+        self.inner.machine.t
+    }
+    #[getter]
+    fn a_m(&self) -> f64 {
+        self.inner.specimen.as_ref().map(|s| s.a_m).unwrap_or(f64::NAN)
+    }
+    #[getter]
+    fn cycles(&self) -> u64 {
+        self.inner.specimen.as_ref().map(|s| s.cycles).unwrap_or(0)
+    }
+    #[getter]
+    fn fractured(&self) -> bool {
+        self.inner.specimen.as_ref().map(|s| s.fractured).unwrap_or(false)
+    }
+    #[getter]
+    fn k_sp_n_m(&self) -> f64 {
+        self.inner.machine.plant.p.specimen_stiffness_n_m
+    }
+    #[getter]
+    fn valve_null_bias_v(&self) -> f64 {
+        self.inner.machine.plant.p.valve_null_bias_v
+    }
+}
+
+pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PyCyclic>()?;
+    m.add_class::<PyDetectors>()?;
+    m.add_class::<PyRigPlant>()?;
+    Ok(())
+}

@@ -1,0 +1,156 @@
+//! The virtual rig's plant: the machine with a specimen whose crack grows cycle by cycle from
+//! the force it actually sees (peaks and valleys found with a hysteresis), K_sp(a) fed back
+//! into the machine, and the plant-side faults (supply pressure, fracture).
+use crate::crack::Law;
+use crate::error::{Error, Result};
+use crate::machine::{Machine, Outputs};
+use crate::params::Params;
+use crate::specimen::{Material, Specimen};
+
+/// A cracked specimen between the grips.
+#[derive(Debug, Clone)]
+pub struct CrackingSpecimen {
+    pub specimen: Specimen,
+    pub material: Material,
+    pub law: Law,
+    /// crack length [m]
+    pub a_m: f64,
+    /// force reversal needed to confirm a peak or a valley [N]
+    pub hysteresis_n: f64,
+    pub cycles: u64,
+    pub fractured: bool,
+    rising: bool,
+    peak: f64,
+    valley: f64,
+}
+
+impl CrackingSpecimen {
+    pub fn new(specimen: Specimen, material: Material, law: Law, a0_m: f64, hysteresis_n: f64) -> Result<Self> {
+        specimen.validate()?;
+        material.validate()?;
+        law.validate()?;
+        let (lo, hi) = specimen.a_range();
+        if !(a0_m >= lo - 1e-12 && a0_m < hi) {
+            return Err(Error::Parameter { field: "specimen.a0_m".into(), value: a0_m, allowed: format!("[{lo}, {hi}) m") });
+        }
+        if !(hysteresis_n.is_finite() && hysteresis_n > 0.0) {
+            return Err(Error::Parameter { field: "specimen.hysteresis_n".into(), value: hysteresis_n, allowed: "(0, inf) N".into() });
+        }
+        Ok(CrackingSpecimen { specimen, material, law, a_m: a0_m, hysteresis_n, cycles: 0, fractured: false, rising: true, peak: f64::MIN, valley: f64::MAX })
+    }
+
+    pub fn stiffness(&self) -> f64 {
+        if self.fractured { 0.0 } else { self.specimen.stiffness(self.a_m, &self.material).unwrap_or(0.0) }
+    }
+
+    /// Feed one force sample [N]; true when a cycle closed (the crack may have grown).
+    pub fn observe(&mut self, f: f64) -> bool {
+        if self.fractured || !f.is_finite() {
+            return false;
+        }
+        if self.rising {
+            if f > self.peak {
+                self.peak = f;
+            } else if f < self.peak - self.hysteresis_n {
+                self.rising = false;
+                self.valley = f;
+            }
+            false
+        } else if f < self.valley {
+            self.valley = f;
+            false
+        } else if f > self.valley + self.hysteresis_n {
+            self.rising = true;
+            let (p, v) = (self.peak, self.valley);
+            self.peak = f;
+            self.cycles += 1;
+            self.grow(p, v);
+            true
+        } else {
+            false
+        }
+    }
+
+    fn grow(&mut self, fmax: f64, fmin: f64) {
+        if fmax <= 0.0 {
+            return;
+        }
+        let s = &self.specimen;
+        let (Ok(kmax), Ok(krange)) = (s.k(self.a_m, fmax), s.k(self.a_m, fmax - fmin.max(0.0))) else {
+            self.fractured = true;
+            return;
+        };
+        let dadn = self.law.rate(krange, fmin / fmax, kmax);
+        if kmax >= self.material.fracture_toughness_pa_sqrt_m || !dadn.is_finite() || self.a_m + dadn >= s.a_range().1 {
+            self.fractured = true;
+        } else {
+            self.a_m += dadn;
+        }
+    }
+}
+
+/// Machine + specimen + the supply's response to its setpoint.
+#[derive(Debug, Clone)]
+pub struct RigPlant {
+    pub machine: Machine,
+    pub specimen: Option<CrackingSpecimen>,
+    /// supply pressure the relief valve is set to [Pa] and its time constant [s]
+    pub supply_setpoint_pa: f64,
+    pub supply_tau_s: f64,
+}
+
+impl RigPlant {
+    pub fn new(params: Params, specimen: Option<CrackingSpecimen>) -> Result<Self> {
+        let mut p = params;
+        if let Some(s) = &specimen {
+            p.specimen_stiffness_n_m = s.stiffness();
+        }
+        let ps = p.supply_pressure_pa;
+        Ok(RigPlant { machine: Machine::new(p)?, specimen, supply_setpoint_pa: ps, supply_tau_s: 0.05 })
+    }
+
+    /// Hold valve command `u` [V] for `dt` [s]; returns the ideal sensor readings.
+    pub fn step(&mut self, u: f64, dt: f64) -> Result<Outputs> {
+        let p = &mut self.machine.plant.p;
+        // the relief valve follows its setpoint with a first-order lag (never below tank + 1 bar)
+        let target = self.supply_setpoint_pa.max(p.tank_pressure_pa + 1e5);
+        p.supply_pressure_pa += (target - p.supply_pressure_pa) * (1.0 - (-dt / self.supply_tau_s).exp());
+        let o = self.machine.step(u, dt)?;
+        if let Some(s) = &mut self.specimen {
+            if s.observe(o.f) {
+                self.machine.plant.p.specimen_stiffness_n_m = s.stiffness();
+            }
+        }
+        Ok(o)
+    }
+
+    /// The specimen breaks: it carries no more force.
+    pub fn fracture(&mut self) {
+        if let Some(s) = &mut self.specimen {
+            s.fractured = true;
+        }
+        self.machine.plant.p.specimen_stiffness_n_m = 0.0;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::specimen::Geometry;
+
+    #[test]
+    fn crack_grows_once_per_force_cycle_and_lowers_the_stiffness() {
+        let sp = Specimen::new(Geometry::CT, 50.8e-3, 6.35e-3).unwrap();
+        let law = Law::Paris { c: 1e-27, m: 3.0 };
+        let mut s = CrackingSpecimen::new(sp, Material::default(), law, 15.2e-3, 50.0).unwrap();
+        let k0 = s.stiffness();
+        for i in 0..1000 {
+            let f = 2722.0 + 2225.0 * (2.0 * std::f64::consts::PI * i as f64 / 50.0).sin();
+            s.observe(f);
+        }
+        assert_eq!(s.cycles, 20, "a cycle closes when the rise after each valley is confirmed");
+        assert!(s.a_m > 15.2e-3 && s.stiffness() < k0);
+        s.fractured = true;
+        assert_eq!(s.stiffness(), 0.0);
+    }
+}

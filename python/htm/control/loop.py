@@ -1,0 +1,221 @@
+"""The fixed-period control loop: each period send SYNC, take the transducer's TPDO and the
+analog inputs, check freshness, call the Rust controller, evaluate the limits, write the valve
+command. Lock-step runs periods back to back against an in-process virtual rig; real time keeps
+a wall-clock schedule on a dedicated thread (sleep to just before the deadline, then spin)."""
+from __future__ import annotations
+
+import math
+import os
+import time
+from collections import deque
+from typing import Any, Callable
+
+from htm import _core
+from htm.control.safety import CH, EventLog, Safety
+from htm.control.timing import Timing
+from htm.devices.analog import AnalogIO
+from htm.devices.config import RigConfig
+from htm.devices.transducer import TransducerMaster
+
+ERROR_WINDOW = 50  # periods over which CAN error frames are counted
+SPIN_NS = 300_000  # real time: sleep until this long before the deadline, then spin
+FEED_HZ = 20.0
+LOCKSTEP_REPLY_S = 0.05  # lock-step against a rig in another process: its answer to one SYNC
+
+
+def set_priority(priority: int, log: EventLog | None = None) -> None:
+    """Give the calling thread SCHED_FIFO `priority` (0: leave it); logs when the OS refuses."""
+    if priority <= 0:
+        return
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (OSError, AttributeError) as e:
+        if log is not None:
+            log.add(0, "warning", f"real-time priority {priority} refused: {e}")
+
+
+class ControlLoop:
+    """One control period at a time (`period()`), or `run_realtime` on a thread."""
+
+    def __init__(self, cfg: RigConfig, master: TransducerMaster, io: AnalogIO, params: _core.Params,
+                 pump_rig: Callable[[], None] | None = None, log: EventLog | None = None):
+        self.cfg, self.master, self.io, self.pump_rig = cfg, master, io, pump_rig
+        self.rate_hz = cfg.loop.rate_hz
+        self.dt = 1.0 / self.rate_hz
+        self.ctrl = _core.CyclicController(self.rate_hz, cfg.position or None)
+        self.log = log or EventLog()
+        self.safety = Safety(cfg, self.log)
+        self.timing = Timing()
+        self.k = 0
+        self.powered = False
+        self.load_offset_n = 0.0
+        self.supply_pa = params["supply_pressure_pa"]
+        self._area_a, self._area_b = params["area_a_m2"], params["area_b_m2"]
+        self._weight = params["moving_mass_kg"] * params["gravity_m_s2"]
+        self._errs: deque[int] = deque([0] * ERROR_WINDOW, maxlen=ERROR_WINDOW)
+        self._err_seen = 0
+        self._y_prev = math.nan
+        self._v_prev = math.nan
+        self._last_results = 0
+        self._decim = max(1, round(self.rate_hz / FEED_HZ))
+        # how long to wait for this SYNC's TPDO: a share of the period in real time; in lock-step
+        # nothing when the rig is pumped here, else long enough for another process to answer
+        if cfg.loop.mode == "realtime":
+            self._wait = cfg.loop.tpdo_wait * self.dt
+        else:
+            self._wait = 0.0 if pump_rig is not None else LOCKSTEP_REPLY_S
+        self.cycles: deque[dict[str, Any]] = deque(maxlen=100_000)
+        self.feed: deque[dict[str, Any]] = deque(maxlen=400)
+        self.commands: deque[Callable[[], None]] = deque()
+        self.meas = {"y": math.nan, "v": math.nan, "f": math.nan, "p_a": math.nan, "p_b": math.nan, "p_s": math.nan, "u": 0.0}
+        self.max_abs_u_after_trip = 0.0
+        self.trip_period: int | None = None
+        self.stop_requested = False
+        io.write_valve(0.0)
+        io.set_amplifier(False)
+        io.write_supply(self.supply_pa)
+
+    # -- outputs ----------------------------------------------------------------------------------
+    def energise(self) -> None:
+        if not self.powered:
+            self.io.write_supply(self.supply_pa)
+            self.io.set_amplifier(True)
+            self.powered = True
+            self.log.add(self.k, "amplifier", "amplifier enabled")
+
+    def power_off(self, why: str) -> None:
+        self.ctrl.idle()
+        self.io.write_valve(0.0)
+        self.io.set_amplifier(False)
+        self.io.write_supply(0.0)
+        if self.powered:
+            self.log.add(self.k, "amplifier", f"valve null, amplifier disabled, supply unloaded ({why})")
+        self.powered = False
+
+    def _act(self, action: str, y: float) -> None:
+        c = self.ctrl
+        self.trip_period = self.k if self.trip_period is None else self.trip_period
+        if action == "indicate":
+            return
+        if action == "power_off":
+            self.power_off("trip")
+            return
+        c.command_limit_v = min(c.command_limit_v, self.cfg.loop.safe_command_v)
+        if action == "hold":
+            if c.state in ("starting", "running"):
+                c.hold()
+            elif c.state == "position":
+                c.position(y, c.u_last_v)
+        elif action == "stop":
+            c.stop()
+        self.log.add(self.k, "action", f"{action}: controller {c.state}, |command| ≤ {c.command_limit_v:g} V")
+
+    # -- one period -------------------------------------------------------------------------------
+    def period(self) -> float:
+        """One control period; returns the valve command written [V]."""
+        self.k += 1
+        while self.commands:
+            self.commands.popleft()()
+        m = self.master
+        m.send_sync()
+        if self.pump_rig is not None:
+            self.pump_rig()
+        m.pump(self._wait)
+        y, v = m.position_m, m.speed_m_s
+        p_a, p_b, p_s, load = self.io.read()
+        f = load - self.load_offset_n
+        c = self.ctrl
+        u = c.step(f, y)
+        st = c.state
+        # watched values (see htm.devices.config.CHANNELS)
+        val = self.safety.values
+        val[CH["position_m"]] = y
+        val[CH["velocity_m_s"]] = v
+        val[CH["force_n"]] = f
+        val[CH["p_a_pa"]] = p_a
+        val[CH["p_b_pa"]] = p_b
+        val[CH["p_s_pa"]] = p_s if self.powered else self.supply_pa
+        val[CH["following_error_m"]] = c.reference_m - y if st == "position" and not c.protecting else 0.0
+        band = 0.0
+        if st in ("running", "holding") and c.targets is not None:
+            fmax, fmin, _ = c.targets
+            band = max(fmin - f, f - fmax) / (fmax - fmin)
+        val[CH["force_band"]] = band
+        if c.results != self._last_results:
+            self._last_results = c.results
+            r = c.last_cycle()
+            r["period"] = self.k
+            self.cycles.append(r)
+            val[CH["amplitude_error_pct"]] = 0.0 if r["starting"] else r["df_err_pct"]
+        elif st not in ("running", "holding"):
+            val[CH["amplitude_error_pct"]] = 0.0
+        val[CH["transducer_age_periods"]] = m.age_periods
+        val[CH["transducer_fault"]] = 1.0 if (math.isnan(y) and m.age_periods == 0) or m.emcy else 0.0
+        val[CH["heartbeat_age_s"]] = m.heartbeat_age_s
+        self._errs.append(m.error_frames - self._err_seen)
+        self._err_seen = m.error_frames
+        val[CH["can_error_frames"]] = sum(self._errs)
+        val[CH["bus_off"]] = 1.0 if m.bus_off else 0.0
+        fresh = m.age_periods == 0
+        plaus = 0.0
+        if fresh and math.isfinite(y) and math.isfinite(self._y_prev):
+            plaus = abs((y - self._y_prev) - 0.5 * (v + self._v_prev) * self.dt)
+        val[CH["position_plausibility_m"]] = plaus
+        if fresh:
+            self._y_prev, self._v_prev = y, v
+        f_hyd = self._area_a * p_a - self._area_b * p_b - self._weight
+        val[CH["load_plausibility_n"]] = abs(f - f_hyd) if self.powered else 0.0
+        worst = self.safety.check(self.k)
+        if worst is not None:
+            self._act(worst, y)
+        # outputs: nothing beyond the safe value after a trip; nothing at all when powered off
+        if c.state in ("idle",) or not self.powered:
+            if self.powered:
+                self.power_off("idle")
+            u = 0.0
+        elif c.state == "stopped":
+            self.io.write_valve(c.u_null_v)
+            self.power_off(f"test {c.end_reason or 'stopped'}")
+            u = 0.0
+        else:
+            lim = c.command_limit_v
+            u = max(-lim, min(lim, u))
+        self.io.write_valve(u)
+        if self.trip_period is not None:
+            self.max_abs_u_after_trip = max(self.max_abs_u_after_trip, abs(u))
+        mm = self.meas
+        mm["y"], mm["v"], mm["f"], mm["p_a"], mm["p_b"], mm["p_s"], mm["u"] = y, v, f, p_a, p_b, p_s, u
+        if self.k % self._decim == 0:
+            self.feed.append({"period": self.k, "t_s": self.k * self.dt, "state": c.state, **mm})
+        return u
+
+    # -- schedulers ---------------------------------------------------------------------------------
+    def run_lockstep(self, periods: int) -> None:
+        for _ in range(periods):
+            self.period()
+
+    def run_realtime(self, seconds: float | None = None, stop: Callable[[], bool] | None = None) -> None:
+        """Wall-clock periods on this thread until `seconds` pass or `stop()` is true."""
+        set_priority(self.cfg.loop.priority, self.log)
+        period_ns = round(self.dt * 1e9)
+        perf, sleep = time.perf_counter_ns, time.sleep
+        t0 = perf()
+        deadline = t0 + period_ns
+        end = None if seconds is None else t0 + round(seconds * 1e9)
+        while not (stop is not None and stop()) and not self.stop_requested:
+            now = perf()
+            rem = deadline - now
+            if rem > SPIN_NS:
+                sleep((rem - SPIN_NS) / 1e9)
+            while perf() < deadline:
+                pass
+            start = perf()
+            self.period()
+            done = perf()
+            over = done > deadline + period_ns
+            self.timing.record(start - deadline, done - start, over)
+            deadline += period_ns
+            if done > deadline:  # late: skip the missed slots, keep the grid
+                deadline += ((done - deadline) // period_ns + 1) * period_ns
+            if end is not None and deadline > end:
+                break

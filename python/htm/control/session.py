@@ -1,0 +1,318 @@
+"""`Session`: the operator console's handle on the rig — it owns the devices and the control loop
+on a background thread and never lets a caller block the loop.
+
+    s = Session()
+    s.open(None)                  # None → in-process virtual rig (real time); or a RigConfig / path
+    s.position()                  # position control (install): specimen protect limits the force
+    s.jog(0.002) / s.jog_step(1e-4) / s.move_to(0.1)   # [m/s], [m], [m]
+    s.tare()                      # zero the load cell at the current reading
+    s.start(spec)                 # htm.spec.TestSpec: smooth ramp-in, then cycling
+    s.hold(); s.resume(); s.stop(); s.estop(); s.reset()
+    s.snapshot()                  # live numbers (dict): state, cycles, frequency, a, ΔK, K_sp, errors,
+                                  # last peak/valley, jitter stats, interlock state
+    s.detectors()                 # every detector: name, channel, limit, state, action, latched
+    s.feed_since(n)               # decimated samples (≤ 20 Hz; a bounded queue: old ones drop)
+    s.cycles_since(n)             # per-cycle results (peaks, valleys, a, ΔK, K_sp, ...)
+    s.events_since(n)             # event log: trips, actions, amplifier, commands
+    s.close()
+
+Commands are queued and run by the loop at the start of its next period; the caller waits for
+the result (a clear error if refused, e.g. InterlockTripped while a latch holds), the loop never
+waits for the caller. Snapshots read numbers the loop writes; nothing takes a lock in the loop.
+With `thread=False` (tests, benchmarks) the caller drives the loop: `s.step(n)` runs n periods."""
+from __future__ import annotations
+
+import math
+import sys
+import threading
+from concurrent.futures import Future
+from pathlib import Path
+from typing import Any, Callable
+
+from htm import _core
+from htm.control.loop import ControlLoop
+from htm.control.safety import EventLog
+from htm.devices.analog import AnalogIO
+from htm.devices.config import RigConfig, load_config, virtual_config
+from htm.devices.rig import VirtualRig
+from htm.devices.transducer import TransducerMaster, network_on, open_bus, stop_notifier
+from htm.errors import DeviceError, HtmError, InterlockTripped
+from htm.params import with_overrides
+
+COMMAND_TIMEOUT_S = 5.0
+
+
+def specimen_of(spec) -> dict[str, Any]:
+    """The virtual rig's specimen dict for a `TestSpec`."""
+    return {"geometry": spec.geometry, "width_m": spec.width_m, "thickness_m": spec.thickness_m, "a0_m": spec.a0_m,
+            **spec.material, "law": dict(spec.law)}
+
+
+class Session:
+    """See the module docstring."""
+
+    def __init__(self) -> None:
+        self.cfg: RigConfig | None = None
+        self.rig: VirtualRig | None = None
+        self.loop: ControlLoop | None = None
+        self.log = EventLog()
+        self._thread: threading.Thread | None = None
+        self._net = None
+        self._io = None
+
+    # -- life cycle ---------------------------------------------------------------------------------
+    def open(self, config: RigConfig | str | Path | None = None, *, virtual: bool | None = None,
+             specimen: dict[str, Any] | None = None, thread: bool = True, mode: str | None = None) -> "Session":
+        """Validate the configuration, open the bus and the DAQ, check the transducer over SDO, start
+        it (NMT) and the loop. `None` = an in-process virtual rig; `virtual=True` puts one behind
+        any config. Nothing is energised until a motion or a test is commanded."""
+        if isinstance(config, (str, Path)):
+            config = load_config(config)
+        cfg = config or virtual_config(mode or "realtime")
+        if mode and mode != cfg.loop.mode:
+            raise DeviceError(f"mode {mode!r} differs from the config's loop.mode {cfg.loop.mode!r}")
+        virtual = config is None if virtual is None else virtual
+        self.cfg = cfg
+        params = with_overrides(_core.Params(cfg.rig_preset), cfg.rig_overrides)
+        try:
+            if virtual:
+                self.rig = VirtualRig(cfg, specimen, threaded=True)
+            bus = open_bus(cfg.bus)
+            self._net = network_on(bus, threaded=True)
+            self._io = AnalogIO(cfg.analog)
+            master = TransducerMaster(self._net, cfg.transducer, 1.0 / cfg.loop.rate_hz)
+            info = master.configure()
+            master.start()
+            stop_notifier(self._net)
+            lockstep = cfg.loop.mode == "lockstep"
+            pump = None
+            if self.rig is not None and lockstep:
+                self.rig.lockstep()
+                pump = self.rig.pump
+            self.loop = ControlLoop(cfg, master, self._io, params, pump, self.log)
+            self._first_contact(lockstep and self.rig is not None)
+        except BaseException:
+            self.close()
+            raise
+        self.log.add(0, "open", f"transducer node {cfg.transducer.node_id} (0x{info['device_type']:08X}, "
+                     f"{info['step_nm']} nm) on {cfg.bus.interface}:{cfg.bus.channel}; analog {cfg.analog.backend}; "
+                     f"{cfg.loop.mode} at {cfg.loop.rate_hz:g} Hz")
+        if thread:
+            self._thread = threading.Thread(target=self._run, name="htm-control-loop", daemon=True)
+            if cfg.loop.mode == "realtime":
+                sys.setswitchinterval(5e-4)  # other threads must not hold the GIL for 5 ms
+            self._thread.start()
+        return self
+
+    def _first_contact(self, in_process: bool) -> None:
+        """SYNC until the transducer answers (after NMT start), before the limits are armed."""
+        lp = self.loop
+        m = lp.master
+        for _ in range(200):
+            m.send_sync()
+            if in_process:
+                self.rig.pump()
+            m.pump(0.0 if in_process else 0.02)
+            if m.age_periods == 0:
+                m.hb_seq = m.seq
+                return
+        raise DeviceError(f"transducer node {self.cfg.transducer.node_id} sends no TPDO1 after NMT start")
+
+    def _run(self) -> None:
+        lp = self.loop
+        try:
+            if self.cfg.loop.mode == "realtime":
+                lp.run_realtime()
+            else:
+                while not lp.stop_requested:
+                    lp.period()
+        except BaseException as e:  # the loop died: make safe and say why
+            lp.power_off(f"loop error: {e}")
+            self.log.add(lp.k, "error", f"control loop stopped: {e!r}")
+
+    def step(self, periods: int = 1) -> None:
+        """Run `periods` control periods on the caller's thread (only when opened with thread=False)."""
+        if self._thread is not None:
+            raise HtmError("the loop runs on its own thread; step() is for thread=False sessions")
+        self.loop.run_lockstep(periods)
+
+    def close(self) -> None:
+        """Stop the loop (valve null, amplifier off) and release the devices."""
+        lp = self.loop
+        if lp is not None:
+            lp.stop_requested = True
+            if self._thread is not None:
+                self._thread.join(2.0)
+                self._thread = None
+            lp.power_off("session closed")
+            try:
+                lp.master.stop()
+            except Exception:
+                pass
+        if self._io is not None:
+            self._io.close()
+            self._io = None
+        if self._net is not None:
+            stop_notifier(self._net)
+            if self._net.bus is not None:
+                self._net.bus.shutdown()
+            self._net = None
+        if self.rig is not None:
+            self.rig.close()
+            self.rig = None
+        self.loop = None
+
+    def __enter__(self) -> "Session":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    # -- commands (run by the loop at its next period) ------------------------------------------------
+    def _do(self, fn: Callable[[], Any], what: str) -> Any:
+        lp = self.loop
+        if lp is None:
+            raise HtmError("session is not open")
+        fut: Future = Future()
+
+        def run() -> None:
+            try:
+                fut.set_result(fn())
+                self.log.add(lp.k, "command", what)
+            except BaseException as e:
+                fut.set_exception(e)
+
+        if self._thread is None:
+            run()
+        else:
+            lp.commands.append(run)
+        return fut.result(COMMAND_TIMEOUT_S)
+
+    def _motion_allowed(self) -> None:
+        s = self.loop.safety
+        if s.interlocked():
+            latched = [d["name"] for d in s.describe() if d["latched"]] + (["estop"] if s.estop else [])
+            raise InterlockTripped(f"interlock latched ({', '.join(latched)}): reset() first")
+
+    def position(self) -> None:
+        """Position control holding where the piston is (installation), amplifier on."""
+        def f() -> None:
+            self._motion_allowed()
+            lp = self.loop
+            lp.ctrl.position(lp.meas["y"], 0.0)
+            lp.energise()
+        self._do(f, "position control")
+
+    def _in_position(self, fn: Callable[[], None], what: str) -> None:
+        def f() -> None:
+            self._motion_allowed()
+            lp = self.loop
+            if lp.ctrl.state != "position":
+                lp.ctrl.position(lp.meas["y"], 0.0)
+            lp.energise()
+            fn()
+        self._do(f, what)
+
+    def jog(self, rate_m_s: float) -> None:
+        """Move at `rate_m_s` [m/s] (0 stops) in position control with specimen protect."""
+        self._in_position(lambda: self.loop.ctrl.jog(rate_m_s), f"jog {rate_m_s * 1e3:+.3f} mm/s")
+
+    def jog_step(self, dm: float) -> None:
+        """Move by `dm` [m]."""
+        self._in_position(lambda: self.loop.ctrl.jog_step(dm), f"jog step {dm * 1e3:+.4f} mm")
+
+    def move_to(self, y_m: float) -> None:
+        """Move to `y_m` [m]."""
+        self._in_position(lambda: self.loop.ctrl.move_to(y_m), f"move to {y_m * 1e3:.3f} mm")
+
+    def tare(self) -> float:
+        """Zero the load cell at its present reading; returns the offset [N]."""
+        def f() -> float:
+            lp = self.loop
+            lp.load_offset_n += lp.meas["f"]
+            return lp.load_offset_n
+        return self._do(f, "tare load cell")
+
+    def start(self, spec, f0_n: float | None = None) -> None:
+        """Start the test `spec` (htm.spec.TestSpec) with a smooth ramp-in from the present force.
+        The controller is built here (its gain design takes milliseconds), then swapped in."""
+        self._motion_allowed()
+        cfg = spec.to_config()
+        cfg["params"] = with_overrides(_core.Params(self.cfg.rig_preset), self.cfg.rig_overrides)
+        lp = self.loop
+        ctrl = _core.CyclicController(lp.rate_hz, self.cfg.position or None)
+        f0 = lp.meas["f"] if f0_n is None else f0_n
+        ctrl.start_test(cfg, 0.0 if math.isnan(f0) else f0)
+
+        def f() -> None:
+            self._motion_allowed()
+            lp.ctrl = ctrl
+            lp.energise()
+        self._do(f, f"start test {spec.name}")
+
+    def hold(self) -> None:
+        self._do(self.loop.ctrl.hold, "hold")
+
+    def resume(self) -> None:
+        def f() -> None:
+            self._motion_allowed()
+            self.loop.ctrl.command_limit_v = math.inf
+            self.loop.ctrl.resume()
+        self._do(f, "resume")
+
+    def stop(self) -> None:
+        self._do(self.loop.ctrl.stop, "stop")
+
+    def estop(self) -> None:
+        """E-stop: valve null, amplifier off, supply unloaded now; latched until reset()."""
+        lp = self.loop
+        if self._thread is None:
+            lp.safety.estop = True
+            lp.power_off("e-stop")
+        else:  # do not wait for a command slot: set the latch the loop checks every period
+            lp.safety.estop = True
+            lp.commands.appendleft(lambda: lp.power_off("e-stop"))
+        self.log.add(lp.k, "estop", "E-STOP")
+
+    def reset(self) -> list[str]:
+        """Reset the interlocks whose condition has gone; returns those still active."""
+        def f() -> list[str]:
+            lp = self.loop
+            still = lp.safety.reset(lp.k)
+            if not still:
+                lp.ctrl.command_limit_v = math.inf
+                lp.trip_period = None
+                lp.io.write_supply(lp.supply_pa)
+            return still
+        return self._do(f, "reset interlocks")
+
+    # -- live state ---------------------------------------------------------------------------------
+    def detectors(self) -> list[dict[str, Any]]:
+        return self.loop.safety.describe()
+
+    def snapshot(self) -> dict[str, Any]:
+        """Live numbers (SI): see the module docstring."""
+        lp = self.loop
+        c = lp.ctrl
+        last = lp.cycles[-1] if lp.cycles else None
+        info = c.info()
+        return {
+            "period": lp.k, "t_s": lp.k * lp.dt, "state": c.state, "mode": self.cfg.loop.mode, "rate_hz": lp.rate_hz,
+            "amplifier": lp.powered, "interlock": lp.safety.latched(), "estop": lp.safety.estop,
+            "cycles": c.cycle, "frequency_hz": info["frequency_hz"], "a_m": c.a_m, "end_reason": c.end_reason,
+            "delta_k_pa_sqrt_m": last["delta_k_pa_sqrt_m"] if last else math.nan,
+            "k_sp_n_m": last["k_sp_n_m"] if last else math.nan,
+            "peak_err_pct": last["peak_err_pct"] if last else math.nan, "df_err_pct": last["df_err_pct"] if last else math.nan,
+            "last_peak_n": last["fmax_n"] if last else math.nan, "last_valley_n": last["fmin_n"] if last else math.nan,
+            "targets": c.targets, "protecting": c.protecting, "reference_m": c.reference_m,
+            **{f"{k}": v for k, v in lp.meas.items()}, "timing": lp.timing.stats(),
+        }
+
+    def feed_since(self, period: int = 0) -> list[dict[str, Any]]:
+        return [s for s in list(self.loop.feed) if s["period"] > period]
+
+    def cycles_since(self, cycle: int = 0) -> list[dict[str, Any]]:
+        return [r for r in list(self.loop.cycles) if r["cycle"] > cycle]
+
+    def events_since(self, n: int = 0) -> list[dict[str, Any]]:
+        return self.log.since(n)
