@@ -5,7 +5,7 @@
 //! Batches of tests run on all cores.
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 
-use crate::control::{Demod, DemodGains, ForceLoop, Setpoint};
+use crate::control::{Demod, DemodGains, ForceLoop, PeakValley, Setpoint};
 use crate::crack::Law;
 use crate::error::{Error, Result};
 use crate::machine::{Machine, Y};
@@ -383,21 +383,18 @@ struct Run<'a> {
     simulated: u64,
     progress: Option<&'a AtomicU64>,
     cancel: Option<&'a AtomicBool>,
-    /// peak-valley compensation of the demodulation controller's targets (relative corrections
-    /// of the half-range and of the mid-point), integrated once per cycle from the measured peak
-    /// and valley: the demodulator regulates the fundamental and the mean, while ISO 12108 judges
-    /// the peaks; valve nonlinearity near null puts harmonics between the two.
-    comp_amp: f64,
-    comp_mid: f64,
+    /// peak-valley compensation of the demodulation controller's setpoint (control.rs), applied
+    /// to every cycle and learning from every cycle with enough amplitude, ramp-in included
+    pv: PeakValley,
     compensate: bool,
 }
-
-/// Per-cycle integral gain of the peak-valley compensation (the inner loops settle in ≈ 2 cycles).
-const PV_GAIN: f64 = 0.3;
 
 struct CycleResult {
     fmax: f64,
     fmin: f64,
+    /// peak and valley of the nominal (uncompensated) setpoint in the cycle [N]
+    rmax: f64,
+    rmin: f64,
     ymin: f64,
     ymax: f64,
 }
@@ -413,13 +410,25 @@ impl<'a> Run<'a> {
         let (cs, ss) = (step.cos(), step.sin());
         let (mut sn, mut cn) = (0.0f64, 1.0f64);
         let mut s = 0.0;
-        let (mut mid, mut amp) = set(0.0);
+        let pv = if self.compensate { self.pv } else { PeakValley::new() };
+        // the nominal setpoint's true peak and valley (mid ± amp where the shape peaks): the
+        // sampled shape can miss the corner between two samples (a triangle at 20 Hz, 1 kHz)
+        let (mut rmax, mut rmin, mut s_hi, mut s_lo) = (f64::MIN, f64::MAX, f64::MIN, f64::MAX);
+        let (mid0, amp0) = set(0.0);
+        let (mut mid, mut amp) = pv.apply(mid0, amp0);
         let mut f = self.m.outputs().f;
         for k in 0..n {
             let x1 = (k + 1) as f64 / n as f64;
             let (sn1, cn1) = (sn * cs + cn * ss, cn * cs - sn * ss);
             let s_next = if sine { sn1 } else { w.shape(x1) };
-            let (mid1, amp1) = set(x1);
+            let (nmid1, namp1) = set(x1);
+            if s_next > s_hi {
+                (s_hi, rmax) = (s_next, nmid1 + namp1);
+            }
+            if s_next < s_lo {
+                (s_lo, rmin) = (s_next, nmid1 - namp1);
+            }
+            let (mid1, amp1) = pv.apply(nmid1, namp1);
             let sp = Setpoint { mid_n: mid, mid_next_n: mid1, amp_n: amp, s, s_next, sin: sn, cos: cn };
             let u = self.ctrl.command(&sp, f);
             let o = self.m.step(u, self.dt)?;
@@ -435,7 +444,7 @@ impl<'a> Run<'a> {
             amp = amp1;
         }
         self.simulated += 1;
-        Ok(CycleResult { fmax, fmin, ymin, ymax })
+        Ok(CycleResult { fmax, fmin, rmax, rmin, ymin, ymax })
     }
 
     fn set_stiffness(&mut self, keep_force: bool) -> Result<()> {
@@ -514,7 +523,7 @@ pub fn run_test(cfg: &TestConfig, mode: ExecMode, progress: Option<&AtomicU64>, 
     let mut run = Run {
         cfg, m, ctrl, n, dt, a: cfg.a0_m, ksp_factor: 1.0, y0, cycle: 0, rec: Records::default(),
         max_df: 0.0, max_peak: 0.0, out_count: 0, size_cycle: None, simulated: 0, progress, cancel,
-        comp_amp: 0.0, comp_mid: 0.0, compensate: matches!(cfg.controller, ControllerSpec::Demod { .. }),
+        pv: PeakValley::new(), compensate: matches!(cfg.controller, ControllerSpec::Demod { .. }),
     };
     let law = &cfg.law;
     let spec = &cfg.specimen;
@@ -559,14 +568,10 @@ pub fn run_test(cfg: &TestConfig, mode: ExecMode, progress: Option<&AtomicU64>, 
                 (mid_t * fm, amp_t * fa)
             })?
         } else {
-            let (mc, ac) = (mid_t + run.comp_mid * amp_t, amp_t * (1.0 + run.comp_amp));
-            run.cycle_through(|_| (mc, ac))?
+            run.cycle_through(|_| (mid_t, amp_t))?
         };
-        if run.compensate && !starting {
-            let amp_m = 0.5 * (res.fmax - res.fmin);
-            let mid_m = 0.5 * (res.fmax + res.fmin);
-            run.comp_amp = (run.comp_amp + PV_GAIN * (amp_t - amp_m) / amp_t).clamp(-0.2, 0.2);
-            run.comp_mid = (run.comp_mid + PV_GAIN * (mid_t - mid_m) / amp_t).clamp(-0.2, 0.2);
+        if run.compensate && res.rmax - res.rmin >= PeakValley::MIN_AMPLITUDE_FRACTION * 2.0 * amp_t {
+            run.pv.update(res.rmax, res.rmin, res.fmax, res.fmin);
         }
         run.cycle += 1;
         since_jump += 1;
