@@ -101,7 +101,8 @@ pub struct DemodGains {
     pub plant_gain_n_per_s_v: f64,
     /// integral gain of the amplitude loop [V/(N·s)]
     pub k1: f64,
-    /// proportional and integral gains of the mean loop [V/N], [V/(N·s)]
+    /// inner proportional gain on the force error r − f (the mean loop's P term) [V/N] and the
+    /// mean loop's integral gain [V/(N·s)]
     pub kp2: f64,
     pub ki2: f64,
     /// test frequency [Hz] and control period [s]
@@ -117,20 +118,28 @@ impl DemodGains {
     /// valve's small-signal velocity gain, signed by its polarity; the stiffness passed in is the
     /// specimen in series with the oil column, which the thesis's rigid model leaves out and
     /// which on the thesis rig is ~40 % of K_sp). With the carrier
-    /// u1·ṡ(φ)/ω (u1·cos ωt for a sine, NOTES item 5) the force amplitude is θ1 = g·u1/ω, and the
-    /// mean obeys θ̇2 = g·(u2 − u_null). Estimates are one-cycle moving averages (the thesis's
+    /// u1·ṡ(φ)/ω (u1·cos ωt for a sine, NOTES item 5) the open-loop force amplitude is
+    /// θ1 = g·u1/ω, and the mean obeys θ̇2 = g·(u2 − u_null). Estimates are one-cycle moving averages (the thesis's
     /// high-pass, demodulation with sin and cos, low-pass — a boxcar over exactly one period has
     /// zeros at ω and 2ω, so no ripple reaches the loops; its lag is T/2 = 1/(2f)).
     ///
-    /// * amplitude loop (integral, as the thesis): loop gain k1·g/ω/s, crossover
-    ///   ω1 = `c1`·f rad/s → k1 = ω1·ω/g. With c1 = 0.5 (time constant 2 cycles) the T/2 lag costs
-    ///   0.25 rad: phase margin ≈ 76°; a K_sp falling to 50 % halves ω1 and stays stable; a valve
-    ///   gain twice the nominal one leaves ≈ 60°.
-    /// * mean loop: PI (the thesis's P cannot absorb the valve's null offset: a P loop leaves a
-    ///   steady error u_null/k2) on the type-1 plant, i.e. a symmetric-optimum type-2 loop:
-    ///   crossover ω2 = `c2`·f, kp2 = ω2/g, integral time T_i = a²/ω2... here T_i = 3/ω2,
-    ///   ki2 = kp2/T_i → phase margin atan(3) − ω2·T/2 ≈ 72° − 14° = 58° at c2 = 0.5.
+    /// * inner force P (not in the thesis): u += kp2·(r − f) on the instantaneous error, crossover
+    ///   ω_c = `STATIC_CROSSOVER_RAD_S` (kp2 = ω_c/g). With the carrier as velocity feed-forward it
+    ///   leaves the loops only the residuals, and it rejects what one-cycle averages cannot see
+    ///   in time: the valve's load-pressure asymmetry (extension and retraction flows differ under
+    ///   the mean load, a net drift per cycle that grows with the amplitude during the ramp-in)
+    ///   and its low-gain null region. It is also the mean loop's proportional term.
+    /// * amplitude loop (integral, as the thesis): with the inner loop the carrier moves the force
+    ///   amplitude by g·u1/|jω + ω_c| per volt; crossover ω1 = `c1`·f rad/s →
+    ///   k1 = ω1·|jω + ω_c|/g. With c1 = 0.5 (time constant 2 cycles) the T/2 lag costs 0.25 rad:
+    ///   phase margin ≈ 76°; a K_sp falling to 50 % halves ω1 and stays stable.
+    /// * mean loop: integral on the one-cycle mean (the thesis's P alone cannot absorb the valve's
+    ///   null offset, it leaves u_null/k2). Below ω_c the inner loop makes the plant from u2 to
+    ///   the mean a gain g/ω_c, so ki2 = ω2·ω_c/g puts the crossover at ω2 = `c2`·f (c2 = 0.5).
     ///   A feed-forward of the mean setpoint's rate (ṁ/g) removes the ramp lag of the smooth start.
+    /// Both loops compare the force's estimates with the reference's through the same filters, and
+    /// `PeakValley` corrects the setpoint once per cycle so that peaks and valleys, not only the
+    /// fundamental and mean, meet ISO 12108's ±2 %.
     /// Both gains carry the sign of g, so the rule needs no hand tuning for polarity either.
     pub fn design(specimen_stiffness_n_m: f64, velocity_gain_m_s_per_v: f64, frequency_hz: f64, control_rate_hz: f64) -> Result<Self> {
         let g = specimen_stiffness_n_m * velocity_gain_m_s_per_v;
@@ -268,7 +277,7 @@ impl Demod {
         let u1 = self.u1 + u1_ff;
         self.u1_total = u1;
         self.u1_ff = u1_ff;
-        // mean loop: PI + setpoint-rate feed-forward
+        // mean loop: integral on the one-cycle mean, inner P on r − f, setpoint-rate feed-forward
         let e2 = self.theta2_ref - self.theta2_hat;
         self.i2 += g.ts_s * g.ki2 * e2;
         let ff2 = (sp.mid_next_n - sp.mid_n) / (g.ts_s * g.plant_gain_n_per_s_v);
@@ -334,5 +343,54 @@ impl PeakValley {
 impl Default for PeakValley {
     fn default() -> Self {
         Self::new()
+    }
+}
+
+/// A force test run in position control (thesis 4.1: position P with velocity feed-forward):
+/// the force setpoint r becomes the piston reference y0 + r/K, with K the specimen stiffness
+/// measured over the last cycle (force range / position range: the compliance a real rig
+/// measures for crack length). Nothing corrects the force itself, so it is as good as the
+/// stiffness estimate and the position tracking. Plain data.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PositionForce {
+    /// `Controller::PositionPff`
+    pub ctrl: Controller,
+    /// stiffness used to turn force into position [N/m]
+    pub k_ref_n_m: f64,
+    /// piston position at zero specimen force [m]
+    pub y0_m: f64,
+    /// fixed null compensation added to the command [V] (as for force P: with a stiff specimen a
+    /// P loop's steady position error u_null/kp is a large force error)
+    pub u_offset_v: f64,
+}
+
+impl PositionForce {
+    /// Gains from the plant: velocity feed-forward kff = 1/k_v (the piston follows ṙ exactly on
+    /// the integrator plant) and kp = ω_p/k_v, with ω_p = `STATIC_CROSSOVER_RAD_S`; both carry the
+    /// sign of the valve's velocity gain k_v [m/s per V].
+    pub fn design(velocity_gain_m_s_per_v: f64, k_ref_n_m: f64, y0_m: f64, u_max_v: f64) -> Result<Self> {
+        let kv = velocity_gain_m_s_per_v;
+        if !(kv.is_finite() && kv != 0.0) {
+            return Err(Error::Parameter { field: "controller.velocity_gain_m_s_per_v".into(), value: kv, allowed: "non-zero, finite".into() });
+        }
+        let ctrl = Controller::PositionPff { kp_v_per_m: STATIC_CROSSOVER_RAD_S / kv, kff_v_per_m_s: 1.0 / kv, u_max_v };
+        Ok(PositionForce { ctrl, k_ref_n_m, y0_m, u_offset_v: 0.0 })
+    }
+
+    /// Command for one sample from the (compensated) force setpoint and the measurements.
+    #[inline]
+    pub fn command(&self, sp: &Setpoint, m: &Outputs, ts: f64) -> f64 {
+        let r = self.y0_m + (sp.mid_n + sp.amp_n * sp.s) / self.k_ref_n_m;
+        let r_next = self.y0_m + (sp.mid_next_n + sp.amp_n * sp.s_next) / self.k_ref_n_m;
+        let u = self.ctrl.command(r, r_next, ts, m) + self.u_offset_v;
+        if let Controller::PositionPff { u_max_v, .. } = self.ctrl { u.clamp(-u_max_v, u_max_v) } else { u }
+    }
+
+    /// Update the stiffness from one cycle's force and position ranges [N], [m].
+    pub fn measured(&mut self, force_range_n: f64, position_range_m: f64) {
+        let k = force_range_n / position_range_m;
+        if position_range_m > 1e-9 && k.is_finite() && k > 0.0 {
+            self.k_ref_n_m = k;
+        }
     }
 }

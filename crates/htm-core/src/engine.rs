@@ -5,7 +5,7 @@
 //! Batches of tests run on all cores.
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 
-use crate::control::{Demod, DemodGains, ForceLoop, PeakValley, Setpoint};
+use crate::control::{Demod, DemodGains, ForceLoop, PeakValley, PositionForce, Setpoint};
 use crate::crack::Law;
 use crate::error::{Error, Result};
 use crate::machine::{Machine, Y};
@@ -43,6 +43,10 @@ pub enum ControllerSpec {
     /// polarity; `None` = measured on the plant (see `measure_velocity_gain`)
     Demod { velocity_gain_m_s_per_v: Option<f64> },
     ForceP { kp_v_per_n: f64, u_offset_v: f64 },
+    /// position P + velocity feed-forward (thesis 4.1), the force setpoint turned into a position
+    /// through the measured specimen stiffness (`PositionForce`); gains from the valve's velocity
+    /// gain unless given
+    PositionPff { velocity_gain_m_s_per_v: Option<f64>, kp_v_per_m: Option<f64>, kff_v_per_m_s: Option<f64>, u_offset_v: f64 },
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -294,15 +298,34 @@ impl TestConfig {
             }
             a_s = ph.end_a_m;
         }
-        let v_need = amp_max * 2.0 * std::f64::consts::PI * self.frequency_hz / ksp_end.max(1.0) * 2.0;
+        // peak piston speed of the shape (force rate amp·f·max_slope over the stiffness the flow
+        // works against: specimen in series with the oil column), with a
+        // factor 2 for the peak-valley compensation and the loops' transients
+        let k_flow = series_stiffness(ksp_end.max(1.0), hydraulic_stiffness(p, p.specimen_zero_force_position_m));
+        let v_need = amp_max * self.waveform.max_slope() * self.frequency_hz / k_flow * 2.0;
         if v_need > v_max {
             return Err(param("frequency_hz", self.frequency_hz, &format!(
-                "≤ {:.3} Hz: at the end crack length the piston would need {:.0} mm/s, the valve gives {:.0} mm/s at half its rated flow",
-                self.frequency_hz * v_max / v_need, v_need * 1e3, v_max * 1e3)));
+                "≤ {:.3} Hz for a {} waveform: at the end crack length the piston would need {:.1} mm/s, the valve gives {:.1} mm/s at half its rated flow",
+                self.frequency_hz * v_max / v_need, self.waveform.name(), v_need * 1e3, v_max * 1e3)));
         }
         for &(c, fac) in &self.stiffness_steps {
             if !(fac > 0.0 && fac <= 1.0) {
                 return Err(param(&format!("stiffness_steps[cycle {c}]"), fac, "(0, 1]"));
+            }
+        }
+        if let ControllerSpec::PositionPff { velocity_gain_m_s_per_v, kp_v_per_m, kff_v_per_m_s, u_offset_v } = self.controller {
+            if !u_offset_v.is_finite() {
+                return Err(param("controller.u_offset_v", u_offset_v, "finite"));
+            }
+            for (name, v) in [("velocity_gain_m_s_per_v", velocity_gain_m_s_per_v), ("kp_v_per_m", kp_v_per_m)] {
+                if let Some(v) = v {
+                    if !(v.is_finite() && v != 0.0) {
+                        return Err(param(&format!("controller.{name}"), v, "non-zero, finite (negative on the thesis rig)"));
+                    }
+                }
+            }
+            if let Some(v) = kff_v_per_m_s.filter(|v| !v.is_finite()) {
+                return Err(param("controller.kff_v_per_m_s", v, "finite (0 = no feed-forward)"));
             }
         }
         if let ControllerSpec::ForceP { kp_v_per_n, u_offset_v } = self.controller {
@@ -387,6 +410,8 @@ struct Run<'a> {
     /// to every cycle and learning from every cycle with enough amplitude, ramp-in included
     pv: PeakValley,
     compensate: bool,
+    /// set when the test runs in position control (then `ctrl` is unused)
+    position: Option<PositionForce>,
 }
 
 struct CycleResult {
@@ -416,7 +441,7 @@ impl<'a> Run<'a> {
         let (mut rmax, mut rmin, mut s_hi, mut s_lo) = (f64::MIN, f64::MAX, f64::MIN, f64::MAX);
         let (mid0, amp0) = set(0.0);
         let (mut mid, mut amp) = pv.apply(mid0, amp0);
-        let mut f = self.m.outputs().f;
+        let mut meas = self.m.outputs();
         for k in 0..n {
             let x1 = (k + 1) as f64 / n as f64;
             let (sn1, cn1) = (sn * cs + cn * ss, cn * cs - sn * ss);
@@ -430,9 +455,13 @@ impl<'a> Run<'a> {
             }
             let (mid1, amp1) = pv.apply(nmid1, namp1);
             let sp = Setpoint { mid_n: mid, mid_next_n: mid1, amp_n: amp, s, s_next, sin: sn, cos: cn };
-            let u = self.ctrl.command(&sp, f);
+            let u = match &self.position {
+                Some(pc) => pc.command(&sp, &meas, self.dt),
+                None => self.ctrl.command(&sp, meas.f),
+            };
             let o = self.m.step(u, self.dt)?;
-            f = o.f;
+            let f = o.f;
+            meas = o;
             fmax = fmax.max(f);
             fmin = fmin.min(f);
             ymin = ymin.min(o.y);
@@ -444,6 +473,9 @@ impl<'a> Run<'a> {
             amp = amp1;
         }
         self.simulated += 1;
+        if let Some(pc) = &mut self.position {
+            pc.measured(fmax - fmin, ymax - ymin);
+        }
         Ok(CycleResult { fmax, fmin, rmax, rmin, ymin, ymax })
     }
 
@@ -497,33 +529,53 @@ pub fn run_test(cfg: &TestConfig, mode: ExecMode, progress: Option<&AtomicU64>, 
     let n = (cfg.control_rate_hz / cfg.frequency_hz).round() as usize;
     let dt = 1.0 / (n as f64 * cfg.frequency_hz);
     let u_max = cfg.params.valve_max_command_v;
+    // the valve's gain depends on the opening (low near null): measure it at the command
+    // amplitude the test will need (two fixed-point rounds from 0.1 V)
+    let measured_kv = || -> Result<f64> {
+        let (fmax, fmin, _) = targets(cfg, &cfg.phases[0], cfg.a0_m, cfg.a0_m)?;
+        let k_eff = series_stiffness(ksp0, hydraulic_stiffness(&cfg.params, y0));
+        let need = |kv: f64| (0.5 * (fmax - fmin) * 2.0 * std::f64::consts::PI * cfg.frequency_hz / (k_eff * kv)).abs().clamp(0.005, 1.0);
+        let mut kv = measure_velocity_gain(&cfg.params, 0.1)?;
+        for _ in 0..2 {
+            kv = measure_velocity_gain(&cfg.params, need(kv))?;
+        }
+        Ok(kv)
+    };
+    let mut position = None;
     let (ctrl, kv, gains) = match cfg.controller {
         ControllerSpec::ForceP { kp_v_per_n, u_offset_v } => (ForceLoop::ForceP { kp_v_per_n, u_offset_v, u_max_v: u_max }, f64::NAN, None),
         ControllerSpec::Demod { velocity_gain_m_s_per_v } => {
             let kv = match velocity_gain_m_s_per_v {
                 Some(k) => k,
-                None => {
-                    // the valve's gain depends on the opening (low near null): measure it at the
-                    // command amplitude the test will need (two fixed-point rounds from 0.1 V)
-                    let (fmax, fmin, _) = targets(cfg, &cfg.phases[0], cfg.a0_m, cfg.a0_m)?;
-                    let k_eff = series_stiffness(ksp0, hydraulic_stiffness(&cfg.params, y0));
-                    let need = |kv: f64| (0.5 * (fmax - fmin) * 2.0 * std::f64::consts::PI * cfg.frequency_hz / (k_eff * kv)).abs().clamp(0.005, 1.0);
-                    let mut kv = measure_velocity_gain(&cfg.params, 0.1)?;
-                    for _ in 0..2 {
-                        kv = measure_velocity_gain(&cfg.params, need(kv))?;
-                    }
-                    kv
-                }
+                None => measured_kv()?,
             };
             let k_eff = series_stiffness(ksp0, hydraulic_stiffness(&cfg.params, y0));
             let g = DemodGains::design(k_eff, kv, cfg.frequency_hz, n as f64 * cfg.frequency_hz)?;
             (ForceLoop::Demod(Demod::new(g, cfg.waveform.stats(), u_max, 0.0)), kv, Some(g))
         }
+        ControllerSpec::PositionPff { velocity_gain_m_s_per_v, kp_v_per_m, kff_v_per_m_s, u_offset_v } => {
+            let kv = match velocity_gain_m_s_per_v {
+                Some(k) => k,
+                None => measured_kv()?,
+            };
+            // against the specimen part of the valve's flow compresses the oil column: the piston
+            // moves at k_v·K_series/K_sp
+            let k_eff = series_stiffness(ksp0, hydraulic_stiffness(&cfg.params, y0));
+            let mut pc = PositionForce::design(kv * k_eff / ksp0, ksp0, y0, u_max)?;
+            if let crate::control::Controller::PositionPff { kp_v_per_m: kp, kff_v_per_m_s: kff, .. } = &mut pc.ctrl {
+                *kp = kp_v_per_m.unwrap_or(*kp);
+                *kff = kff_v_per_m_s.unwrap_or(*kff);
+            }
+            pc.u_offset_v = u_offset_v;
+            position = Some(pc);
+            // the force loop is unused in position control
+            (ForceLoop::ForceP { kp_v_per_n: 0.0, u_offset_v: 0.0, u_max_v: u_max }, kv, None)
+        }
     };
     let mut run = Run {
         cfg, m, ctrl, n, dt, a: cfg.a0_m, ksp_factor: 1.0, y0, cycle: 0, rec: Records::default(),
         max_df: 0.0, max_peak: 0.0, out_count: 0, size_cycle: None, simulated: 0, progress, cancel,
-        pv: PeakValley::new(), compensate: matches!(cfg.controller, ControllerSpec::Demod { .. }),
+        pv: PeakValley::new(), compensate: matches!(cfg.controller, ControllerSpec::Demod { .. }), position,
     };
     let law = &cfg.law;
     let spec = &cfg.specimen;
