@@ -36,9 +36,11 @@ def run_spec(spec: TestSpec, mode: str | None = None, progress: bool = False) ->
     th = threading.Thread(target=work, daemon=True)
     th.start()
     limit = spec.end["max_cycles"]
-    while th.is_alive():
+    while True:
         th.join(0.2)
-        if progress:
+        if not th.is_alive():
+            break
+        if progress:  # the final line is drawn once, below
             _bar(prog.cycles, limit, time.perf_counter() - t0)
     wall = time.perf_counter() - t0
     if progress:

@@ -5,7 +5,7 @@
 //! Batches of tests run on all cores.
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 
-use crate::control::{Demod, DemodGains, ForceLoop, Setpoint};
+use crate::control::{Demod, DemodGains, ForceLoop, PeakValley, PositionForce, Setpoint};
 use crate::crack::Law;
 use crate::error::{Error, Result};
 use crate::machine::{Machine, Y};
@@ -43,6 +43,10 @@ pub enum ControllerSpec {
     /// polarity; `None` = measured on the plant (see `measure_velocity_gain`)
     Demod { velocity_gain_m_s_per_v: Option<f64> },
     ForceP { kp_v_per_n: f64, u_offset_v: f64 },
+    /// position P + velocity feed-forward (thesis 4.1), the force setpoint turned into a position
+    /// through the measured specimen stiffness (`PositionForce`); gains from the valve's velocity
+    /// gain unless given
+    PositionPff { velocity_gain_m_s_per_v: Option<f64>, kp_v_per_m: Option<f64>, kff_v_per_m_s: Option<f64>, u_offset_v: f64 },
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -294,15 +298,34 @@ impl TestConfig {
             }
             a_s = ph.end_a_m;
         }
-        let v_need = amp_max * 2.0 * std::f64::consts::PI * self.frequency_hz / ksp_end.max(1.0) * 2.0;
+        // peak piston speed of the shape (force rate amp·f·max_slope over the stiffness the flow
+        // works against: specimen in series with the oil column), with a
+        // factor 2 for the peak-valley compensation and the loops' transients
+        let k_flow = series_stiffness(ksp_end.max(1.0), hydraulic_stiffness(p, p.specimen_zero_force_position_m));
+        let v_need = amp_max * self.waveform.max_slope() * self.frequency_hz / k_flow * 2.0;
         if v_need > v_max {
             return Err(param("frequency_hz", self.frequency_hz, &format!(
-                "≤ {:.3} Hz: at the end crack length the piston would need {:.0} mm/s, the valve gives {:.0} mm/s at half its rated flow",
-                self.frequency_hz * v_max / v_need, v_need * 1e3, v_max * 1e3)));
+                "≤ {:.3} Hz for a {} waveform: at the end crack length the piston would need {:.1} mm/s, the valve gives {:.1} mm/s at half its rated flow",
+                self.frequency_hz * v_max / v_need, self.waveform.name(), v_need * 1e3, v_max * 1e3)));
         }
         for &(c, fac) in &self.stiffness_steps {
             if !(fac > 0.0 && fac <= 1.0) {
                 return Err(param(&format!("stiffness_steps[cycle {c}]"), fac, "(0, 1]"));
+            }
+        }
+        if let ControllerSpec::PositionPff { velocity_gain_m_s_per_v, kp_v_per_m, kff_v_per_m_s, u_offset_v } = self.controller {
+            if !u_offset_v.is_finite() {
+                return Err(param("controller.u_offset_v", u_offset_v, "finite"));
+            }
+            for (name, v) in [("velocity_gain_m_s_per_v", velocity_gain_m_s_per_v), ("kp_v_per_m", kp_v_per_m)] {
+                if let Some(v) = v {
+                    if !(v.is_finite() && v != 0.0) {
+                        return Err(param(&format!("controller.{name}"), v, "non-zero, finite (negative on the thesis rig)"));
+                    }
+                }
+            }
+            if let Some(v) = kff_v_per_m_s.filter(|v| !v.is_finite()) {
+                return Err(param("controller.kff_v_per_m_s", v, "finite (0 = no feed-forward)"));
             }
         }
         if let ControllerSpec::ForceP { kp_v_per_n, u_offset_v } = self.controller {
@@ -383,21 +406,20 @@ struct Run<'a> {
     simulated: u64,
     progress: Option<&'a AtomicU64>,
     cancel: Option<&'a AtomicBool>,
-    /// peak-valley compensation of the demodulation controller's targets (relative corrections
-    /// of the half-range and of the mid-point), integrated once per cycle from the measured peak
-    /// and valley: the demodulator regulates the fundamental and the mean, while ISO 12108 judges
-    /// the peaks; valve nonlinearity near null puts harmonics between the two.
-    comp_amp: f64,
-    comp_mid: f64,
+    /// peak-valley compensation of the demodulation controller's setpoint (control.rs), applied
+    /// to every cycle and learning from every cycle with enough amplitude, ramp-in included
+    pv: PeakValley,
     compensate: bool,
+    /// set when the test runs in position control (then `ctrl` is unused)
+    position: Option<PositionForce>,
 }
-
-/// Per-cycle integral gain of the peak-valley compensation (the inner loops settle in ≈ 2 cycles).
-const PV_GAIN: f64 = 0.3;
 
 struct CycleResult {
     fmax: f64,
     fmin: f64,
+    /// peak and valley of the nominal (uncompensated) setpoint in the cycle [N]
+    rmax: f64,
+    rmin: f64,
     ymin: f64,
     ymax: f64,
 }
@@ -413,17 +435,33 @@ impl<'a> Run<'a> {
         let (cs, ss) = (step.cos(), step.sin());
         let (mut sn, mut cn) = (0.0f64, 1.0f64);
         let mut s = 0.0;
-        let (mut mid, mut amp) = set(0.0);
-        let mut f = self.m.outputs().f;
+        let pv = if self.compensate { self.pv } else { PeakValley::new() };
+        // the nominal setpoint's true peak and valley (mid ± amp where the shape peaks): the
+        // sampled shape can miss the corner between two samples (a triangle at 20 Hz, 1 kHz)
+        let (mut rmax, mut rmin, mut s_hi, mut s_lo) = (f64::MIN, f64::MAX, f64::MIN, f64::MAX);
+        let (mid0, amp0) = set(0.0);
+        let (mut mid, mut amp) = pv.apply(mid0, amp0);
+        let mut meas = self.m.outputs();
         for k in 0..n {
             let x1 = (k + 1) as f64 / n as f64;
             let (sn1, cn1) = (sn * cs + cn * ss, cn * cs - sn * ss);
             let s_next = if sine { sn1 } else { w.shape(x1) };
-            let (mid1, amp1) = set(x1);
+            let (nmid1, namp1) = set(x1);
+            if s_next > s_hi {
+                (s_hi, rmax) = (s_next, nmid1 + namp1);
+            }
+            if s_next < s_lo {
+                (s_lo, rmin) = (s_next, nmid1 - namp1);
+            }
+            let (mid1, amp1) = pv.apply(nmid1, namp1);
             let sp = Setpoint { mid_n: mid, mid_next_n: mid1, amp_n: amp, s, s_next, sin: sn, cos: cn };
-            let u = self.ctrl.command(&sp, f);
+            let u = match &self.position {
+                Some(pc) => pc.command(&sp, &meas, self.dt),
+                None => self.ctrl.command(&sp, meas.f),
+            };
             let o = self.m.step(u, self.dt)?;
-            f = o.f;
+            let f = o.f;
+            meas = o;
             fmax = fmax.max(f);
             fmin = fmin.min(f);
             ymin = ymin.min(o.y);
@@ -435,7 +473,10 @@ impl<'a> Run<'a> {
             amp = amp1;
         }
         self.simulated += 1;
-        Ok(CycleResult { fmax, fmin, ymin, ymax })
+        if let Some(pc) = &mut self.position {
+            pc.measured(fmax - fmin, ymax - ymin);
+        }
+        Ok(CycleResult { fmax, fmin, rmax, rmin, ymin, ymax })
     }
 
     fn set_stiffness(&mut self, keep_force: bool) -> Result<()> {
@@ -488,33 +529,53 @@ pub fn run_test(cfg: &TestConfig, mode: ExecMode, progress: Option<&AtomicU64>, 
     let n = (cfg.control_rate_hz / cfg.frequency_hz).round() as usize;
     let dt = 1.0 / (n as f64 * cfg.frequency_hz);
     let u_max = cfg.params.valve_max_command_v;
+    // the valve's gain depends on the opening (low near null): measure it at the command
+    // amplitude the test will need (two fixed-point rounds from 0.1 V)
+    let measured_kv = || -> Result<f64> {
+        let (fmax, fmin, _) = targets(cfg, &cfg.phases[0], cfg.a0_m, cfg.a0_m)?;
+        let k_eff = series_stiffness(ksp0, hydraulic_stiffness(&cfg.params, y0));
+        let need = |kv: f64| (0.5 * (fmax - fmin) * 2.0 * std::f64::consts::PI * cfg.frequency_hz / (k_eff * kv)).abs().clamp(0.005, 1.0);
+        let mut kv = measure_velocity_gain(&cfg.params, 0.1)?;
+        for _ in 0..2 {
+            kv = measure_velocity_gain(&cfg.params, need(kv))?;
+        }
+        Ok(kv)
+    };
+    let mut position = None;
     let (ctrl, kv, gains) = match cfg.controller {
         ControllerSpec::ForceP { kp_v_per_n, u_offset_v } => (ForceLoop::ForceP { kp_v_per_n, u_offset_v, u_max_v: u_max }, f64::NAN, None),
         ControllerSpec::Demod { velocity_gain_m_s_per_v } => {
             let kv = match velocity_gain_m_s_per_v {
                 Some(k) => k,
-                None => {
-                    // the valve's gain depends on the opening (low near null): measure it at the
-                    // command amplitude the test will need (two fixed-point rounds from 0.1 V)
-                    let (fmax, fmin, _) = targets(cfg, &cfg.phases[0], cfg.a0_m, cfg.a0_m)?;
-                    let k_eff = series_stiffness(ksp0, hydraulic_stiffness(&cfg.params, y0));
-                    let need = |kv: f64| (0.5 * (fmax - fmin) * 2.0 * std::f64::consts::PI * cfg.frequency_hz / (k_eff * kv)).abs().clamp(0.005, 1.0);
-                    let mut kv = measure_velocity_gain(&cfg.params, 0.1)?;
-                    for _ in 0..2 {
-                        kv = measure_velocity_gain(&cfg.params, need(kv))?;
-                    }
-                    kv
-                }
+                None => measured_kv()?,
             };
             let k_eff = series_stiffness(ksp0, hydraulic_stiffness(&cfg.params, y0));
             let g = DemodGains::design(k_eff, kv, cfg.frequency_hz, n as f64 * cfg.frequency_hz)?;
             (ForceLoop::Demod(Demod::new(g, cfg.waveform.stats(), u_max, 0.0)), kv, Some(g))
         }
+        ControllerSpec::PositionPff { velocity_gain_m_s_per_v, kp_v_per_m, kff_v_per_m_s, u_offset_v } => {
+            let kv = match velocity_gain_m_s_per_v {
+                Some(k) => k,
+                None => measured_kv()?,
+            };
+            // against the specimen part of the valve's flow compresses the oil column: the piston
+            // moves at k_v·K_series/K_sp
+            let k_eff = series_stiffness(ksp0, hydraulic_stiffness(&cfg.params, y0));
+            let mut pc = PositionForce::design(kv * k_eff / ksp0, ksp0, y0, u_max)?;
+            if let crate::control::Controller::PositionPff { kp_v_per_m: kp, kff_v_per_m_s: kff, .. } = &mut pc.ctrl {
+                *kp = kp_v_per_m.unwrap_or(*kp);
+                *kff = kff_v_per_m_s.unwrap_or(*kff);
+            }
+            pc.u_offset_v = u_offset_v;
+            position = Some(pc);
+            // the force loop is unused in position control
+            (ForceLoop::ForceP { kp_v_per_n: 0.0, u_offset_v: 0.0, u_max_v: u_max }, kv, None)
+        }
     };
     let mut run = Run {
         cfg, m, ctrl, n, dt, a: cfg.a0_m, ksp_factor: 1.0, y0, cycle: 0, rec: Records::default(),
         max_df: 0.0, max_peak: 0.0, out_count: 0, size_cycle: None, simulated: 0, progress, cancel,
-        comp_amp: 0.0, comp_mid: 0.0, compensate: matches!(cfg.controller, ControllerSpec::Demod { .. }),
+        pv: PeakValley::new(), compensate: matches!(cfg.controller, ControllerSpec::Demod { .. }), position,
     };
     let law = &cfg.law;
     let spec = &cfg.specimen;
@@ -559,14 +620,10 @@ pub fn run_test(cfg: &TestConfig, mode: ExecMode, progress: Option<&AtomicU64>, 
                 (mid_t * fm, amp_t * fa)
             })?
         } else {
-            let (mc, ac) = (mid_t + run.comp_mid * amp_t, amp_t * (1.0 + run.comp_amp));
-            run.cycle_through(|_| (mc, ac))?
+            run.cycle_through(|_| (mid_t, amp_t))?
         };
-        if run.compensate && !starting {
-            let amp_m = 0.5 * (res.fmax - res.fmin);
-            let mid_m = 0.5 * (res.fmax + res.fmin);
-            run.comp_amp = (run.comp_amp + PV_GAIN * (amp_t - amp_m) / amp_t).clamp(-0.2, 0.2);
-            run.comp_mid = (run.comp_mid + PV_GAIN * (mid_t - mid_m) / amp_t).clamp(-0.2, 0.2);
+        if run.compensate && res.rmax - res.rmin >= PeakValley::MIN_AMPLITUDE_FRACTION * 2.0 * amp_t {
+            run.pv.update(res.rmax, res.rmin, res.fmax, res.fmin);
         }
         run.cycle += 1;
         since_jump += 1;

@@ -90,7 +90,13 @@ pub(super) fn config_from(d: &Bound<'_, PyDict>) -> PyResult<TestConfig> {
     let controller = match need::<String>(&c, "type")?.as_str() {
         "demodulation" => ControllerSpec::Demod { velocity_gain_m_s_per_v: opt(&c, "velocity_gain_m_s_per_v", None)? },
         "force_p" => ControllerSpec::ForceP { kp_v_per_n: need(&c, "kp_v_per_n")?, u_offset_v: opt(&c, "u_offset_v", 0.0)? },
-        other => return Err(InputError::new_err(format!("controller type `{other}`: use demodulation or force_p"))),
+        "position_pff" => ControllerSpec::PositionPff {
+            velocity_gain_m_s_per_v: opt(&c, "velocity_gain_m_s_per_v", None)?,
+            kp_v_per_m: opt(&c, "kp_v_per_m", None)?,
+            kff_v_per_m_s: opt(&c, "kff_v_per_m_s", None)?,
+            u_offset_v: opt(&c, "u_offset_v", 0.0)?,
+        },
+        other => return Err(InputError::new_err(format!("controller type `{other}`: use demodulation, force_p or position_pff"))),
     };
     let dj = JumpConfig::default();
     Ok(TestConfig {
