@@ -40,6 +40,7 @@ impl Controller {
 
 /// Force controllers of the fatigue engine: one command per sample from the cyclic setpoint
 /// (mean, amplitude, waveform phase) and the measured force.
+#[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
 #[derive(Debug, Clone)]
 pub enum ForceLoop {
     /// Fixed-gain force P (thesis 4.1, Fig. 4.6–4.8): u = kp·(r − f) + u_offset, where r is the
@@ -95,6 +96,7 @@ impl ForceLoop {
 }
 
 /// Gains of the demodulation controller, derived from the plant (see `DemodGains::design`).
+#[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DemodGains {
     /// plant force gain g = K_sp·k_v [N/s per V] (negative for the thesis valve's polarity)
@@ -156,6 +158,7 @@ impl DemodGains {
 pub const STATIC_CROSSOVER_RAD_S: f64 = 150.0;
 
 /// The demodulation controller's state. Allocation happens once (the moving-average rings).
+#[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
 #[derive(Debug, Clone)]
 pub struct Demod {
     pub gains: DemodGains,
