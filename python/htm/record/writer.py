@@ -56,6 +56,8 @@ class TestWriter:
     * `interrupt(reason)`: a safe stop that keeps the journal so the test can resume
     """
 
+    __test__ = False  # not a pytest class
+
     def __init__(self, store: Store, test_id: str, *, recording: bool = True, spawn: bool = False,
                  connect: str | None = None, opener: Callable[[Path], BinaryIO] | None = None, replay: bool = False):
         self.store, self.id = store, test_id
