@@ -147,7 +147,16 @@ class Recording:
             self.rec.set_time("time", duration=float(time_s))
         self.rec.log("events", self.rr.TextLog(f"{kind}: {detail}" if detail else kind, level=level))
 
+    def flush(self) -> None:
+        """Push what was logged to the sinks; a failed file writer (full disk) raises `RecordError`."""
+        from htm.errors import RecordError
+
+        try:
+            self.rec.flush(timeout_sec=30.0)
+        except RuntimeError as e:
+            raise RecordError(f"cannot write the recording: {e}") from None
+
     def close(self) -> None:
         """Flush everything and write the file's footer."""
-        self.rec.flush()
+        self.flush()
         self.rec.disconnect()

@@ -11,6 +11,7 @@ from __future__ import annotations
 import fcntl
 import json
 import os
+import time
 import uuid
 from pathlib import Path
 from typing import Any, BinaryIO, Callable
@@ -26,6 +27,8 @@ EVENT_NAMES = {1: "start", 2: "out_of_tolerance", 4: "tolerance_exceeded", 8: "s
                32: "stiffness_step", 64: "phase_change", 128: "stop", 256: "end"}
 # bits worth an entry in the catalogue's event list when they appear (START and JUMP are states)
 CATALOGUED = 2 | 4 | 8 | 32 | 64 | 256
+# seconds between two checks that the recording's file writer is alive
+FLUSH_EVERY_S = 0.5
 
 
 def engine_events(table: dict[str, np.ndarray], frequency_hz: float) -> list[tuple[int, float, str, str]]:
@@ -81,6 +84,7 @@ class TestWriter:
         self.last_cycle = max((int(r.arrays["cycle"][-1]) for s in old for r in s.records
                                if r.kind == journal.CHUNK and len(r.arrays.get("cycle", []))), default=0)
         self.rec = None
+        self._flushed = time.monotonic()
         if recording:
             from htm.record.streams import Recording
 
@@ -144,6 +148,9 @@ class TestWriter:
         if raw is not None and len(raw.get("t_s", [])):
             self.signals(raw)
         self._to_recording(journal.Record(journal.CHUNK, meta, arrays))
+        if self.rec is not None and time.monotonic() - self._flushed >= FLUSH_EVERY_S:
+            self.rec.flush()  # a recording that cannot be written stops the test like the journal would
+            self._flushed = time.monotonic()
 
     def signals(self, columns: dict[str, np.ndarray]) -> None:
         """A window of samples (dict of equal-length arrays with `t_s` [s])."""
@@ -177,12 +184,24 @@ class TestWriter:
     def close(self, status: str = "finished", end_reason: str | None = None, results: dict[str, Any] | None = None) -> dict[str, Path]:
         """Write `cycles.parquet`, `raw.parquet` and `recording.rrd`, fill the catalogue, then
         drop the journal (its content now lives in those files). Returns the files."""
-        import pyarrow as pa
-        import pyarrow.parquet as pq
-
         results = dict(results or {})
         self.journal.append(journal.CLOSE, {"status": status, "end_reason": end_reason, "results": results}, sync=True)
         self.journal.close()
+        try:
+            return self._finalize(status, end_reason, results)
+        except (OSError, RuntimeError, RecordError) as e:
+            try:
+                self.store.set_status(self.id, "stopped", end_reason="recording_failed", cycles=self.last_cycle)
+            except RecordError:
+                pass
+            self._unlock()
+            raise RecordError(f"closing test {self.id} failed ({e}); its journal is kept: "
+                              f"`htm resume {self.id}` finishes it once the cause is fixed") from None
+
+    def _finalize(self, status: str, end_reason: str | None, results: dict[str, Any]) -> dict[str, Path]:
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
         segs = journal.read_journal(self.dir)
         table = concat([r.arrays for s in segs for r in s.records if r.kind == journal.CHUNK])
         raw = concat([r.arrays for s in segs for r in s.records if r.kind == journal.SIGNALS])
