@@ -64,9 +64,12 @@ def drive(sess: Any, writer: Any, limit: int, progress: bool) -> tuple[dict[str,
 
     cols = _core.TestRun.raw_columns()
     t0 = time.perf_counter()
+    engine_s = 0.0
     try:
         while not sess.finished:
+            te = time.perf_counter()
             d = sess.advance(max_seconds=CHUNK_S)
+            engine_s += time.perf_counter() - te
             raw = d["raw"]
             rawd = {k: raw[:, i] for i, k in enumerate(cols)} if len(raw) else None
             writer.cycles(d["table"], rawd, None if d["end_reason"] else bytes(sess.snapshot()))
@@ -78,11 +81,11 @@ def drive(sess: Any, writer: Any, limit: int, progress: bool) -> tuple[dict[str,
                           f"(`htm resume {writer.id}` continues once the cause is fixed)") from None
     except KeyboardInterrupt:
         writer.interrupt("interrupted", "by the operator")
-        raise
+        raise HtmError(f"interrupted at cycle {writer.last_cycle:,}; `htm resume {writer.id}` continues") from None
     wall = time.perf_counter() - t0
     if progress:
         _bar(sess.cycle, limit, wall, done=True)
-    return sess.outcome(), wall
+    return dict(sess.outcome(), engine_wall_s=engine_s), wall
 
 
 def run_recorded(spec: TestSpec, spec_text: str, mode: str, store: Any, progress: bool = False, *,
@@ -112,8 +115,9 @@ def _finish(writer: Any, sess: Any, spec: TestSpec, mode: str, progress: bool) -
         raise
     s = summary(spec, out, wall, mode)
     s.pop("wall_time_s")
+    tc = time.perf_counter()
     writer.close("finished", out["end_reason"], s)
-    out = dict(out)
+    out = dict(out, close_wall_s=time.perf_counter() - tc)
     out["table"] = writer.store.cycles(writer.id)
     return writer.id, out, wall
 
