@@ -5,6 +5,7 @@ use crate::machine::Outputs;
 pub mod limits;
 
 /// A sampled control law.
+#[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
 #[derive(Debug, Clone, PartialEq)]
 pub enum Controller {
     /// Position P with velocity feed-forward (thesis 4.1; DATA_FORMAT `position_pff`):
@@ -42,6 +43,7 @@ impl Controller {
 
 /// Force controllers of the fatigue engine: one command per sample from the cyclic setpoint
 /// (mean, amplitude, waveform phase) and the measured force.
+#[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
 #[derive(Debug, Clone)]
 pub enum ForceLoop {
     /// Fixed-gain force P (thesis 4.1, Fig. 4.6–4.8): u = kp·(r − f) + u_offset, where r is the
@@ -97,6 +99,7 @@ impl ForceLoop {
 }
 
 /// Gains of the demodulation controller, derived from the plant (see `DemodGains::design`).
+#[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DemodGains {
     /// plant force gain g = K_sp·k_v [N/s per V] (negative for the thesis valve's polarity)
@@ -169,6 +172,7 @@ impl DemodGains {
 pub const STATIC_CROSSOVER_RAD_S: f64 = 150.0;
 
 /// The demodulation controller's state. Allocation happens once (the moving-average rings).
+#[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
 #[derive(Debug, Clone)]
 pub struct Demod {
     pub gains: DemodGains,
@@ -201,6 +205,7 @@ pub struct Demod {
 }
 
 /// One-cycle moving sums of a signal x and of its sin/cos demodulation 2·(x − mean)·(sin, cos).
+#[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
 #[derive(Debug, Clone)]
 struct Boxcar3 {
     ring_x: Vec<f64>,
@@ -298,6 +303,7 @@ impl Demod {
 /// valley are compared with the nominal setpoint's and the commanded half-range and mid-point
 /// are corrected by an integral law, so the error goes to zero over a few cycles.
 /// Plain data: it can be snapshotted with the rest of a run.
+#[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PeakValley {
     /// relative correction of the commanded half-range (0 = none)
@@ -353,6 +359,7 @@ impl Default for PeakValley {
 /// measured over the last cycle (force range / position range: the compliance a real rig
 /// measures for crack length). Nothing corrects the force itself, so it is as good as the
 /// stiffness estimate and the position tracking. Plain data.
+#[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
 #[derive(Debug, Clone, PartialEq)]
 pub struct PositionForce {
     /// `Controller::PositionPff`

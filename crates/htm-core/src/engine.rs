@@ -4,6 +4,7 @@
 //! resolves short blocks to steady state and integrates growth across the cycles in between.
 //! Batches of tests run on all cores.
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
+use std::time::Instant;
 
 use crate::control::{Demod, DemodGains, ForceLoop, PeakValley, PositionForce, Setpoint};
 use crate::crack::Law;
@@ -112,6 +113,7 @@ pub struct TestConfig {
 }
 
 /// Why a test ended.
+#[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum EndReason {
     TargetCrack,
@@ -412,6 +414,8 @@ struct Run<'a> {
     compensate: bool,
     /// set when the test runs in position control (then `ctrl` is unused)
     position: Option<PositionForce>,
+    /// raw high-rate windows (see `RawCapture`)
+    raw: RawCapture,
 }
 
 struct CycleResult {
@@ -460,6 +464,7 @@ impl<'a> Run<'a> {
                 None => self.ctrl.command(&sp, meas.f),
             };
             let o = self.m.step(u, self.dt)?;
+            self.raw.sample((self.cycle as f64 + x1) / self.cfg.frequency_hz, u, &o, mid1 + amp1 * s_next);
             let f = o.f;
             meas = o;
             fmax = fmax.max(f);
@@ -515,11 +520,22 @@ impl<'a> Run<'a> {
         r.ctrl_u1_v.push(u1);
         r.ctrl_u2_v.push(u2);
         r.events.push(ev);
+        self.raw.end_cycle(self.cycle, ev);
     }
 }
 
 /// Run one test. `progress` receives the cycle count as it goes; `cancel` stops it.
 pub fn run_test(cfg: &TestConfig, mode: ExecMode, progress: Option<&AtomicU64>, cancel: Option<&AtomicBool>) -> Result<Outcome> {
+    let (mut run, kv, gains) = start(cfg, progress, cancel, RawCapture::default())?;
+    let mut cur = Cursor::new(cfg);
+    let end = advance(&mut run, mode, &mut cur, u64::MAX, None)?.expect("an unbounded advance runs to the end");
+    finish(&mut run, end, &cur, kv, gains)
+}
+
+/// A test at rest, ready for its first cycle: the plant at the specimen's zero-force position and
+/// the controller designed for it (the valve's velocity gain is measured here when not given).
+#[allow(clippy::type_complexity)]
+fn start<'a>(cfg: &'a TestConfig, progress: Option<&'a AtomicU64>, cancel: Option<&'a AtomicBool>, raw: RawCapture) -> Result<(Run<'a>, f64, Option<DemodGains>)> {
     cfg.validate()?;
     let mut p = cfg.params.clone();
     let ksp0 = cfg.specimen.stiffness(cfg.a0_m, &cfg.material)?;
@@ -572,24 +588,45 @@ pub fn run_test(cfg: &TestConfig, mode: ExecMode, progress: Option<&AtomicU64>, 
             (ForceLoop::ForceP { kp_v_per_n: 0.0, u_offset_v: 0.0, u_max_v: u_max }, kv, None)
         }
     };
-    let mut run = Run {
+    let run = Run {
+        raw,
         cfg, m, ctrl, n, dt, a: cfg.a0_m, ksp_factor: 1.0, y0, cycle: 0, rec: Records::default(),
         max_df: 0.0, max_peak: 0.0, out_count: 0, size_cycle: None, simulated: 0, progress, cancel,
         pv: PeakValley::new(), compensate: matches!(cfg.controller, ControllerSpec::Demod { .. }), position,
     };
+    Ok((run, kv, gains))
+}
+
+/// The cycle loop's own variables, kept between two calls of `advance`.
+#[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
+struct Cursor {
+    phase_i: usize,
+    a_phase0: f64,
+    next_step: usize,
+    since_jump: u64,
+    prev_err: (f64, f64),
+}
+
+impl Cursor {
+    fn new(cfg: &TestConfig) -> Self {
+        Cursor { phase_i: 0, a_phase0: cfg.a0_m, next_step: 0, since_jump: 0, prev_err: (f64::NAN, f64::NAN) }
+    }
+}
+
+/// Run cycles until the test ends (`Some(reason)`), or pause between two cycles (`None`) once the
+/// cycle count reaches `until_cycle` or the wall clock passes `deadline`. A paused test continues
+/// exactly as if it had never stopped.
+fn advance(run: &mut Run, mode: ExecMode, cur: &mut Cursor, until_cycle: u64, deadline: Option<Instant>) -> Result<Option<EndReason>> {
+    let cfg = run.cfg;
     let law = &cfg.law;
     let spec = &cfg.specimen;
     let kic = cfg.material.fracture_toughness_pa_sqrt_m;
     let (stroke_lo, stroke_hi) = (cfg.limits.stroke_margin_m, cfg.params.stroke_m - cfg.limits.stroke_margin_m);
     let a_max_valid = spec.a_range().1;
-    let mut phase_i = 0usize;
-    let mut a_phase0 = cfg.a0_m;
+    let Cursor { mut phase_i, mut a_phase0, mut next_step, mut since_jump, mut prev_err } = *cur;
     let n_start = cfg.envelope.start_cycles();
     let mut steps = cfg.stiffness_steps.clone();
     steps.sort_by_key(|s| s.0);
-    let mut next_step = 0usize;
-    let mut since_jump = 0u64;
-    let mut prev_err = (f64::NAN, f64::NAN);
     let end: EndReason;
 
     loop {
@@ -598,6 +635,10 @@ pub fn run_test(cfg: &TestConfig, mode: ExecMode, progress: Option<&AtomicU64>, 
                 end = EndReason::Cancelled;
                 break;
             }
+        }
+        if run.cycle >= until_cycle || deadline.is_some_and(|d| Instant::now() >= d) {
+            *cur = Cursor { phase_i, a_phase0, next_step, since_jump, prev_err };
+            return Ok(None);
         }
         // scheduled stiffness steps (before this cycle)
         let mut ev = 0u32;
@@ -784,6 +825,15 @@ pub fn run_test(cfg: &TestConfig, mode: ExecMode, progress: Option<&AtomicU64>, 
             }
         }
     }
+    *cur = Cursor { phase_i, a_phase0, next_step, since_jump, prev_err };
+    Ok(Some(end))
+}
+
+/// After the end: mark the last row, ramp the amplitude down (smooth stop) and sum up.
+fn finish(run: &mut Run, end: EndReason, cur: &Cursor, kv: f64, gains: Option<DemodGains>) -> Result<Outcome> {
+    let cfg = run.cfg;
+    let a_max_valid = cfg.specimen.a_range().1;
+    let Cursor { phase_i, a_phase0, .. } = *cur;
     if let Some(r) = run.rec.events.last_mut() {
         *r |= events::END;
     }
@@ -805,7 +855,7 @@ pub fn run_test(cfg: &TestConfig, mode: ExecMode, progress: Option<&AtomicU64>, 
         run.cycle = cycles;
     }
     Ok(Outcome {
-        records: run.rec,
+        records: std::mem::take(&mut run.rec),
         end_reason: end,
         cycles,
         a_end_m: a_end,
@@ -838,6 +888,11 @@ pub fn run_batch(cfgs: &[TestConfig], mode: ExecMode, threads: usize) -> Vec<Res
     });
     slots.into_iter().map(|r| r.unwrap()).collect()
 }
+
+mod raw;
+mod session;
+pub use raw::{RawCapture, RAW_COLUMNS};
+pub use session::{Chunk, Session};
 
 #[cfg(test)]
 pub(crate) mod tests {
