@@ -202,15 +202,20 @@ def _rrd(path: Path) -> dict[str, dict[str, np.ndarray]]:
             continue
         b = ch.to_record_batch()
         out.setdefault(ch.entity_path, []).append(b)
+    import pyarrow as pa
+
     res = {}
     for e, bs in out.items():
-        cols = {}
-        for name in bs[0].schema.names:
-            if name.startswith("rerun."):
-                continue
-            import pyarrow as pa
-            vals = [x for b in bs for x in (b.column(name).cast(pa.int64()) if pa.types.is_temporal(b.column(name).type)
-                                            else b.column(name)).to_pylist()]  # durations as ns
+        cols: dict[str, list] = {}
+        names = dict.fromkeys(n for b in bs for n in b.schema.names if not n.startswith("rerun."))
+        for name in names:
+            vals: list = []
+            for b in bs:
+                if name not in b.schema.names:
+                    vals += [None] * b.num_rows  # e.g. an event logged before any cycle
+                    continue
+                col = b.column(name)
+                vals += (col.cast(pa.int64()) if pa.types.is_temporal(col.type) else col).to_pylist()  # durations as ns
             cols[name] = vals
         res[e] = cols
     return res
@@ -349,7 +354,7 @@ def test_sigkill_at_20_random_moments_then_resume_loses_and_doubles_nothing(tmp_
 
 def test_full_disk_in_a_child_stops_safely_then_resumes(tmp_path):
     """RLIMIT_FSIZE makes every file past 1.5 MB fail to grow (EFBIG), as a full disk would."""
-    spec = short_spec(tmp_path)
+    spec = short_spec(tmp_path, 5.0)  # ≈ 2·10⁴ cycles: the limit is met mid-run
     store = tmp_path / "store"
     Store(store).close()  # the catalogue exists before the limit
     limit = 1_500_000

@@ -195,8 +195,9 @@ class TestWriter:
             except RecordError:
                 pass
             self._unlock()
-            raise RecordError(f"closing test {self.id} failed ({e}); its journal is kept: "
-                              f"`htm resume {self.id}` finishes it once the cause is fixed") from None
+            raise RecordError(f"closing test {self.id} failed ({e}) — test stopped safely at cycle {self.last_cycle:,}; "
+                              f"what was recorded is kept in its journal (`htm resume {self.id}` finishes it once the cause "
+                              "is fixed)") from None
 
     def _finalize(self, status: str, end_reason: str | None, results: dict[str, Any]) -> dict[str, Path]:
         import pyarrow as pa
