@@ -27,6 +27,7 @@ test-python: setup
 bench: setup
 	$(PY) benchmarks/plant_throughput.py
 	$(PY) benchmarks/million_cycles.py
+	$(PY) benchmarks/recording.py
 
 clean:
 	rm -rf $(VENV) target out

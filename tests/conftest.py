@@ -7,3 +7,12 @@ for sub in ("examples", "benchmarks"):
     p = str(ROOT / sub)
     if p not in sys.path:
         sys.path.insert(0, p)
+
+
+import pytest
+
+
+@pytest.fixture(autouse=True)
+def _isolated_store(tmp_path_factory, monkeypatch):
+    """`htm run` records into a test store: never the developer's own."""
+    monkeypatch.setenv("HTM_STORE", str(tmp_path_factory.mktemp("store")))

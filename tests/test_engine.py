@@ -35,12 +35,13 @@ def worst(t: dict, sel: np.ndarray) -> np.ndarray:
     return np.maximum(np.abs(t["peak_err_pct"][sel]), np.abs(t["df_err_pct"][sel]))
 
 
-def fig_4_8_doc(controller: dict) -> dict:
-    """Fig. 4.8 scenario on the linear-valve plant the thesis's comparison assumes (preset "base"):
-    C(T) of Table B.1, 4.45 kN at R = 0.1, 9 Hz with 500 Hz control, a fast-growing crack
-    (Paris C × 30) from a/W 0.30 to 0.50 so that K_sp falls to ≈ 40 %."""
+def fig_4_8_doc(controller: dict, preset: str = "base") -> dict:
+    """Fig. 4.8 scenario: C(T) of Table B.1, 4.45 kN at R = 0.1, 9 Hz with 500 Hz control, a
+    fast-growing crack (Paris C × 30) from a/W 0.30 to 0.50 so that K_sp falls to ≈ 40 %, on
+    the rig `preset`: "base" is the linear-valve plant the thesis's comparison assumes (its
+    normalised plant −0.07/s), "thesis" the default rig with the measured valve map."""
     d = base_doc()
-    d["rig"] = {"preset": "base"}
+    d["rig"] = {"preset": preset}
     d["controller"] = controller
     d["loading"]["frequency_hz"] = 9.0
     d["loading"]["control_rate_hz"] = 500.0
@@ -49,8 +50,14 @@ def fig_4_8_doc(controller: dict) -> dict:
     return d
 
 
-def test_fixed_gain_force_p_leaves_the_band_as_the_crack_grows():
-    o = run(fig_4_8_doc({"type": "force_p", "kp_v_per_n": -1e-4, "u_offset_v": -0.115}))
+@pytest.mark.parametrize("preset, kp", [("base", -1e-4), ("thesis", -8e-4)])
+def test_fixed_gain_force_p_leaves_the_band_as_the_crack_grows(preset, kp):
+    """Thesis Fig. 4.8 (the band is left after ≈ 2,500 cycles there). It holds on both rigs, with
+    a gain that starts inside the band on each: on the linear-valve "base" plant the thesis's
+    −1e-4 V/N; on the default rig the measured valve has a low-gain null region (Table 3.3) and
+    −1e-4 V/N is out of band from the first cycle (10.7 %, measured), so the fixed gain is
+    −8e-4 V/N; that loop leaves the band at cycle ≈ 2,100 when K_sp has fallen to ≈ 57 %."""
+    o = run(fig_4_8_doc({"type": "force_p", "kp_v_per_n": kp, "u_offset_v": -0.115}, preset))
     t = o["table"]
     sel = in_test(t)
     err = worst(t, sel)
@@ -61,8 +68,9 @@ def test_fixed_gain_force_p_leaves_the_band_as_the_crack_grows():
     assert ksp[first_out] < 0.8, f"leaves the band when K_sp has fallen (K_sp/K0 = {ksp[first_out]:.2f})"
 
 
-def test_demod_holds_the_band_in_the_fig_4_8_scenario():
-    o = run(fig_4_8_doc({"type": "demodulation"}))
+@pytest.mark.parametrize("preset", ["base", "thesis"])
+def test_demod_holds_the_band_in_the_fig_4_8_scenario(preset):
+    o = run(fig_4_8_doc({"type": "demodulation"}, preset))
     t = o["table"]
     assert o["end_reason"] == "target_crack_length"
     assert worst(t, in_test(t)).max() < 2.0
@@ -85,25 +93,30 @@ def test_demod_holds_two_percent_over_6e4_cycles_while_stiffness_falls():
 
 
 def test_demod_recovers_from_stiffness_steps_to_80_60_50_percent():
-    """Fig. 4.6–4.7 scenario: K_sp steps down to 80, 60 and 50 % of nominal (crack held still).
-    A step drops the force at once (f = K_sp·Δy); the controller must bring peak and range back
-    inside ±2 % within a few cycles and keep them there."""
+    """Fig. 4.6 scenario (the steps the thesis applies to the fixed-gain loop), here with the
+    demodulation controller: K_sp steps down to 80, 60 and 50 % of nominal at cycles 200, 400,
+    600 (crack held still). A step drops the force at once (f = K_sp·Δy) at a cycle boundary;
+    the amplitude and mean loops see it only through their one-cycle estimation window (the
+    thesis's low-pass estimators of θ1, θ2), so the recovery window is 2 cycles: the step's cycle
+    and the one after. Outside it, amplitude and mean must stay within ±2 %. (Measured: the inner
+    force P holds even the step cycles inside, worst 1.99 % at the 60 % step.)"""
     d = base_doc()
     d["law"]["c"] = 1e-40
     d["end"]["max_cycles"] = 800
     d["stiffness_steps"] = [[200, 0.8], [400, 0.6], [600, 0.5]]
     o = run(d)
     t = o["table"]
-    err = worst(t, np.ones(len(t["cycle"]), bool))
+    amp_err = ((t["fmax_n"] - t["fmin_n"]) / (t["fmax_target_n"] - t["fmin_target_n"]) - 1) * 100
+    mean_err = ((t["fmax_n"] + t["fmin_n"]) / (t["fmax_target_n"] + t["fmin_target_n"]) - 1) * 100
     cyc = t["cycle"]
+    judged = in_test(t)
     for step, factor in [(200, 0.8), (400, 0.6), (600, 0.5)]:
         i = np.searchsorted(cyc, step)
         assert (t["events"][i] & 32) and t["k_sp_n_m"][i] / t["k_sp_n_m"][0] == pytest.approx(factor, rel=1e-6)
-        window = err[i:i + 200]
-        back = np.argmax(window < 2.0)
-        assert back <= 25, f"step to {factor}: back inside after {back} cycles"
-        assert window[back + 5:].max() < 2.0, f"step to {factor}: stays inside"
-        assert window[:back].max() > 2.0 if back else True
+        assert max(abs(amp_err[i:i + 2]).max(), abs(mean_err[i:i + 2]).max()) < 5.0, "bounded inside the window"
+        judged[i:i + 2] = False
+    assert abs(amp_err[judged]).max() < 2.0 and abs(mean_err[judged]).max() < 2.0
+    assert t["k_sp_n_m"][-1] == pytest.approx(0.5 * t["k_sp_n_m"][0], rel=1e-6)
 
 
 @pytest.mark.parametrize("loading", [
@@ -210,8 +223,45 @@ def test_htm_run_writes_outputs_and_rejects_bad_spec(tmp_path, capsys):
     assert load(EXAMPLE).mode == "jump"
 
 
+WAVES = {"sine": {}, "triangle": {}, "trapezoid": {"rise_fraction": 0.2, "hold_fraction": 0.3}}
+
+
+@pytest.mark.parametrize("mode", ["full", "jump"])
+@pytest.mark.parametrize("wave", list(WAVES))
+def test_every_waveform_holds_two_percent_after_ramp_in(wave, mode):
+    """ISO 12108 judges peaks and valleys; the demodulation loops hold the fundamental and mean.
+    Peak-valley compensation (control.rs PeakValley) closes the gap for shapes with corners:
+    sine, triangle and trapezoid at 10 Hz on the default rig, example C(T), every test cycle
+    after the ramp-in within ±2 % in ΔF and peak (measured: ≤ 1.05 %)."""
+    d = base_doc()
+    d["loading"].update(waveform=wave, **WAVES[wave])
+    d["law"]["c"] *= 10
+    o = run(d, mode)
+    assert o["end_reason"] == "target_crack_length"
+    assert o["max_abs_df_err_pct"] < 2.0 and o["max_abs_peak_err_pct"] < 2.0, (o["max_abs_df_err_pct"], o["max_abs_peak_err_pct"])
+    t = o["table"]
+    assert worst(t, in_test(t)).max() < 2.0
+
+
+def test_a_waveform_beyond_the_valve_is_refused_while_a_sine_runs_in_band():
+    """With a small valve (12 L/min), a steep trapezoid (rise 5 % of the cycle) needs 6.4× the
+    sine's piston speed: refused before anything runs, with the speeds named; the sine on the
+    same rig runs inside ±2 %."""
+    d = base_doc()
+    d["rig"] = {"overrides": {"valve_rated_flow_m3_s": 2e-4}}
+    d["law"]["c"] *= 10
+    o = run(d, "jump")
+    assert o["end_reason"] == "target_crack_length" and max(o["max_abs_df_err_pct"], o["max_abs_peak_err_pct"]) < 2.0
+    d["loading"].update(waveform="trapezoid", rise_fraction=0.05, hold_fraction=0.4)
+    with pytest.raises(SpecError) as e:
+        parse(d)
+    msg = str(e.value)
+    for w in ("loading.frequency_hz", "trapezoid waveform", "mm/s", "rated flow"):
+        assert w in msg, msg
+
+
 @pytest.mark.parametrize("wave,extra", [("triangle", ""), ("trapezoid", "rise_fraction = 0.2\nhold_fraction = 0.3\n")])
-def test_triangle_and_trapezoid_tests_run_to_the_end_and_flag_force_errors(tmp_path, wave, extra, capsys):
+def test_triangle_and_trapezoid_specs_run_through_htm_run_inside_the_band(tmp_path, wave, extra, capsys):
     text = EXAMPLE.read_text().replace('waveform = "sine"', f'waveform = "{wave}"\n{extra}')
     spec = tmp_path / f"{wave}.toml"
     spec.write_text(text)
@@ -219,10 +269,96 @@ def test_triangle_and_trapezoid_tests_run_to_the_end_and_flag_force_errors(tmp_p
     assert main(["run", str(spec), "--out", str(out), "--quiet"]) == 0, capsys.readouterr().err
     s = json.loads((out / "summary.json").read_text())
     assert s["end_reason"] == "target_crack_length"
-    # The demodulation carrier is sinusoidal, so the sharp peaks of these waveforms are not held
-    # to +-2 % yet (known gap of issue 3); the per-cycle table must say so rather than hide it.
     import pyarrow.parquet as pq
     t = pq.read_table(out / "cycles.parquet").to_pydict()
     assert len(t["df_err_pct"]) == len(t["cycle"]) > 100
     assert all(x == x for x in t["df_err_pct"] + t["peak_err_pct"]), "an error for every cycle, no NaN"
-    assert 0.0 < s["max_abs_df_err_pct"] < 100.0 and 0.0 < s["max_abs_peak_err_pct"] < 100.0
+    assert 0.0 < s["max_abs_df_err_pct"] < 2.0 and 0.0 < s["max_abs_peak_err_pct"] < 2.0
+
+
+def test_mt_specimen_runs_through_htm_run(tmp_path, capsys):
+    """An M(T) panel (ASTM E647): K from eq. A2.1, K_sp from the grip-to-grip compliance; the
+    stiffness falls as the crack grows and the force stays in band."""
+    text = EXAMPLE.read_text().replace('geometry = "ct"', 'geometry = "mt"').replace("width_m = 0.0508", "width_m = 0.1") \
+        .replace("thickness_m = 0.00635", "thickness_m = 0.006").replace("a0_m = 0.0152 ", "a0_m = 0.0100 ") \
+        .replace("delta_f_n = 4450.0", "delta_f_n = 40000.0").replace("a_over_w = 0.6", "a_over_w = 0.5") \
+        .replace("c = 1.1413e-29", "c = 1.1413e-28")
+    spec = tmp_path / "mt.toml"
+    spec.write_text(text)
+    assert load(spec).geometry == "mt"
+    out = tmp_path / "mt"
+    assert main(["run", str(spec), "--out", str(out), "--quiet"]) == 0, capsys.readouterr().err
+    s = json.loads((out / "summary.json").read_text())
+    assert s["end_reason"] == "target_crack_length"
+    assert s["final_a_m"] == pytest.approx(0.025, abs=0.1e-3), "2a/W = 0.5 on W = 100 mm"
+    assert s["max_abs_df_err_pct"] < 2.0 and s["max_abs_peak_err_pct"] < 2.0
+    import pyarrow.parquet as pq
+    t = pq.read_table(out / "cycles.parquet").to_pydict()
+    assert t["k_sp_n_m"][-1] < 0.85 * t["k_sp_n_m"][0]
+    assert "MT W = 100.0 mm" in capsys.readouterr().out
+
+
+def test_negative_r_runs_with_delta_k_equal_to_kmax():
+    """R < 0 is supported down to −1: E647 takes ΔK = Kmax (compressive part excluded)."""
+    d = base_doc()
+    d["loading"]["r_ratio"] = -0.5
+    d["law"]["c"] *= 10
+    o = run(d, "jump")
+    t = o["table"]
+    sel = in_test(t) & ((t["events"] & 16) == 0)
+    assert o["end_reason"] == "target_crack_length" and o["max_abs_df_err_pct"] < 2.0
+    assert np.allclose(t["fmin_target_n"][sel], -0.5 * t["fmax_target_n"][sel])
+    assert np.all(t["fmin_n"][sel] < 0), "the valley is compressive"
+    assert np.allclose(t["delta_k_pa_sqrt_m"][sel], t["kmax_pa_sqrt_m"][sel])
+
+
+def test_rig_overrides_in_the_spec_reach_the_plant():
+    """[rig] overrides: a larger valve null bias moves the command that holds the mean by the
+    same amount; a heavier moving mass lowers the resonance and with it the highest frequency."""
+    def u2(bias: float) -> float:
+        d = base_doc()
+        d["rig"] = {"overrides": {"valve_null_bias_v": bias}}
+        d["end"]["max_cycles"] = 100
+        return float(np.median(run(d)["table"]["ctrl_u2_v"][-20:]))
+    assert u2(0.415) - u2(0.115) == pytest.approx(-0.3, abs=0.02)
+    d = base_doc()
+    d["loading"].update(frequency_hz=40.0)
+    parse(d)  # fine on the default rig (limit 53 Hz)
+    d["rig"] = {"overrides": {"moving_mass_kg": 4 * 53.78}}
+    with pytest.raises(SpecError, match="frequency_hz.*resonance"):
+        parse(d)
+    d["rig"] = {"overrides": {"moving_mass": 100.0}}
+    with pytest.raises(SpecError, match="unknown parameter `moving_mass`"):
+        parse(d)
+
+
+def test_all_three_controllers_are_chosen_from_a_spec():
+    """controller.type: demodulation (thesis 4.2), force_p (the thesis's comparison case) and
+    position_pff (thesis 4.1: position P + velocity feed-forward, the force setpoint turned into a
+    position through the specimen stiffness measured each cycle). Position control of the stiff
+    C(T) holds the force to a few % only; the feed-forward improves tracking (thesis Fig. 4.5b)."""
+    def worst_err(ctrl: dict) -> float:
+        d = base_doc()
+        d["controller"] = ctrl
+        d["end"]["max_cycles"] = 300
+        o = run(d)
+        assert o["end_reason"] == "cycle_limit"
+        return max(o["max_abs_df_err_pct"], o["max_abs_peak_err_pct"])
+    demod = worst_err({"type": "demodulation"})
+    force_p = worst_err({"type": "force_p", "kp_v_per_n": -8e-4, "u_offset_v": -0.115})
+    pff = worst_err({"type": "position_pff", "u_offset_v": -0.115})
+    p_only = worst_err({"type": "position_pff", "u_offset_v": -0.115, "kff_v_per_m_s": 0.0})
+    assert demod < 2.0 and force_p < 2.0
+    assert pff < 5.0 and p_only > pff + 0.5, (pff, p_only)
+    with pytest.raises(SpecError, match="controller \\(type position_pff\\): unknown key kp_v_per_n"):
+        parse({**base_doc(), "controller": {"type": "position_pff", "kp_v_per_n": 1.0}})
+
+
+def test_progress_bar_draws_its_last_line_once(capsys):
+    from htm.run import run_spec
+    spec = parse(base_doc())
+    out, _ = run_spec(spec, "jump", progress=True)
+    err = capsys.readouterr().err
+    last = f"{int(out['cycles']):>10,} cycles"
+    assert err.count(last) == 1, err[-400:]
+    assert err.endswith("\n") and err.count("\n") == 1

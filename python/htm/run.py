@@ -1,5 +1,6 @@
 """`htm run SPEC --out DIR`: a whole fatigue crack growth test in the Rust core, with a progress
-bar, the per-cycle table (Parquet), summary.json, a text summary and the test report."""
+bar, the per-cycle table (Parquet), summary.json, a text summary and the test report; recorded
+into the test store and a rerun recording as it runs (resumable after a crash: `htm resume ID`)."""
 from __future__ import annotations
 
 import argparse
@@ -14,7 +15,7 @@ import numpy as np
 
 from htm import _core
 from htm.errors import HtmError
-from htm.spec import TestSpec, load
+from htm.spec import TestSpec, load, parse
 
 EVENT_NAMES = {1: "start", 2: "out_of_tolerance", 4: "tolerance_exceeded", 8: "size_criterion", 16: "jump",
                32: "stiffness_step", 64: "phase_change", 128: "stop", 256: "end"}
@@ -36,9 +37,11 @@ def run_spec(spec: TestSpec, mode: str | None = None, progress: bool = False) ->
     th = threading.Thread(target=work, daemon=True)
     th.start()
     limit = spec.end["max_cycles"]
-    while th.is_alive():
+    while True:
         th.join(0.2)
-        if progress:
+        if not th.is_alive():
+            break
+        if progress:  # the final line is drawn once, below
             _bar(prog.cycles, limit, time.perf_counter() - t0)
     wall = time.perf_counter() - t0
     if progress:
@@ -46,6 +49,118 @@ def run_spec(spec: TestSpec, mode: str | None = None, progress: bool = False) ->
     if "err" in box:
         raise box["err"]
     return box["out"], wall
+
+
+# raw high-rate windows of a simulated test: the first 30 cycles (start-up), 2 cycles from each
+# decade, 2 cycles before and after each event
+RAW_POLICY = {"first_cycles": 30, "decade_cycles": 2, "pre_cycles": 2, "post_cycles": 2}
+# wall time of one engine chunk [s]: the journal gets a block of rows (and a snapshot) this often
+CHUNK_S = 0.25
+
+
+def drive(sess: Any, writer: Any, limit: int, progress: bool) -> tuple[dict[str, Any], float]:
+    """Advance `sess` (a `_core.TestRun`) chunk by chunk into `writer` (a `TestWriter`) to the
+    end; returns (the run's summary, wall seconds). A recording error stops the test safely
+    (the journal keeps what was written, `htm resume` continues)."""
+    from htm.errors import RecordError
+
+    cols = _core.TestRun.raw_columns()
+    t0 = time.perf_counter()
+    engine_s = 0.0
+    try:
+        while not sess.finished:
+            te = time.perf_counter()
+            d = sess.advance(max_seconds=CHUNK_S)
+            engine_s += time.perf_counter() - te
+            raw = d["raw"]
+            rawd = {k: raw[:, i] for i, k in enumerate(cols)} if len(raw) else None
+            writer.cycles(d["table"], rawd, None if d["end_reason"] else bytes(sess.snapshot()))
+            if progress:
+                _bar(sess.cycle, limit, time.perf_counter() - t0)
+    except RecordError as e:
+        writer.interrupt("recording_failed", str(e))
+        raise RecordError(f"{e} — test stopped safely at cycle {writer.last_cycle:,}; what was recorded is kept "
+                          f"(`htm resume {writer.id}` continues once the cause is fixed)") from None
+    except KeyboardInterrupt:
+        writer.interrupt("interrupted", "by the operator")
+        raise HtmError(f"interrupted at cycle {writer.last_cycle:,}; `htm resume {writer.id}` continues") from None
+    wall = time.perf_counter() - t0
+    if progress:
+        _bar(sess.cycle, limit, wall, done=True)
+    return dict(sess.outcome(), engine_wall_s=engine_s), wall
+
+
+def run_recorded(spec: TestSpec, spec_text: str, mode: str, store: Any, progress: bool = False, *,
+                 recording: bool = True, spawn: bool = False, connect: str | None = None) -> tuple[str, dict[str, Any], float]:
+    """Run `spec` into `store` (+ its rerun recording); returns (test id, result with the whole
+    per-cycle table, wall seconds)."""
+    from htm.record.writer import TestWriter
+
+    cfg = spec.to_config()
+    _core.validate_test(cfg)  # bad specs fail before anything is recorded
+    writer = TestWriter.create(store, spec.name, "simulated", mode, "toml", spec_text, spec.frequency_hz,
+                               recording=recording, spawn=spawn, connect=connect)
+    try:
+        sess = _core.TestRun(cfg, mode, RAW_POLICY)
+    except HtmError as e:
+        writer.close("failed", "engine_error", {"error": str(e)})
+        raise
+    return _finish(writer, sess, spec, mode, progress)
+
+
+def _finish(writer: Any, sess: Any, spec: TestSpec, mode: str, progress: bool) -> tuple[str, dict[str, Any], float]:
+    try:
+        out, wall = drive(sess, writer, spec.end["max_cycles"], progress)
+    except HtmError as e:
+        if not writer.journal.closed:  # an engine error: the test failed, its rows stay
+            writer.close("failed", "engine_error", {"error": str(e)})
+        raise
+    s = summary(spec, out, wall, mode)
+    s.pop("wall_time_s")
+    tc = time.perf_counter()
+    writer.close("finished", out["end_reason"], s)
+    out = dict(out, close_wall_s=time.perf_counter() - tc)
+    out["table"] = writer.store.cycles(writer.id)
+    return writer.id, out, wall
+
+
+def resume_recorded(store: Any, test_id: str, progress: bool = False, *, recording: bool = True, spawn: bool = False,
+                    connect: str | None = None) -> tuple[str, TestSpec, str, dict[str, Any], float]:
+    """Continue a simulated test of `store` from its journal's last engine snapshot; returns
+    (test id, spec, mode, result with the whole table, wall seconds of this session)."""
+    import tomllib
+
+    from htm.errors import RecordError
+    from htm.record import journal
+    from htm.record.writer import TestWriter
+
+    row = store.get(test_id)
+    if row["kind"] != "simulated":
+        raise RecordError(f"test {test_id} is a {row['kind']} test; only simulated tests resume with `htm resume`")
+    spec = parse(tomllib.loads(row["spec"]), row["name"])
+    mode = row["mode"]
+    writer, segs = TestWriter.reopen(store, test_id, recording=recording, spawn=spawn, connect=connect)
+    records = [r for s in segs for r in s.records]
+    chunks = [r for r in records if r.kind == journal.CHUNK]
+    closed = [r for r in records if r.kind == journal.CLOSE]
+    if closed or (chunks and not chunks[-1].blob and len(chunks[-1].arrays.get("events", []))
+                  and int(chunks[-1].arrays["events"][-1]) & 256):
+        # the run had ended (its last rows are in): only the closing was cut short
+        m = closed[-1].meta if closed else {}
+        writer.event("resumed", "closing a test that had ended")
+        writer.close(m.get("status", "finished"), m.get("end_reason", row["end_reason"]), m.get("results", {}))
+        out = {"end_reason": row["end_reason"], "table": store.cycles(test_id)}
+        return test_id, spec, mode, out, 0.0
+    cfg = spec.to_config()
+    snaps = [r for r in chunks if r.blob]
+    try:
+        sess = _core.TestRun.restore(cfg, mode, snaps[-1].blob) if snaps else _core.TestRun(cfg, mode, RAW_POLICY)
+    except HtmError as e:
+        writer.interrupt("resume_failed", str(e))
+        raise RecordError(f"test {test_id}: {e}") from None
+    writer.event("resumed", f"from cycle {sess.cycle:,} (a = {sess.a_m * 1e3:.3f} mm)", sess.cycle, sess.cycle / spec.frequency_hz)
+    tid, out, wall = _finish(writer, sess, spec, mode, progress)
+    return tid, spec, mode, out, wall
 
 
 def _bar(cycles: int, limit: int, wall: float, done: bool = False) -> None:
@@ -125,7 +240,15 @@ def cmd_run(args: argparse.Namespace) -> int:
     out_dir = Path(args.out)
     if (out_dir / "summary.json").exists():
         raise HtmError(f"{out_dir} already holds a test (summary.json); choose another --out")
-    out, wall = run_spec(spec, mode, progress=not args.quiet)
+    if args.no_store:
+        out, wall = run_spec(spec, mode, progress=not args.quiet)
+    else:
+        from htm.record.store import Store
+
+        with Store(args.store) as store:
+            test_id, out, wall = run_recorded(spec, Path(args.spec).read_text(), mode, store, progress=not args.quiet,
+                                              recording=not args.no_recording, spawn=args.spawn, connect=args.connect)
+            print(f"store: test {test_id} in {store.root}" + ("" if args.no_recording else f" (recording {store.test_dir(test_id) / 'recording.rrd'})"))
     s = write_outputs(out_dir, spec, out, wall, mode)
     print(summary_text(spec, s))
     print(f"outputs: {out_dir}/summary.json, cycles.parquet, summary.txt" + (f", {Path(s['report']).name}" if s["report"] and not s["report"].startswith("not") else ""))
@@ -140,4 +263,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="output directory (must not already hold a test)")
     p.add_argument("--mode", choices=["full", "jump"], help="full fidelity or cycle-jump (default: the spec's [run] mode)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_store_args(p)
+    p.add_argument("--no-store", action="store_true", help="do not record into the store (no journal, no resume, no recording)")
     p.set_defaults(func=cmd_run)
+
+
+def add_store_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--store", help="test store folder (default $HTM_STORE or ~/.local/share/htm/store)")
+    p.add_argument("--no-recording", action="store_true", help="no rerun recording (the store still keeps every cycle)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--spawn", action="store_true", help="also stream to a rerun viewer started now")
+    g.add_argument("--connect", metavar="URL", help="also stream to a running rerun viewer (e.g. rerun+http://127.0.0.1:9876/proxy)")

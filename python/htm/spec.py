@@ -221,14 +221,22 @@ def parse(doc: dict, name: str = "test") -> TestSpec:
                             f"({a_prev * 1e3:.3f}, {ahi * width / scale * 1e3:.3f}] mm")
         a_prev = ph.end_a_m
     ctrl = _table(doc, "controller", "controller", required=False) or {"type": "demodulation"}
-    _keys(ctrl, {"type", "velocity_gain_m_s_per_v", "kp_v_per_n", "u_offset_v"}, "controller")
-    ctype = _choice(ctrl, "type", "controller", ("demodulation", "force_p"), "demodulation")
+    # demodulation: the thesis 4.2 amplitude/mean controller (default); force_p: fixed-gain force P
+    # (the thesis's comparison case); position_pff: position P + velocity feed-forward (thesis 4.1)
+    keys = {"demodulation": {"velocity_gain_m_s_per_v"}, "force_p": {"kp_v_per_n", "u_offset_v"},
+            "position_pff": {"velocity_gain_m_s_per_v", "kp_v_per_m", "kff_v_per_m_s", "u_offset_v"}}
+    ctype = _choice(ctrl, "type", "controller", tuple(keys), "demodulation")
+    _keys(ctrl, {"type"} | keys[ctype], f"controller (type {ctype})")
     controller: dict[str, Any] = {"type": ctype}
     if ctype == "force_p":
         controller["kp_v_per_n"] = _num(ctrl, "kp_v_per_n", "controller", -1.0, 1.0)
+    if ctype != "demodulation":
         controller["u_offset_v"] = _num(ctrl, "u_offset_v", "controller", -10.0, 10.0, default=0.0, unit="V")
-    elif "velocity_gain_m_s_per_v" in ctrl:
+    if "velocity_gain_m_s_per_v" in ctrl:
         controller["velocity_gain_m_s_per_v"] = _num(ctrl, "velocity_gain_m_s_per_v", "controller", -10.0, 10.0, unit="m/s per V")
+    for k, unit in (("kp_v_per_m", "V/m"), ("kff_v_per_m_s", "V per m/s")):
+        if k in ctrl:
+            controller[k] = _num(ctrl, k, "controller", -1e6, 1e6, unit=unit)
     st = _table(doc, "start", "start", required=False)
     _keys(st, {"mean_cycles", "amplitude_cycles", "stop_cycles"}, "start")
     start = {"mean_cycles": _num(st, "mean_cycles", "start", 0.0, 1e4, default=5.0),

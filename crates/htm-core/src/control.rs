@@ -5,6 +5,7 @@ use crate::machine::Outputs;
 pub mod limits;
 
 /// A sampled control law.
+#[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
 #[derive(Debug, Clone, PartialEq)]
 pub enum Controller {
     /// Position P with velocity feed-forward (thesis 4.1; DATA_FORMAT `position_pff`):
@@ -42,6 +43,7 @@ impl Controller {
 
 /// Force controllers of the fatigue engine: one command per sample from the cyclic setpoint
 /// (mean, amplitude, waveform phase) and the measured force.
+#[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
 #[derive(Debug, Clone)]
 pub enum ForceLoop {
     /// Fixed-gain force P (thesis 4.1, Fig. 4.6–4.8): u = kp·(r − f) + u_offset, where r is the
@@ -97,13 +99,15 @@ impl ForceLoop {
 }
 
 /// Gains of the demodulation controller, derived from the plant (see `DemodGains::design`).
+#[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DemodGains {
     /// plant force gain g = K_sp·k_v [N/s per V] (negative for the thesis valve's polarity)
     pub plant_gain_n_per_s_v: f64,
     /// integral gain of the amplitude loop [V/(N·s)]
     pub k1: f64,
-    /// proportional and integral gains of the mean loop [V/N], [V/(N·s)]
+    /// inner proportional gain on the force error r − f (the mean loop's P term) [V/N] and the
+    /// mean loop's integral gain [V/(N·s)]
     pub kp2: f64,
     pub ki2: f64,
     /// test frequency [Hz] and control period [s]
@@ -119,20 +123,28 @@ impl DemodGains {
     /// valve's small-signal velocity gain, signed by its polarity; the stiffness passed in is the
     /// specimen in series with the oil column, which the thesis's rigid model leaves out and
     /// which on the thesis rig is ~40 % of K_sp). With the carrier
-    /// u1·ṡ(φ)/ω (u1·cos ωt for a sine, NOTES item 5) the force amplitude is θ1 = g·u1/ω, and the
-    /// mean obeys θ̇2 = g·(u2 − u_null). Estimates are one-cycle moving averages (the thesis's
+    /// u1·ṡ(φ)/ω (u1·cos ωt for a sine, NOTES item 5) the open-loop force amplitude is
+    /// θ1 = g·u1/ω, and the mean obeys θ̇2 = g·(u2 − u_null). Estimates are one-cycle moving averages (the thesis's
     /// high-pass, demodulation with sin and cos, low-pass — a boxcar over exactly one period has
     /// zeros at ω and 2ω, so no ripple reaches the loops; its lag is T/2 = 1/(2f)).
     ///
-    /// * amplitude loop (integral, as the thesis): loop gain k1·g/ω/s, crossover
-    ///   ω1 = `c1`·f rad/s → k1 = ω1·ω/g. With c1 = 0.5 (time constant 2 cycles) the T/2 lag costs
-    ///   0.25 rad: phase margin ≈ 76°; a K_sp falling to 50 % halves ω1 and stays stable; a valve
-    ///   gain twice the nominal one leaves ≈ 60°.
-    /// * mean loop: PI (the thesis's P cannot absorb the valve's null offset: a P loop leaves a
-    ///   steady error u_null/k2) on the type-1 plant, i.e. a symmetric-optimum type-2 loop:
-    ///   crossover ω2 = `c2`·f, kp2 = ω2/g, integral time T_i = a²/ω2... here T_i = 3/ω2,
-    ///   ki2 = kp2/T_i → phase margin atan(3) − ω2·T/2 ≈ 72° − 14° = 58° at c2 = 0.5.
+    /// * inner force P (not in the thesis): u += kp2·(r − f) on the instantaneous error, crossover
+    ///   ω_c = `STATIC_CROSSOVER_RAD_S` (kp2 = ω_c/g). With the carrier as velocity feed-forward it
+    ///   leaves the loops only the residuals, and it rejects what one-cycle averages cannot see
+    ///   in time: the valve's load-pressure asymmetry (extension and retraction flows differ under
+    ///   the mean load, a net drift per cycle that grows with the amplitude during the ramp-in)
+    ///   and its low-gain null region. It is also the mean loop's proportional term.
+    /// * amplitude loop (integral, as the thesis): with the inner loop the carrier moves the force
+    ///   amplitude by g·u1/|jω + ω_c| per volt; crossover ω1 = `c1`·f rad/s →
+    ///   k1 = ω1·|jω + ω_c|/g. With c1 = 0.5 (time constant 2 cycles) the T/2 lag costs 0.25 rad:
+    ///   phase margin ≈ 76°; a K_sp falling to 50 % halves ω1 and stays stable.
+    /// * mean loop: integral on the one-cycle mean (the thesis's P alone cannot absorb the valve's
+    ///   null offset, it leaves u_null/k2). Below ω_c the inner loop makes the plant from u2 to
+    ///   the mean a gain g/ω_c, so ki2 = ω2·ω_c/g puts the crossover at ω2 = `c2`·f (c2 = 0.5).
     ///   A feed-forward of the mean setpoint's rate (ṁ/g) removes the ramp lag of the smooth start.
+    /// Both loops compare the force's estimates with the reference's through the same filters, and
+    /// `PeakValley` corrects the setpoint once per cycle so that peaks and valleys, not only the
+    /// fundamental and mean, meet ISO 12108's ±2 %.
     /// Both gains carry the sign of g, so the rule needs no hand tuning for polarity either.
     pub fn design(specimen_stiffness_n_m: f64, velocity_gain_m_s_per_v: f64, frequency_hz: f64, control_rate_hz: f64) -> Result<Self> {
         let g = specimen_stiffness_n_m * velocity_gain_m_s_per_v;
@@ -147,8 +159,10 @@ impl DemodGains {
         let (c1, c2) = (0.5, 0.5);
         let w1 = c1 * frequency_hz;
         let w2 = c2 * frequency_hz;
-        let kp2 = w2 / g;
-        Ok(DemodGains { plant_gain_n_per_s_v: g, k1: w1 * w / g, kp2, ki2: kp2 * w2 / 3.0, frequency_hz, ts_s: 1.0 / control_rate_hz, window: window as usize })
+        let wc = STATIC_CROSSOVER_RAD_S;
+        let kp2 = wc / g;
+        let k1 = w1 * (w * w + wc * wc).sqrt() / g;
+        Ok(DemodGains { plant_gain_n_per_s_v: g, k1, kp2, ki2: w2 * wc / g, frequency_hz, ts_s: 1.0 / control_rate_hz, window: window as usize })
     }
 }
 
@@ -158,6 +172,7 @@ impl DemodGains {
 pub const STATIC_CROSSOVER_RAD_S: f64 = 150.0;
 
 /// The demodulation controller's state. Allocation happens once (the moving-average rings).
+#[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
 #[derive(Debug, Clone)]
 pub struct Demod {
     pub gains: DemodGains,
@@ -175,17 +190,53 @@ pub struct Demod {
     /// estimates of the force amplitude (fundamental) and mean [N]
     pub theta1_hat: f64,
     pub theta2_hat: f64,
-    /// fundamental magnitude and mean of the unit waveform (targets: amp·b1, mid + amp·s_mean)
-    b1: f64,
-    s_mean: f64,
-    ring_f: Vec<f64>,
-    ring_i: Vec<f64>,
-    ring_q: Vec<f64>,
-    sum_f: f64,
-    sum_i: f64,
-    sum_q: f64,
+    /// the same estimates of the reference r = mid + amp·s: the loops' targets
+    pub theta1_ref: f64,
+    pub theta2_ref: f64,
+    /// fundamental magnitude and mean of the unit waveform (a steady cycle's targets are
+    /// amp·b1 and mid + amp·s_mean)
+    pub b1: f64,
+    pub s_mean: f64,
+    /// one-cycle moving averages of the measurement (f) and of the reference (r)
+    f_avg: Boxcar3,
+    r_avg: Boxcar3,
     pos: usize,
     filled: usize,
+}
+
+/// One-cycle moving sums of a signal x and of its sin/cos demodulation 2·(x − mean)·(sin, cos).
+#[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
+#[derive(Debug, Clone)]
+struct Boxcar3 {
+    ring_x: Vec<f64>,
+    ring_i: Vec<f64>,
+    ring_q: Vec<f64>,
+    sum_x: f64,
+    sum_i: f64,
+    sum_q: f64,
+}
+
+impl Boxcar3 {
+    fn new(n: usize, x0: f64) -> Self {
+        Boxcar3 { ring_x: vec![x0; n], ring_i: vec![0.0; n], ring_q: vec![0.0; n], sum_x: x0 * n as f64, sum_i: 0.0, sum_q: 0.0 }
+    }
+
+    /// Push sample x at ring position `pos`; returns (fundamental magnitude, mean) over the
+    /// last n samples: the thesis's high-pass, demodulation and low-pass.
+    #[inline]
+    fn push(&mut self, pos: usize, x: f64, sin: f64, cos: f64) -> (f64, f64) {
+        let n = self.ring_x.len() as f64;
+        self.sum_x += x - self.ring_x[pos];
+        self.ring_x[pos] = x;
+        let mean = self.sum_x / n;
+        let z = x - mean;
+        let (zi, zq) = (2.0 * z * sin, 2.0 * z * cos);
+        self.sum_i += zi - self.ring_i[pos];
+        self.sum_q += zq - self.ring_q[pos];
+        self.ring_i[pos] = zi;
+        self.ring_q[pos] = zq;
+        (((self.sum_i / n).powi(2) + (self.sum_q / n).powi(2)).sqrt(), mean)
+    }
 }
 
 impl Demod {
@@ -194,30 +245,23 @@ impl Demod {
     pub fn new(gains: DemodGains, stats: (f64, f64), u_max_v: f64, f0: f64) -> Self {
         let n = gains.window;
         Demod {
-            gains, u_max_v, u1: 0.0, u2: 0.0, i2: 0.0, u1_total: 0.0, u1_ff: 0.0, static_mode: true, theta1_hat: 0.0, theta2_hat: f0, s_mean: stats.0, b1: stats.1,
-            ring_f: vec![f0; n], ring_i: vec![0.0; n], ring_q: vec![0.0; n],
-            sum_f: f0 * n as f64, sum_i: 0.0, sum_q: 0.0, pos: 0, filled: 0,
+            gains, u_max_v, u1: 0.0, u2: 0.0, i2: 0.0, u1_total: 0.0, u1_ff: 0.0, static_mode: true,
+            theta1_hat: 0.0, theta2_hat: f0, theta1_ref: 0.0, theta2_ref: f0, s_mean: stats.0, b1: stats.1,
+            f_avg: Boxcar3::new(n, f0), r_avg: Boxcar3::new(n, f0), pos: 0, filled: 0,
         }
     }
 
     #[inline]
     fn command(&mut self, sp: &Setpoint, f: f64) -> f64 {
         let g = &self.gains;
-        let n = g.window as f64;
-        // mean estimate: one-cycle moving average (low-pass)
-        self.sum_f += f - self.ring_f[self.pos];
-        self.ring_f[self.pos] = f;
-        self.theta2_hat = self.sum_f / n;
-        // high-pass z = y − mean, demodulated with sin and cos, one-cycle averages
-        let z = f - self.theta2_hat;
-        let (zi, zq) = (2.0 * z * sp.sin, 2.0 * z * sp.cos);
-        self.sum_i += zi - self.ring_i[self.pos];
-        self.sum_q += zq - self.ring_q[self.pos];
-        self.ring_i[self.pos] = zi;
-        self.ring_q[self.pos] = zq;
+        // amplitude and mean of the force and, through the same filters, of the reference: the
+        // loops compare like with like, so a ramping setpoint (smooth start, ΔK schedules) is
+        // not mistaken for a tracking error by the filters' half-cycle lag
+        (self.theta1_hat, self.theta2_hat) = self.f_avg.push(self.pos, f, sp.sin, sp.cos);
+        let r = sp.mid_n + sp.amp_n * sp.s;
+        (self.theta1_ref, self.theta2_ref) = self.r_avg.push(self.pos, r, sp.sin, sp.cos);
         self.pos = if self.pos + 1 == g.window { 0 } else { self.pos + 1 };
         self.filled = (self.filled + 1).min(g.window);
-        self.theta1_hat = ((self.sum_i / n).powi(2) + (self.sum_q / n).powi(2)).sqrt();
         let w = 2.0 * std::f64::consts::PI * g.frequency_hz;
         if sp.amp_n <= 0.0 {
             // static hold / preload: fast PI on the force error (crossover STATIC_CROSSOVER)
@@ -234,20 +278,128 @@ impl Demod {
         // amplitude loop: integral; the feed-forward amp·ω/g seeds it (u1 is the integrator)
         let u1_ff = sp.amp_n * w / g.plant_gain_n_per_s_v;
         if self.filled == g.window {
-            let e1 = sp.amp_n * self.b1 - self.theta1_hat;
+            let e1 = self.theta1_ref - self.theta1_hat;
             self.u1 += g.ts_s * g.k1 * e1;
         }
         let u1 = self.u1 + u1_ff;
         self.u1_total = u1;
         self.u1_ff = u1_ff;
-        // mean loop: PI + setpoint-rate feed-forward
-        let e2 = sp.mid_n + sp.amp_n * self.s_mean - self.theta2_hat;
+        // mean loop: integral on the one-cycle mean, inner P on r − f, setpoint-rate feed-forward
+        let e2 = self.theta2_ref - self.theta2_hat;
         self.i2 += g.ts_s * g.ki2 * e2;
         let ff2 = (sp.mid_next_n - sp.mid_n) / (g.ts_s * g.plant_gain_n_per_s_v);
-        self.u2 = g.kp2 * e2 + self.i2 + ff2;
+        self.u2 = g.kp2 * (r - f) + self.i2 + ff2;
         // carrier: u1·ṡ/ω over the sample (= u1·cos ωt for the sine) so that an integrator
         // plant moves the force by exactly (g·u1/ω)·Δs
         let carrier = (sp.s_next - sp.s) / (w * g.ts_s);
         (u1 * carrier + self.u2).clamp(-self.u_max_v, self.u_max_v)
+    }
+}
+
+/// Peak-valley compensation (vendors' "PVC" / amplitude control): the demodulation loops hold
+/// the force's fundamental and mean, while ISO 12108 judges its peaks and valleys; corners
+/// rounded by the finite bandwidth (triangle, trapezoid), the valve's nonlinearity near null and
+/// the loops' lag during the ramp-in put the two apart. Once per cycle the measured peak and
+/// valley are compared with the nominal setpoint's and the commanded half-range and mid-point
+/// are corrected by an integral law, so the error goes to zero over a few cycles.
+/// Plain data: it can be snapshotted with the rest of a run.
+#[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PeakValley {
+    /// relative correction of the commanded half-range (0 = none)
+    pub amp: f64,
+    /// correction of the commanded mid-point, as a fraction of the nominal half-range
+    pub mid: f64,
+}
+
+impl PeakValley {
+    /// Integral gain per cycle: the amplitude loop's time constant is 2 cycles (c1 = 0.5), so a
+    /// gain of 0.3 keeps the compensation a slower outer loop (no overshoot) that still settles
+    /// within ≈ 10 cycles.
+    pub const GAIN: f64 = 0.3;
+    /// Largest correction (±30 % of the half-range): a rig that needs more is beyond its
+    /// bandwidth or valve flow for that waveform, which `engine::TestConfig::validate` refuses.
+    pub const LIMIT: f64 = 0.3;
+    /// Smallest nominal half-range, relative to the test's, at which a cycle teaches the
+    /// compensation (early in the ramp-in the force is too small to judge).
+    pub const MIN_AMPLITUDE_FRACTION: f64 = 0.3;
+
+    pub fn new() -> Self {
+        PeakValley { amp: 0.0, mid: 0.0 }
+    }
+
+    /// The (mid-point, half-range) to command [N] for a nominal (mid, amp) [N].
+    #[inline]
+    pub fn apply(&self, mid_n: f64, amp_n: f64) -> (f64, f64) {
+        (mid_n + self.mid * amp_n, amp_n * (1.0 + self.amp))
+    }
+
+    /// Learn from one cycle: the nominal setpoint's peak and valley `r_max`, `r_min` and the
+    /// measured force peak and valley `f_max`, `f_min` [N] over the same cycle.
+    pub fn update(&mut self, r_max: f64, r_min: f64, f_max: f64, f_min: f64) {
+        let amp = 0.5 * (r_max - r_min);
+        if !(amp > 0.0 && f_max.is_finite() && f_min.is_finite()) {
+            return;
+        }
+        let e_amp = (amp - 0.5 * (f_max - f_min)) / amp;
+        let e_mid = (0.5 * (r_max + r_min) - 0.5 * (f_max + f_min)) / amp;
+        self.amp = (self.amp + Self::GAIN * e_amp).clamp(-Self::LIMIT, Self::LIMIT);
+        self.mid = (self.mid + Self::GAIN * e_mid).clamp(-Self::LIMIT, Self::LIMIT);
+    }
+}
+
+impl Default for PeakValley {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// A force test run in position control (thesis 4.1: position P with velocity feed-forward):
+/// the force setpoint r becomes the piston reference y0 + r/K, with K the specimen stiffness
+/// measured over the last cycle (force range / position range: the compliance a real rig
+/// measures for crack length). Nothing corrects the force itself, so it is as good as the
+/// stiffness estimate and the position tracking. Plain data.
+#[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
+#[derive(Debug, Clone, PartialEq)]
+pub struct PositionForce {
+    /// `Controller::PositionPff`
+    pub ctrl: Controller,
+    /// stiffness used to turn force into position [N/m]
+    pub k_ref_n_m: f64,
+    /// piston position at zero specimen force [m]
+    pub y0_m: f64,
+    /// fixed null compensation added to the command [V] (as for force P: with a stiff specimen a
+    /// P loop's steady position error u_null/kp is a large force error)
+    pub u_offset_v: f64,
+}
+
+impl PositionForce {
+    /// Gains from the plant: velocity feed-forward kff = 1/k_v (the piston follows ṙ exactly on
+    /// the integrator plant) and kp = ω_p/k_v, with ω_p = `STATIC_CROSSOVER_RAD_S`; both carry the
+    /// sign of the valve's velocity gain k_v [m/s per V].
+    pub fn design(velocity_gain_m_s_per_v: f64, k_ref_n_m: f64, y0_m: f64, u_max_v: f64) -> Result<Self> {
+        let kv = velocity_gain_m_s_per_v;
+        if !(kv.is_finite() && kv != 0.0) {
+            return Err(Error::Parameter { field: "controller.velocity_gain_m_s_per_v".into(), value: kv, allowed: "non-zero, finite".into() });
+        }
+        let ctrl = Controller::PositionPff { kp_v_per_m: STATIC_CROSSOVER_RAD_S / kv, kff_v_per_m_s: 1.0 / kv, u_max_v };
+        Ok(PositionForce { ctrl, k_ref_n_m, y0_m, u_offset_v: 0.0 })
+    }
+
+    /// Command for one sample from the (compensated) force setpoint and the measurements.
+    #[inline]
+    pub fn command(&self, sp: &Setpoint, m: &Outputs, ts: f64) -> f64 {
+        let r = self.y0_m + (sp.mid_n + sp.amp_n * sp.s) / self.k_ref_n_m;
+        let r_next = self.y0_m + (sp.mid_next_n + sp.amp_n * sp.s_next) / self.k_ref_n_m;
+        let u = self.ctrl.command(r, r_next, ts, m) + self.u_offset_v;
+        if let Controller::PositionPff { u_max_v, .. } = self.ctrl { u.clamp(-u_max_v, u_max_v) } else { u }
+    }
+
+    /// Update the stiffness from one cycle's force and position ranges [N], [m].
+    pub fn measured(&mut self, force_range_n: f64, position_range_m: f64) {
+        let k = force_range_n / position_range_m;
+        if position_range_m > 1e-9 && k.is_finite() && k > 0.0 {
+            self.k_ref_n_m = k;
+        }
     }
 }

@@ -317,6 +317,9 @@ impl Cyclic {
                 let g = DemodGains::design(k_eff, kv, cfg.frequency_hz, self.rate_hz)?;
                 (ForceLoop::Demod(Demod::new(g, cfg.waveform.stats(), u_max, f0)), kv, Some(g))
             }
+            ControllerSpec::PositionPff { .. } => {
+                return Err(Error::Parameter { field: "controller.type".into(), value: f64::NAN, allowed: "demodulation or force_p on the real-time loop (position_pff runs in the simulation engine only)".into() });
+            }
         };
         let compensate = matches!(cfg.controller, ControllerSpec::Demod { .. });
         let n_start = cfg.envelope.start_cycles();

@@ -4,8 +4,9 @@
 //! resolves short blocks to steady state and integrates growth across the cycles in between.
 //! Batches of tests run on all cores.
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
+use std::time::Instant;
 
-use crate::control::{Demod, DemodGains, ForceLoop, Setpoint};
+use crate::control::{Demod, DemodGains, ForceLoop, PeakValley, PositionForce, Setpoint};
 use crate::crack::Law;
 use crate::error::{Error, Result};
 use crate::machine::{Machine, Y};
@@ -43,6 +44,10 @@ pub enum ControllerSpec {
     /// polarity; `None` = measured on the plant (see `measure_velocity_gain`)
     Demod { velocity_gain_m_s_per_v: Option<f64> },
     ForceP { kp_v_per_n: f64, u_offset_v: f64 },
+    /// position P + velocity feed-forward (thesis 4.1), the force setpoint turned into a position
+    /// through the measured specimen stiffness (`PositionForce`); gains from the valve's velocity
+    /// gain unless given
+    PositionPff { velocity_gain_m_s_per_v: Option<f64>, kp_v_per_m: Option<f64>, kff_v_per_m_s: Option<f64>, u_offset_v: f64 },
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -108,6 +113,7 @@ pub struct TestConfig {
 }
 
 /// Why a test ended.
+#[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum EndReason {
     TargetCrack,
@@ -294,15 +300,34 @@ impl TestConfig {
             }
             a_s = ph.end_a_m;
         }
-        let v_need = amp_max * 2.0 * std::f64::consts::PI * self.frequency_hz / ksp_end.max(1.0) * 2.0;
+        // peak piston speed of the shape (force rate amp·f·max_slope over the stiffness the flow
+        // works against: specimen in series with the oil column), with a
+        // factor 2 for the peak-valley compensation and the loops' transients
+        let k_flow = series_stiffness(ksp_end.max(1.0), hydraulic_stiffness(p, p.specimen_zero_force_position_m));
+        let v_need = amp_max * self.waveform.max_slope() * self.frequency_hz / k_flow * 2.0;
         if v_need > v_max {
             return Err(param("frequency_hz", self.frequency_hz, &format!(
-                "≤ {:.3} Hz: at the end crack length the piston would need {:.0} mm/s, the valve gives {:.0} mm/s at half its rated flow",
-                self.frequency_hz * v_max / v_need, v_need * 1e3, v_max * 1e3)));
+                "≤ {:.3} Hz for a {} waveform: at the end crack length the piston would need {:.1} mm/s, the valve gives {:.1} mm/s at half its rated flow",
+                self.frequency_hz * v_max / v_need, self.waveform.name(), v_need * 1e3, v_max * 1e3)));
         }
         for &(c, fac) in &self.stiffness_steps {
             if !(fac > 0.0 && fac <= 1.0) {
                 return Err(param(&format!("stiffness_steps[cycle {c}]"), fac, "(0, 1]"));
+            }
+        }
+        if let ControllerSpec::PositionPff { velocity_gain_m_s_per_v, kp_v_per_m, kff_v_per_m_s, u_offset_v } = self.controller {
+            if !u_offset_v.is_finite() {
+                return Err(param("controller.u_offset_v", u_offset_v, "finite"));
+            }
+            for (name, v) in [("velocity_gain_m_s_per_v", velocity_gain_m_s_per_v), ("kp_v_per_m", kp_v_per_m)] {
+                if let Some(v) = v {
+                    if !(v.is_finite() && v != 0.0) {
+                        return Err(param(&format!("controller.{name}"), v, "non-zero, finite (negative on the thesis rig)"));
+                    }
+                }
+            }
+            if let Some(v) = kff_v_per_m_s.filter(|v| !v.is_finite()) {
+                return Err(param("controller.kff_v_per_m_s", v, "finite (0 = no feed-forward)"));
             }
         }
         if let ControllerSpec::ForceP { kp_v_per_n, u_offset_v } = self.controller {
@@ -383,21 +408,22 @@ struct Run<'a> {
     simulated: u64,
     progress: Option<&'a AtomicU64>,
     cancel: Option<&'a AtomicBool>,
-    /// peak-valley compensation of the demodulation controller's targets (relative corrections
-    /// of the half-range and of the mid-point), integrated once per cycle from the measured peak
-    /// and valley: the demodulator regulates the fundamental and the mean, while ISO 12108 judges
-    /// the peaks; valve nonlinearity near null puts harmonics between the two.
-    comp_amp: f64,
-    comp_mid: f64,
+    /// peak-valley compensation of the demodulation controller's setpoint (control.rs), applied
+    /// to every cycle and learning from every cycle with enough amplitude, ramp-in included
+    pv: PeakValley,
     compensate: bool,
+    /// set when the test runs in position control (then `ctrl` is unused)
+    position: Option<PositionForce>,
+    /// raw high-rate windows (see `RawCapture`)
+    raw: RawCapture,
 }
-
-/// Per-cycle integral gain of the peak-valley compensation (the inner loops settle in ≈ 2 cycles).
-const PV_GAIN: f64 = 0.3;
 
 struct CycleResult {
     fmax: f64,
     fmin: f64,
+    /// peak and valley of the nominal (uncompensated) setpoint in the cycle [N]
+    rmax: f64,
+    rmin: f64,
     ymin: f64,
     ymax: f64,
 }
@@ -413,17 +439,34 @@ impl<'a> Run<'a> {
         let (cs, ss) = (step.cos(), step.sin());
         let (mut sn, mut cn) = (0.0f64, 1.0f64);
         let mut s = 0.0;
-        let (mut mid, mut amp) = set(0.0);
-        let mut f = self.m.outputs().f;
+        let pv = if self.compensate { self.pv } else { PeakValley::new() };
+        // the nominal setpoint's true peak and valley (mid ± amp where the shape peaks): the
+        // sampled shape can miss the corner between two samples (a triangle at 20 Hz, 1 kHz)
+        let (mut rmax, mut rmin, mut s_hi, mut s_lo) = (f64::MIN, f64::MAX, f64::MIN, f64::MAX);
+        let (mid0, amp0) = set(0.0);
+        let (mut mid, mut amp) = pv.apply(mid0, amp0);
+        let mut meas = self.m.outputs();
         for k in 0..n {
             let x1 = (k + 1) as f64 / n as f64;
             let (sn1, cn1) = (sn * cs + cn * ss, cn * cs - sn * ss);
             let s_next = if sine { sn1 } else { w.shape(x1) };
-            let (mid1, amp1) = set(x1);
+            let (nmid1, namp1) = set(x1);
+            if s_next > s_hi {
+                (s_hi, rmax) = (s_next, nmid1 + namp1);
+            }
+            if s_next < s_lo {
+                (s_lo, rmin) = (s_next, nmid1 - namp1);
+            }
+            let (mid1, amp1) = pv.apply(nmid1, namp1);
             let sp = Setpoint { mid_n: mid, mid_next_n: mid1, amp_n: amp, s, s_next, sin: sn, cos: cn };
-            let u = self.ctrl.command(&sp, f);
+            let u = match &self.position {
+                Some(pc) => pc.command(&sp, &meas, self.dt),
+                None => self.ctrl.command(&sp, meas.f),
+            };
             let o = self.m.step(u, self.dt)?;
-            f = o.f;
+            self.raw.sample((self.cycle as f64 + x1) / self.cfg.frequency_hz, u, &o, mid1 + amp1 * s_next);
+            let f = o.f;
+            meas = o;
             fmax = fmax.max(f);
             fmin = fmin.min(f);
             ymin = ymin.min(o.y);
@@ -435,7 +478,10 @@ impl<'a> Run<'a> {
             amp = amp1;
         }
         self.simulated += 1;
-        Ok(CycleResult { fmax, fmin, ymin, ymax })
+        if let Some(pc) = &mut self.position {
+            pc.measured(fmax - fmin, ymax - ymin);
+        }
+        Ok(CycleResult { fmax, fmin, rmax, rmin, ymin, ymax })
     }
 
     fn set_stiffness(&mut self, keep_force: bool) -> Result<()> {
@@ -474,11 +520,22 @@ impl<'a> Run<'a> {
         r.ctrl_u1_v.push(u1);
         r.ctrl_u2_v.push(u2);
         r.events.push(ev);
+        self.raw.end_cycle(self.cycle, ev);
     }
 }
 
 /// Run one test. `progress` receives the cycle count as it goes; `cancel` stops it.
 pub fn run_test(cfg: &TestConfig, mode: ExecMode, progress: Option<&AtomicU64>, cancel: Option<&AtomicBool>) -> Result<Outcome> {
+    let (mut run, kv, gains) = start(cfg, progress, cancel, RawCapture::default())?;
+    let mut cur = Cursor::new(cfg);
+    let end = advance(&mut run, mode, &mut cur, u64::MAX, None)?.expect("an unbounded advance runs to the end");
+    finish(&mut run, end, &cur, kv, gains)
+}
+
+/// A test at rest, ready for its first cycle: the plant at the specimen's zero-force position and
+/// the controller designed for it (the valve's velocity gain is measured here when not given).
+#[allow(clippy::type_complexity)]
+fn start<'a>(cfg: &'a TestConfig, progress: Option<&'a AtomicU64>, cancel: Option<&'a AtomicBool>, raw: RawCapture) -> Result<(Run<'a>, f64, Option<DemodGains>)> {
     cfg.validate()?;
     let mut p = cfg.params.clone();
     let ksp0 = cfg.specimen.stiffness(cfg.a0_m, &cfg.material)?;
@@ -488,47 +545,88 @@ pub fn run_test(cfg: &TestConfig, mode: ExecMode, progress: Option<&AtomicU64>, 
     let n = (cfg.control_rate_hz / cfg.frequency_hz).round() as usize;
     let dt = 1.0 / (n as f64 * cfg.frequency_hz);
     let u_max = cfg.params.valve_max_command_v;
+    // the valve's gain depends on the opening (low near null): measure it at the command
+    // amplitude the test will need (two fixed-point rounds from 0.1 V)
+    let measured_kv = || -> Result<f64> {
+        let (fmax, fmin, _) = targets(cfg, &cfg.phases[0], cfg.a0_m, cfg.a0_m)?;
+        let k_eff = series_stiffness(ksp0, hydraulic_stiffness(&cfg.params, y0));
+        let need = |kv: f64| (0.5 * (fmax - fmin) * 2.0 * std::f64::consts::PI * cfg.frequency_hz / (k_eff * kv)).abs().clamp(0.005, 1.0);
+        let mut kv = measure_velocity_gain(&cfg.params, 0.1)?;
+        for _ in 0..2 {
+            kv = measure_velocity_gain(&cfg.params, need(kv))?;
+        }
+        Ok(kv)
+    };
+    let mut position = None;
     let (ctrl, kv, gains) = match cfg.controller {
         ControllerSpec::ForceP { kp_v_per_n, u_offset_v } => (ForceLoop::ForceP { kp_v_per_n, u_offset_v, u_max_v: u_max }, f64::NAN, None),
         ControllerSpec::Demod { velocity_gain_m_s_per_v } => {
             let kv = match velocity_gain_m_s_per_v {
                 Some(k) => k,
-                None => {
-                    // the valve's gain depends on the opening (low near null): measure it at the
-                    // command amplitude the test will need (two fixed-point rounds from 0.1 V)
-                    let (fmax, fmin, _) = targets(cfg, &cfg.phases[0], cfg.a0_m, cfg.a0_m)?;
-                    let k_eff = series_stiffness(ksp0, hydraulic_stiffness(&cfg.params, y0));
-                    let need = |kv: f64| (0.5 * (fmax - fmin) * 2.0 * std::f64::consts::PI * cfg.frequency_hz / (k_eff * kv)).abs().clamp(0.005, 1.0);
-                    let mut kv = measure_velocity_gain(&cfg.params, 0.1)?;
-                    for _ in 0..2 {
-                        kv = measure_velocity_gain(&cfg.params, need(kv))?;
-                    }
-                    kv
-                }
+                None => measured_kv()?,
             };
             let k_eff = series_stiffness(ksp0, hydraulic_stiffness(&cfg.params, y0));
             let g = DemodGains::design(k_eff, kv, cfg.frequency_hz, n as f64 * cfg.frequency_hz)?;
             (ForceLoop::Demod(Demod::new(g, cfg.waveform.stats(), u_max, 0.0)), kv, Some(g))
         }
+        ControllerSpec::PositionPff { velocity_gain_m_s_per_v, kp_v_per_m, kff_v_per_m_s, u_offset_v } => {
+            let kv = match velocity_gain_m_s_per_v {
+                Some(k) => k,
+                None => measured_kv()?,
+            };
+            // against the specimen part of the valve's flow compresses the oil column: the piston
+            // moves at k_v·K_series/K_sp
+            let k_eff = series_stiffness(ksp0, hydraulic_stiffness(&cfg.params, y0));
+            let mut pc = PositionForce::design(kv * k_eff / ksp0, ksp0, y0, u_max)?;
+            if let crate::control::Controller::PositionPff { kp_v_per_m: kp, kff_v_per_m_s: kff, .. } = &mut pc.ctrl {
+                *kp = kp_v_per_m.unwrap_or(*kp);
+                *kff = kff_v_per_m_s.unwrap_or(*kff);
+            }
+            pc.u_offset_v = u_offset_v;
+            position = Some(pc);
+            // the force loop is unused in position control
+            (ForceLoop::ForceP { kp_v_per_n: 0.0, u_offset_v: 0.0, u_max_v: u_max }, kv, None)
+        }
     };
-    let mut run = Run {
+    let run = Run {
+        raw,
         cfg, m, ctrl, n, dt, a: cfg.a0_m, ksp_factor: 1.0, y0, cycle: 0, rec: Records::default(),
         max_df: 0.0, max_peak: 0.0, out_count: 0, size_cycle: None, simulated: 0, progress, cancel,
-        comp_amp: 0.0, comp_mid: 0.0, compensate: matches!(cfg.controller, ControllerSpec::Demod { .. }),
+        pv: PeakValley::new(), compensate: matches!(cfg.controller, ControllerSpec::Demod { .. }), position,
     };
+    Ok((run, kv, gains))
+}
+
+/// The cycle loop's own variables, kept between two calls of `advance`.
+#[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
+struct Cursor {
+    phase_i: usize,
+    a_phase0: f64,
+    next_step: usize,
+    since_jump: u64,
+    prev_err: (f64, f64),
+}
+
+impl Cursor {
+    fn new(cfg: &TestConfig) -> Self {
+        Cursor { phase_i: 0, a_phase0: cfg.a0_m, next_step: 0, since_jump: 0, prev_err: (f64::NAN, f64::NAN) }
+    }
+}
+
+/// Run cycles until the test ends (`Some(reason)`), or pause between two cycles (`None`) once the
+/// cycle count reaches `until_cycle` or the wall clock passes `deadline`. A paused test continues
+/// exactly as if it had never stopped.
+fn advance(run: &mut Run, mode: ExecMode, cur: &mut Cursor, until_cycle: u64, deadline: Option<Instant>) -> Result<Option<EndReason>> {
+    let cfg = run.cfg;
     let law = &cfg.law;
     let spec = &cfg.specimen;
     let kic = cfg.material.fracture_toughness_pa_sqrt_m;
     let (stroke_lo, stroke_hi) = (cfg.limits.stroke_margin_m, cfg.params.stroke_m - cfg.limits.stroke_margin_m);
     let a_max_valid = spec.a_range().1;
-    let mut phase_i = 0usize;
-    let mut a_phase0 = cfg.a0_m;
+    let Cursor { mut phase_i, mut a_phase0, mut next_step, mut since_jump, mut prev_err } = *cur;
     let n_start = cfg.envelope.start_cycles();
     let mut steps = cfg.stiffness_steps.clone();
     steps.sort_by_key(|s| s.0);
-    let mut next_step = 0usize;
-    let mut since_jump = 0u64;
-    let mut prev_err = (f64::NAN, f64::NAN);
     let end: EndReason;
 
     loop {
@@ -537,6 +635,10 @@ pub fn run_test(cfg: &TestConfig, mode: ExecMode, progress: Option<&AtomicU64>, 
                 end = EndReason::Cancelled;
                 break;
             }
+        }
+        if run.cycle >= until_cycle || deadline.is_some_and(|d| Instant::now() >= d) {
+            *cur = Cursor { phase_i, a_phase0, next_step, since_jump, prev_err };
+            return Ok(None);
         }
         // scheduled stiffness steps (before this cycle)
         let mut ev = 0u32;
@@ -559,14 +661,10 @@ pub fn run_test(cfg: &TestConfig, mode: ExecMode, progress: Option<&AtomicU64>, 
                 (mid_t * fm, amp_t * fa)
             })?
         } else {
-            let (mc, ac) = (mid_t + run.comp_mid * amp_t, amp_t * (1.0 + run.comp_amp));
-            run.cycle_through(|_| (mc, ac))?
+            run.cycle_through(|_| (mid_t, amp_t))?
         };
-        if run.compensate && !starting {
-            let amp_m = 0.5 * (res.fmax - res.fmin);
-            let mid_m = 0.5 * (res.fmax + res.fmin);
-            run.comp_amp = (run.comp_amp + PV_GAIN * (amp_t - amp_m) / amp_t).clamp(-0.2, 0.2);
-            run.comp_mid = (run.comp_mid + PV_GAIN * (mid_t - mid_m) / amp_t).clamp(-0.2, 0.2);
+        if run.compensate && res.rmax - res.rmin >= PeakValley::MIN_AMPLITUDE_FRACTION * 2.0 * amp_t {
+            run.pv.update(res.rmax, res.rmin, res.fmax, res.fmin);
         }
         run.cycle += 1;
         since_jump += 1;
@@ -727,6 +825,15 @@ pub fn run_test(cfg: &TestConfig, mode: ExecMode, progress: Option<&AtomicU64>, 
             }
         }
     }
+    *cur = Cursor { phase_i, a_phase0, next_step, since_jump, prev_err };
+    Ok(Some(end))
+}
+
+/// After the end: mark the last row, ramp the amplitude down (smooth stop) and sum up.
+fn finish(run: &mut Run, end: EndReason, cur: &Cursor, kv: f64, gains: Option<DemodGains>) -> Result<Outcome> {
+    let cfg = run.cfg;
+    let a_max_valid = cfg.specimen.a_range().1;
+    let Cursor { phase_i, a_phase0, .. } = *cur;
     if let Some(r) = run.rec.events.last_mut() {
         *r |= events::END;
     }
@@ -748,7 +855,7 @@ pub fn run_test(cfg: &TestConfig, mode: ExecMode, progress: Option<&AtomicU64>, 
         run.cycle = cycles;
     }
     Ok(Outcome {
-        records: run.rec,
+        records: std::mem::take(&mut run.rec),
         end_reason: end,
         cycles,
         a_end_m: a_end,
@@ -781,6 +888,11 @@ pub fn run_batch(cfgs: &[TestConfig], mode: ExecMode, threads: usize) -> Vec<Res
     });
     slots.into_iter().map(|r| r.unwrap()).collect()
 }
+
+mod raw;
+mod session;
+pub use raw::{RawCapture, RAW_COLUMNS};
+pub use session::{Chunk, Session};
 
 #[cfg(test)]
 pub(crate) mod tests {

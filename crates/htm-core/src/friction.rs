@@ -8,6 +8,7 @@ pub fn sig(v: f64, eps: f64) -> f64 {
 }
 
 /// Friction parameters, SI.
+#[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Friction {
     /// viscous coefficient B_v [N s/m]

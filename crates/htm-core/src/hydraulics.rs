@@ -33,6 +33,7 @@ pub fn orifice_flow_ddp(k: f64, a: f64, dp: f64, dp_t: f64) -> f64 {
 /// Constant `beta`, or Eggerth (eq. 2.2) when `k1 > 0`; lowered by entrained air (isothermal
 /// free air fraction `air` at atmospheric pressure); collapsing to 0 at absolute zero so that a
 /// chamber pressure never goes below it.
+#[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
 #[derive(Debug, Clone, Copy)]
 pub struct BulkModulus {
     pub beta: f64,
@@ -67,6 +68,7 @@ impl BulkModulus {
 
 /// A monotone, odd-symmetric command-to-spool characteristic through given knots
 /// (Fritsch-Carlson monotone cubic Hermite, continuous slope).
+#[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
 #[derive(Debug, Clone, Default)]
 pub struct ValveMap {
     c: Vec<f64>,

@@ -38,6 +38,7 @@ pub struct Outputs {
 }
 
 /// Plant equations with one held spool target.
+#[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
 #[derive(Debug, Clone)]
 pub struct Plant {
     pub p: Params,
@@ -273,6 +274,7 @@ impl OdeSystem<NX> for Plant {
 }
 
 /// A plant with its state, integrator and valve memory: the object a control loop steps.
+#[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
 #[derive(Debug, Clone)]
 pub struct Machine {
     pub plant: Plant,

@@ -32,6 +32,7 @@ impl Field {
 macro_rules! define_params {
     ($( $(#[doc = $doc:literal])+ $name:ident [$unit:literal] = $default:expr, $lo:tt $min:expr, $max:expr; )*) => {
         /// Plant parameters, SI. Field docs give the source of each default.
+        #[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
         #[derive(Debug, Clone, PartialEq)]
         pub struct Params {
             $( $(#[doc = $doc])+ pub $name: f64, )*

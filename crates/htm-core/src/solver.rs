@@ -54,6 +54,7 @@ const C: [[f64; 5]; 6] = [
 // The solution is the last stage (M = A[5] + [..,1]); the error estimate is the last K.
 
 /// Work counters.
+#[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Stats {
     pub accepted: u64,
@@ -61,6 +62,7 @@ pub struct Stats {
     pub rhs_evals: u64,
 }
 
+#[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
 #[derive(Debug, Clone)]
 pub struct Rodas4 {
     pub rtol: f64,

@@ -143,15 +143,29 @@ impl Specimen {
         Ok((self.ligament_m(a_m), required))
     }
 
-    /// Load-line compliance [m/N] of a C(T) specimen (ASTM E1820 A2, thesis eq. 4.5–4.6):
+    /// Load-line compliance [m/N]. C(T) (ASTM E1820 A2, thesis eq. 4.5–4.6):
     /// C = ((1+α)/(1−α))²·h(α)/(B_e·E'), E' = E/(1−ν²) (plane strain), B_e = B.
+    /// M(T): grip-to-grip compliance of the panel, `compliance_mt_dimensionless`/(B·E) (thin
+    /// panels: plane stress).
     pub fn compliance(&self, a_m: f64, mat: &Material) -> Result<f64> {
-        if self.geometry != Geometry::CT {
-            return Err(Error::Input("compliance is defined for C(T) specimens only".into()));
-        }
         mat.validate()?;
         let alpha = self.alpha(a_m)?;
-        Ok(compliance_ct_dimensionless(alpha) / (self.thickness_m * mat.plane_strain_modulus()))
+        Ok(self.compliance_dimensionless(alpha) / (self.thickness_m * self.modulus(mat)))
+    }
+
+    fn compliance_dimensionless(&self, alpha: f64) -> f64 {
+        match self.geometry {
+            Geometry::CT => compliance_ct_dimensionless(alpha),
+            Geometry::MT => compliance_mt_dimensionless(alpha),
+        }
+    }
+
+    /// The modulus the compliance is written with: plane strain for C(T), plane stress for M(T).
+    fn modulus(&self, mat: &Material) -> f64 {
+        match self.geometry {
+            Geometry::CT => mat.plane_strain_modulus(),
+            Geometry::MT => mat.youngs_modulus_pa,
+        }
     }
 
     /// Equivalent specimen stiffness K_sp = 1/C [N/m] at crack size `a_m`.
@@ -162,20 +176,20 @@ impl Specimen {
     /// Crack length [m] that gives load-line compliance `c_m_per_n` (inverse of `compliance`),
     /// by a safeguarded regula falsi (Illinois) on the monotone C(α) over the valid α range.
     pub fn crack_length_from_compliance(&self, c_m_per_n: f64, mat: &Material) -> Result<f64> {
-        if self.geometry != Geometry::CT {
-            return Err(Error::Input("compliance is defined for C(T) specimens only".into()));
-        }
         mat.validate()?;
-        let scale = self.thickness_m * mat.plane_strain_modulus();
+        let scale = self.thickness_m * self.modulus(mat);
         let target = c_m_per_n * scale;
         let (lo, hi) = self.geometry.alpha_range();
-        let (flo, fhi) = (compliance_ct_dimensionless(lo), compliance_ct_dimensionless(hi));
+        let (flo, fhi) = (self.compliance_dimensionless(lo), self.compliance_dimensionless(hi));
         if !(target.is_finite() && target >= flo && target <= fhi) {
             return Err(param("compliance_m_per_n", c_m_per_n,
                 &format!("[{:.6e}, {:.6e}] m/N for this specimen and material", flo / scale, fhi / scale)));
         }
-        let alpha = root_illinois(|x| compliance_ct_dimensionless(x) - target, lo, hi, 1e-14)?;
-        Ok(alpha * self.width_m)
+        let alpha = root_illinois(|x| self.compliance_dimensionless(x) - target, lo, hi, 1e-14)?;
+        Ok(match self.geometry {
+            Geometry::CT => alpha * self.width_m,
+            Geometry::MT => alpha * self.width_m / 2.0,
+        })
     }
 }
 
@@ -194,6 +208,24 @@ pub fn h_ct(alpha: f64) -> f64 {
 pub fn compliance_ct_dimensionless(alpha: f64) -> f64 {
     let y = (1.0 + alpha) / (1.0 - alpha);
     y * y * h_ct(alpha)
+}
+
+/// Grip span of an M(T) panel over its width (E647 7.2: at least 1.5·W between the pins for
+/// W ≤ 75 mm); the uncracked panel's share of the compliance.
+pub const MT_GRIP_SPAN_OVER_W: f64 = 1.5;
+
+/// B·E·C for an M(T) panel with total crack 2a = α·W: the uncracked span L/W plus the crack's
+/// share from the energy release rate, dC/dA = 2G/P² with G = K²/E and A = 2a·B (two tips):
+/// dC/dα = 2·Y(α)²/(E·B), Y² = (πα/2)·sec(πα/2) (E647 A2.1). Simpson's rule (128 intervals).
+pub fn compliance_mt_dimensionless(alpha: f64) -> f64 {
+    let y2 = |t: f64| PI * t / 2.0 / (PI * t / 2.0).cos();
+    let n = 128;
+    let h = alpha / n as f64;
+    let mut sum = y2(0.0) + y2(alpha);
+    for i in 1..n {
+        sum += y2(i as f64 * h) * if i % 2 == 1 { 4.0 } else { 2.0 };
+    }
+    MT_GRIP_SPAN_OVER_W + 2.0 * sum * h / 3.0
 }
 
 /// Root of `f` on [lo, hi] (sign change required) by the Illinois variant of regula falsi, with
@@ -331,6 +363,26 @@ mod tests {
         let mt = Specimen::new(Geometry::MT, 0.1, 1e-3).unwrap();
         assert!(mt.k(0.048, 1.0).is_err());
         assert!(Specimen::new(Geometry::CT, -1.0, 1e-3).is_err());
+    }
+
+    #[test]
+    fn mt_compliance_agrees_with_k_through_the_energy_release_rate() {
+        // G = K²/E and G = (P²/2)·dC/dA with A = 2aB, so dC/da = 4·K²·B/(E·P²)
+        let s = Specimen::new(Geometry::MT, 0.1, 4e-3).unwrap();
+        let m = Material::aluminium_2024_t3();
+        for a in [0.01, 0.02, 0.035] {
+            let h = 1e-6;
+            let dcda = (s.compliance(a + h, &m).unwrap() - s.compliance(a - h, &m).unwrap()) / (2.0 * h);
+            let k = s.k(a, 1.0).unwrap();
+            let expect = 4.0 * k * k * s.thickness_m / m.youngs_modulus_pa;
+            assert!((dcda / expect - 1.0).abs() < 1e-5, "a = {a}: {dcda} vs {expect}");
+            let back = s.crack_length_from_compliance(s.compliance(a, &m).unwrap(), &m).unwrap();
+            assert!((back - a).abs() < 1e-9, "{back} vs {a}");
+        }
+        // uncracked: the panel between the grips, L/(E·W·B)
+        assert_eq!(compliance_mt_dimensionless(0.0), MT_GRIP_SPAN_OVER_W);
+        let c = s.compliance(1e-6, &m).unwrap();
+        assert!((c * m.youngs_modulus_pa * 0.1 * 4e-3 / (MT_GRIP_SPAN_OVER_W * 0.1) - 1.0).abs() < 1e-6);
     }
 
     #[test]

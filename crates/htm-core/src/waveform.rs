@@ -62,6 +62,17 @@ impl Waveform {
         }
     }
 
+    /// Largest |ds/dφ| over a cycle (per cycle): the peak force rate is amp·f·max_slope, so the
+    /// piston speed a shape needs, and with it the valve flow, scales with this (sine 2π,
+    /// triangle 4, trapezoid 2/rise).
+    pub fn max_slope(&self) -> f64 {
+        match *self {
+            Waveform::Sine => 2.0 * PI,
+            Waveform::Triangle => 4.0,
+            Waveform::Trapezoid { rise, .. } => 2.0 / rise,
+        }
+    }
+
     /// (mean of s over a cycle, magnitude of its fundamental: |∫2·s·e^{−i2πφ}dφ|), by a fine
     /// midpoint sum (exact enough for the controller's targets; computed once per test).
     pub fn stats(&self) -> (f64, f64) {
@@ -133,6 +144,15 @@ mod tests {
         let (m, _) = Waveform::Trapezoid { rise: 0.2, hold: 0.4 }.stats();
         assert!((m - 0.2).abs() < 1e-6, "trapezoid mean {m}");
         assert!(Waveform::Trapezoid { rise: 0.4, hold: 0.5 }.validate().is_err());
+    }
+
+    #[test]
+    fn max_slope_matches_the_sampled_shape() {
+        for w in [Waveform::Sine, Waveform::Triangle, Waveform::Trapezoid { rise: 0.1, hold: 0.2 }] {
+            let n = 100_000;
+            let d = (0..n).map(|i| (w.shape((i + 1) as f64 / n as f64) - w.shape(i as f64 / n as f64)).abs() * n as f64).fold(0.0, f64::max);
+            assert!((d / w.max_slope() - 1.0).abs() < 1e-3, "{w:?}: {d} vs {}", w.max_slope());
+        }
     }
 
     #[test]

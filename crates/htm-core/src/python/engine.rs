@@ -3,7 +3,7 @@
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 
-use numpy::PyArray1;
+use numpy::{PyArray1, PyArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
@@ -90,7 +90,13 @@ pub(super) fn config_from(d: &Bound<'_, PyDict>) -> PyResult<TestConfig> {
     let controller = match need::<String>(&c, "type")?.as_str() {
         "demodulation" => ControllerSpec::Demod { velocity_gain_m_s_per_v: opt(&c, "velocity_gain_m_s_per_v", None)? },
         "force_p" => ControllerSpec::ForceP { kp_v_per_n: need(&c, "kp_v_per_n")?, u_offset_v: opt(&c, "u_offset_v", 0.0)? },
-        other => return Err(InputError::new_err(format!("controller type `{other}`: use demodulation or force_p"))),
+        "position_pff" => ControllerSpec::PositionPff {
+            velocity_gain_m_s_per_v: opt(&c, "velocity_gain_m_s_per_v", None)?,
+            kp_v_per_m: opt(&c, "kp_v_per_m", None)?,
+            kff_v_per_m_s: opt(&c, "kff_v_per_m_s", None)?,
+            u_offset_v: opt(&c, "u_offset_v", 0.0)?,
+        },
+        other => return Err(InputError::new_err(format!("controller type `{other}`: use demodulation, force_p or position_pff"))),
     };
     let dj = JumpConfig::default();
     Ok(TestConfig {
@@ -203,5 +209,116 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(run_test, m)?)?;
     m.add_function(wrap_pyfunction!(validate_test, m)?)?;
     m.add_function(wrap_pyfunction!(run_batch, m)?)?;
+    register_session(m)?;
     Ok(())
+}
+
+fn records_dict<'py>(py: Python<'py>, r: crate::engine::Records) -> PyResult<Bound<'py, PyDict>> {
+    let t = PyDict::new(py);
+    t.set_item("cycle", PyArray1::from_vec(py, r.cycle))?;
+    t.set_item("phase", PyArray1::from_vec(py, r.phase))?;
+    t.set_item("events", PyArray1::from_vec(py, r.events))?;
+    for (k, v) in [
+        ("fmax_n", r.fmax_n), ("fmin_n", r.fmin_n), ("fmax_target_n", r.fmax_target_n), ("fmin_target_n", r.fmin_target_n),
+        ("peak_err_pct", r.peak_err_pct), ("df_err_pct", r.df_err_pct), ("a_m", r.a_m), ("delta_k_pa_sqrt_m", r.delta_k),
+        ("delta_k_target_pa_sqrt_m", r.delta_k_target), ("kmax_pa_sqrt_m", r.kmax), ("dadn_m_per_cycle", r.dadn_m),
+        ("k_sp_n_m", r.k_sp_n_m), ("ctrl_u1_v", r.ctrl_u1_v), ("ctrl_u2_v", r.ctrl_u2_v),
+    ] {
+        t.set_item(k, PyArray1::from_vec(py, v))?;
+    }
+    Ok(t)
+}
+
+/// A fatigue test run in bounded chunks whose complete state can be saved as bytes between two
+/// chunks and restored (resume after a crash); the rows equal `run_test`'s bit for bit.
+#[pyclass(name = "TestRun", module = "htm._core")]
+pub struct PyTestRun {
+    inner: engine::Session,
+}
+
+fn raw_from(raw: Option<&Bound<'_, PyDict>>) -> PyResult<engine::RawCapture> {
+    Ok(match raw {
+        None => engine::RawCapture::default(),
+        Some(d) => engine::RawCapture::new(opt(d, "first_cycles", 30u64)?, opt(d, "decade_cycles", 2u64)?, opt(d, "pre_cycles", 2usize)?, opt(d, "post_cycles", 2u64)?),
+    })
+}
+
+#[pymethods]
+impl PyTestRun {
+    /// Validate `config` and bring the test to rest. `raw` (dict: first_cycles, decade_cycles,
+    /// pre_cycles, post_cycles) keeps raw sample windows; None keeps none.
+    #[new]
+    #[pyo3(signature = (config, mode = "full", raw = None))]
+    fn new(py: Python<'_>, config: &Bound<'_, PyDict>, mode: &str, raw: Option<&Bound<'_, PyDict>>) -> PyResult<Self> {
+        let cfg = config_from(config)?;
+        let mode = mode_from(mode)?;
+        let raw = raw_from(raw)?;
+        let inner = py.detach(|| engine::Session::new(cfg, mode, raw)).map_err(py_err)?;
+        Ok(PyTestRun { inner })
+    }
+
+    /// Continue a test from `snapshot` (bytes from `snapshot()`) of the same config and mode.
+    #[staticmethod]
+    #[pyo3(signature = (config, mode, snapshot))]
+    fn restore(config: &Bound<'_, PyDict>, mode: &str, snapshot: &[u8]) -> PyResult<Self> {
+        let inner = engine::Session::restore(config_from(config)?, mode_from(mode)?, snapshot).map_err(py_err)?;
+        Ok(PyTestRun { inner })
+    }
+
+    /// Run at most `max_cycles` more cycles for at most `max_seconds` of wall time (GIL released);
+    /// returns {"table": new per-cycle rows, "raw": (n, 8) samples (RAW_COLUMNS), "end_reason": str or None}.
+    #[pyo3(signature = (max_cycles = u64::MAX, max_seconds = 0.25))]
+    fn advance<'py>(&mut self, py: Python<'py>, max_cycles: u64, max_seconds: f64) -> PyResult<Bound<'py, PyDict>> {
+        if !(max_seconds.is_finite() && max_seconds > 0.0) {
+            return Err(InputError::new_err(format!("max_seconds = {max_seconds}: allowed (0, inf) s")));
+        }
+        let inner = &mut self.inner;
+        let chunk = py.detach(|| inner.advance(max_cycles, std::time::Duration::from_secs_f64(max_seconds))).map_err(py_err)?;
+        let d = PyDict::new(py);
+        d.set_item("table", records_dict(py, chunk.records)?)?;
+        let n = chunk.raw.len();
+        let flat: Vec<f64> = chunk.raw.into_iter().flatten().collect();
+        d.set_item("raw", PyArray1::from_vec(py, flat).reshape([n, 8])?)?;
+        d.set_item("end_reason", chunk.end.map(|e| e.name()))?;
+        Ok(d)
+    }
+
+    /// The complete engine state as bytes (plant, solver step, controller and its filter rings,
+    /// waveform phase, crack length, cycle count, compensation terms, counters, raw-window memory).
+    fn snapshot<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, pyo3::types::PyBytes>> {
+        let b = self.inner.snapshot().map_err(py_err)?;
+        Ok(pyo3::types::PyBytes::new(py, &b))
+    }
+
+    /// Cycles applied so far.
+    #[getter]
+    fn cycle(&self) -> u64 {
+        self.inner.cycle()
+    }
+
+    /// Crack length now [m].
+    #[getter]
+    fn a_m(&self) -> f64 {
+        self.inner.a_m()
+    }
+
+    #[getter]
+    fn finished(&self) -> bool {
+        self.inner.outcome().is_some()
+    }
+
+    /// The run's summary (as `run_test`'s, with an empty table) once finished, else None.
+    fn outcome<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        self.inner.outcome().map(|o| outcome_dict(py, o.clone())).transpose()
+    }
+
+    /// Names of the raw sample columns (SI).
+    #[staticmethod]
+    fn raw_columns() -> Vec<&'static str> {
+        engine::RAW_COLUMNS.to_vec()
+    }
+}
+
+pub(crate) fn register_session(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PyTestRun>()
 }

@@ -1,0 +1,137 @@
+"""`htm db list | show ID | export ID | delete ID` and `htm resume ID`: the test store from the shell."""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from htm.errors import RecordError
+from htm.record.store import Store
+
+
+def cmd_list(args: argparse.Namespace) -> int:
+    with Store(args.store) as store:
+        rows = store.list_tests()
+        if not rows:
+            print(f"no tests in {store.root}")
+            return 0
+        print(f"{'id':<22} {'status':<9} {'kind':<10} {'mode':<5} {'cycles':>11} {'a_end mm':>9}  {'end reason':<24} name")
+        for r in rows:
+            a = f"{r['a_end_m'] * 1e3:9.3f}" if r["a_end_m"] is not None else " " * 9
+            cyc = f"{r['cycles']:>11,}" if r["cycles"] is not None else " " * 11
+            print(f"{r['id']:<22} {r['status']:<9} {r['kind']:<10} {r['mode'] or '':<5} {cyc} {a}  {r['end_reason'] or '':<24} {r['name']}")
+    return 0
+
+
+def cmd_show(args: argparse.Namespace) -> int:
+    with Store(args.store) as store:
+        t = store.get(args.id)
+        print(f"test {t['id']}: {t['name']} ({t['kind']}, mode {t['mode']}) — {t['status']}"
+              + (f", {t['end_reason']}" if t["end_reason"] else ""))
+        print(f"created {t['created_utc']}, updated {t['updated_utc']}, host {t.get('host') or '?'}")
+        if t["cycles"] is not None:
+            print(f"cycles {t['cycles']:,}" + (f", final a = {t['a_end_m'] * 1e3:.3f} mm" if t["a_end_m"] is not None else ""))
+        for k, v in sorted(t["results"].items()):
+            print(f"  {k} = {v}")
+        print(f"events ({len(t['events'])}):")
+        for e in t["events"][: args.events]:
+            c = f"cycle {e['cycle']:,}" if e["cycle"] is not None else ""
+            print(f"  {c:<16} {e['kind']:<20} {e['detail'] or ''}")
+        if len(t["events"]) > args.events:
+            print(f"  … {len(t['events']) - args.events} more (--events N)")
+        print("files:")
+        for role, f in sorted(t["files"].items()):
+            print(f"  {role:<10} {f['path']} ({(f['bytes'] or 0) / 1e6:.2f} MB)")
+        if t["status"] != "finished":
+            print(f"resume with: htm resume {t['id']}")
+    return 0
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+    import pyarrow.parquet as pq
+
+    out = Path(args.out)
+    if out.exists() and any(out.iterdir()):
+        raise RecordError(f"{out} is not empty; nothing was overwritten")
+    with Store(args.store) as store:
+        t = store.get(args.id)
+        out.mkdir(parents=True, exist_ok=True)
+        written = []
+        for name, table in (("cycles", store.cycles(args.id)), ("raw", store.raw(args.id))):
+            if not table:
+                continue
+            tab = pa.table({k: np.asarray(v) for k, v in table.items()})
+            path = out / f"{name}.{args.format}"
+            if args.format == "csv":
+                pacsv.write_csv(tab, path)
+            else:
+                pq.write_table(tab, path, compression="zstd")
+            written.append(path)
+        meta = {k: t[k] for k in ("id", "name", "kind", "mode", "status", "end_reason", "cycles", "a_end_m",
+                                  "created_utc", "updated_utc", "results", "events")}
+        (out / "test.json").write_text(json.dumps(meta, indent=1, default=float))
+        (out / f"spec.{t['spec_format']}").write_text(t["spec"])
+        print("exported: " + ", ".join(str(p) for p in [*written, out / "test.json"]))
+    return 0
+
+
+def cmd_delete(args: argparse.Namespace) -> int:
+    with Store(args.store) as store:
+        t = store.get(args.id)
+        if not args.yes:
+            raise RecordError(f"deleting test {args.id} ({t['name']}, {t['status']}) removes all its data; add --yes")
+        store.delete(args.id)
+        print(f"deleted {args.id}")
+    return 0
+
+
+def cmd_resume(args: argparse.Namespace) -> int:
+    from htm.run import resume_recorded, summary_text, write_outputs
+
+    with Store(args.store) as store:
+        test_id, spec, mode, out, wall = resume_recorded(store, args.id, progress=not args.quiet, recording=not args.no_recording,
+                                                         spawn=args.spawn, connect=args.connect)
+        t = store.get(test_id)
+    print(f"test {test_id}: {t['status']}, {t['end_reason']} after {t['cycles']:,} cycles")
+    if args.out and "cycles" in out:
+        s = write_outputs(Path(args.out), spec, out, wall, mode)
+        print(summary_text(spec, s))
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    from htm.run import add_store_args
+
+    db = sub.add_parser("db", help="the test store: list, show, export, delete tests",
+                        description="Query the test store (SQLite catalogue + Parquet tables + rerun recordings).")
+    dsub = db.add_subparsers(dest="db_command", required=True, metavar="ACTION")
+    p = dsub.add_parser("list", help="every test: id, status, cycles, end reason")
+    p.set_defaults(func=cmd_list)
+    p = dsub.add_parser("show", help="one test: status, results, events, files")
+    p.add_argument("id")
+    p.add_argument("--events", type=int, default=30, help="events to print (default 30)")
+    p.set_defaults(func=cmd_show)
+    p = dsub.add_parser("export", help="a test's tables (cycles, raw), metadata and spec into a folder")
+    p.add_argument("id")
+    p.add_argument("--out", required=True, help="folder to write (must be empty or missing)")
+    p.add_argument("--format", choices=["parquet", "csv"], default="parquet")
+    p.set_defaults(func=cmd_export)
+    p = dsub.add_parser("delete", help="remove a test and its files")
+    p.add_argument("id")
+    p.add_argument("--yes", action="store_true", help="really delete")
+    p.set_defaults(func=cmd_delete)
+    for q in dsub.choices.values():
+        q.add_argument("--store", help="test store folder (default $HTM_STORE or ~/.local/share/htm/store)")
+
+    r = sub.add_parser("resume", help="continue a simulated test after a crash or a stop",
+                       description="Continue a test from its journal: the engine state of the last block written "
+                                   "(cycle count, crack length, controller, waveform), into the same store and recording.")
+    r.add_argument("id")
+    r.add_argument("--out", help="also write summary.json, cycles.parquet and the report here")
+    r.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_store_args(r)
+    r.set_defaults(func=cmd_resume)

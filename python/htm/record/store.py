@@ -1,0 +1,242 @@
+"""The test store: a SQLite catalogue (tests, specs, status, events, results, file references) and
+one folder per test holding its journal, Parquet tables and rerun recording.
+
+Layout: `ROOT/catalogue.sqlite`, `ROOT/tests/ID/` with `journal-NNN.htmj` (while the test is open),
+`cycles.parquet` (one row per cycle, every cycle), `raw.parquet` (raw high-rate windows: the first
+cycles, a few cycles per decade, around events), `recording.rrd`. The root is `--store`, else
+`$HTM_STORE`, else `~/.local/share/htm/store`. The schema version is SQLite's `user_version`;
+`MIGRATIONS[i]` takes a catalogue from version i to i + 1 inside one transaction.
+A catalogue that does not read as one raises `RecordError` and is left untouched.
+"""
+from __future__ import annotations
+
+import json
+import os
+import secrets
+import shutil
+import sqlite3
+import time
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+
+from htm.errors import RecordError
+from htm.record import journal
+
+MIGRATIONS = [
+    # 0 -> 1
+    """
+    CREATE TABLE tests(
+        id TEXT PRIMARY KEY, name TEXT NOT NULL, kind TEXT NOT NULL, mode TEXT, status TEXT NOT NULL,
+        created_utc TEXT NOT NULL, updated_utc TEXT NOT NULL, end_reason TEXT, cycles INTEGER,
+        a_end_m REAL, frequency_hz REAL);
+    CREATE TABLE specs(test_id TEXT PRIMARY KEY REFERENCES tests(id) ON DELETE CASCADE,
+        format TEXT NOT NULL, body TEXT NOT NULL);
+    CREATE TABLE events(test_id TEXT NOT NULL REFERENCES tests(id) ON DELETE CASCADE,
+        cycle INTEGER, time_s REAL, kind TEXT NOT NULL, detail TEXT, source TEXT NOT NULL);
+    CREATE TABLE results(test_id TEXT NOT NULL REFERENCES tests(id) ON DELETE CASCADE,
+        key TEXT NOT NULL, value REAL, text TEXT, PRIMARY KEY(test_id, key));
+    CREATE TABLE files(test_id TEXT NOT NULL REFERENCES tests(id) ON DELETE CASCADE,
+        role TEXT NOT NULL, path TEXT NOT NULL, PRIMARY KEY(test_id, role));
+    """,
+    # 1 -> 2: file sizes, event lookups by test, the machine that ran the test
+    """
+    ALTER TABLE files ADD COLUMN bytes INTEGER;
+    ALTER TABLE tests ADD COLUMN host TEXT;
+    CREATE INDEX events_by_test ON events(test_id, cycle);
+    """,
+]
+SCHEMA_VERSION = len(MIGRATIONS)
+STATUSES = ("running", "finished", "stopped", "failed")
+
+
+def default_root() -> Path:
+    env = os.environ.get("HTM_STORE")
+    if env:
+        return Path(env)
+    base = os.environ.get("XDG_DATA_HOME") or str(Path.home() / ".local" / "share")
+    return Path(base) / "htm" / "store"
+
+
+def _now() -> str:
+    return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+
+
+class Store:
+    """A store at `root` (created when missing). Catalogue errors raise `RecordError`."""
+
+    def __init__(self, root: Path | str | None = None):
+        self.root = Path(root) if root is not None else default_root()
+        self.path = self.root / "catalogue.sqlite"
+        fresh = not self.path.exists()
+        if fresh:
+            (self.root / "tests").mkdir(parents=True, exist_ok=True)
+        try:
+            self.db = sqlite3.connect(self.path, isolation_level=None, timeout=10.0)
+            version = self.db.execute("PRAGMA user_version").fetchone()[0]
+            if not fresh:
+                bad = self.db.execute("PRAGMA quick_check").fetchone()[0]
+                if bad != "ok":
+                    raise sqlite3.DatabaseError(bad)
+        except sqlite3.DatabaseError as e:
+            raise RecordError(f"catalogue {self.path} is not readable ({e}); nothing was changed — "
+                              "restore it from a backup or point --store elsewhere") from None
+        if version > SCHEMA_VERSION:
+            self.db.close()
+            raise RecordError(f"catalogue {self.path} has schema version {version}, newer than this htm "
+                              f"({SCHEMA_VERSION}); upgrade htm. Nothing was changed")
+        self.db.execute("PRAGMA foreign_keys = ON")
+        for v in range(version, SCHEMA_VERSION):
+            self._migrate(v)
+
+    def _migrate(self, v: int) -> None:
+        try:
+            self.db.execute("BEGIN IMMEDIATE")
+            for stmt in MIGRATIONS[v].split(";"):
+                if stmt.strip():
+                    self.db.execute(stmt)
+            self.db.execute(f"PRAGMA user_version = {v + 1}")
+            self.db.execute("COMMIT")
+        except sqlite3.Error as e:
+            self.db.execute("ROLLBACK")
+            raise RecordError(f"catalogue {self.path}: migration {v} -> {v + 1} failed ({e}); nothing was changed") from None
+
+    def close(self) -> None:
+        self.db.close()
+
+    def __enter__(self) -> Store:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ---- writing ---------------------------------------------------------------------------
+    def create_test(self, name: str, kind: str, mode: str | None, spec_format: str, spec_body: str,
+                    frequency_hz: float | None = None) -> str:
+        """A new test (status running) and its folder; returns its id (`YYYYMMDD-HHMMSS-xxxx`)."""
+        test_id = time.strftime("%Y%m%d-%H%M%S", time.gmtime()) + "-" + secrets.token_hex(2)
+        self.test_dir(test_id).mkdir(parents=True)
+        now = _now()
+        with self._tx():
+            self.db.execute("INSERT INTO tests(id, name, kind, mode, status, created_utc, updated_utc, frequency_hz, host) "
+                            "VALUES (?, ?, ?, ?, 'running', ?, ?, ?, ?)", (test_id, name, kind, mode, now, now, frequency_hz, os.uname().nodename))
+            self.db.execute("INSERT INTO specs VALUES (?, ?, ?)", (test_id, spec_format, spec_body))
+        return test_id
+
+    def set_status(self, test_id: str, status: str, end_reason: str | None = None, cycles: int | None = None,
+                   a_end_m: float | None = None) -> None:
+        if status not in STATUSES:
+            raise RecordError(f"status `{status}`: allowed {', '.join(STATUSES)}")
+        with self._tx():
+            self.db.execute("UPDATE tests SET status = ?, end_reason = COALESCE(?, end_reason), cycles = COALESCE(?, cycles), "
+                            "a_end_m = COALESCE(?, a_end_m), updated_utc = ? WHERE id = ?",
+                            (status, end_reason, cycles, a_end_m, _now(), test_id))
+
+    def add_event(self, test_id: str, kind: str, detail: str = "", cycle: int | None = None, time_s: float | None = None,
+                  source: str = "run") -> None:
+        with self._tx():
+            self.db.execute("INSERT INTO events VALUES (?, ?, ?, ?, ?, ?)", (test_id, cycle, time_s, kind, detail, source))
+
+    def replace_events(self, test_id: str, source: str, rows: list[tuple[int | None, float | None, str, str]]) -> None:
+        """Replace the events of one `source` (those rebuilt from the journal at close)."""
+        with self._tx():
+            self.db.execute("DELETE FROM events WHERE test_id = ? AND source = ?", (test_id, source))
+            self.db.executemany("INSERT INTO events VALUES (?, ?, ?, ?, ?, ?)", [(test_id, *r, source) for r in rows])
+
+    def set_results(self, test_id: str, results: dict[str, Any]) -> None:
+        with self._tx():
+            for k, v in results.items():
+                num = float(v) if isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) else None
+                text = None if num is not None else json.dumps(v, default=float)
+                self.db.execute("INSERT OR REPLACE INTO results VALUES (?, ?, ?, ?)", (test_id, k, num, text))
+
+    def add_file(self, test_id: str, role: str, path: Path) -> None:
+        p = Path(path)
+        rel = os.path.relpath(p, self.root)
+        with self._tx():
+            self.db.execute("INSERT OR REPLACE INTO files VALUES (?, ?, ?, ?)", (test_id, role, rel, p.stat().st_size))
+
+    def delete(self, test_id: str) -> None:
+        """Remove a test from the catalogue and its folder."""
+        self.get(test_id)
+        with self._tx():
+            self.db.execute("DELETE FROM tests WHERE id = ?", (test_id,))
+        shutil.rmtree(self.test_dir(test_id), ignore_errors=True)
+
+    # ---- reading ---------------------------------------------------------------------------
+    def test_dir(self, test_id: str) -> Path:
+        return self.root / "tests" / test_id
+
+    def list_tests(self) -> list[dict[str, Any]]:
+        cur = self.db.execute("SELECT * FROM tests ORDER BY created_utc, id")
+        names = [d[0] for d in cur.description]
+        return [dict(zip(names, r)) for r in cur.fetchall()]
+
+    def get(self, test_id: str) -> dict[str, Any]:
+        cur = self.db.execute("SELECT * FROM tests WHERE id = ?", (test_id,))
+        row = cur.fetchone()
+        if row is None:
+            raise RecordError(f"no test `{test_id}` in the store {self.root} (`htm db list` shows them)")
+        d = dict(zip([c[0] for c in cur.description], row))
+        fmt, body = self.db.execute("SELECT format, body FROM specs WHERE test_id = ?", (test_id,)).fetchone()
+        d["spec_format"], d["spec"] = fmt, body
+        d["events"] = [dict(zip(("cycle", "time_s", "kind", "detail", "source"), r)) for r in self.db.execute(
+            "SELECT cycle, time_s, kind, detail, source FROM events WHERE test_id = ? ORDER BY cycle, rowid", (test_id,))]
+        d["results"] = {k: (v if t is None else json.loads(t)) for k, v, t in self.db.execute(
+            "SELECT key, value, text FROM results WHERE test_id = ?", (test_id,))}
+        d["files"] = {r: {"path": str(self.root / p), "bytes": b} for r, p, b in self.db.execute(
+            "SELECT role, path, bytes FROM files WHERE test_id = ?", (test_id,))}
+        return d
+
+    def cycles(self, test_id: str) -> dict[str, np.ndarray]:
+        """The per-cycle table: from `cycles.parquet` once the test is closed, else from its journal."""
+        return self._table(test_id, "cycles.parquet", journal.CHUNK)
+
+    def raw(self, test_id: str) -> dict[str, np.ndarray]:
+        """Raw high-rate windows and live signal windows (column `t_s` first)."""
+        return self._table(test_id, "raw.parquet", journal.SIGNALS)
+
+    def _table(self, test_id: str, name: str, kind: bytes) -> dict[str, np.ndarray]:
+        self.get(test_id)
+        path = self.test_dir(test_id) / name
+        if path.exists():
+            import pyarrow.parquet as pq
+
+            t = pq.read_table(path)
+            return {c: t.column(c).to_numpy() for c in t.column_names}
+        return concat([r.arrays for s in journal.read_journal(self.test_dir(test_id)) for r in s.records if r.kind == kind])
+
+    @contextmanager
+    def _tx(self) -> Iterator[None]:
+        """One write transaction; a catalogue error becomes `RecordError` (nothing half-written)."""
+        try:
+            self.db.execute("BEGIN IMMEDIATE")
+        except sqlite3.Error as e:
+            raise RecordError(f"catalogue {self.path}: {e}") from None
+        try:
+            yield
+            self.db.execute("COMMIT")
+        except sqlite3.Error as e:
+            self.db.execute("ROLLBACK")
+            raise RecordError(f"catalogue {self.path}: {e}") from None
+        except BaseException:
+            self.db.execute("ROLLBACK")
+            raise
+
+
+def concat(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """Column-wise concatenation of row blocks (columns missing from a block are NaN there)."""
+    parts = [p for p in parts if p and len(next(iter(p.values())))]
+    if not parts:
+        return {}
+    names = list(dict.fromkeys(k for p in parts for k in p))
+    out = {}
+    for k in names:
+        blocks = []
+        for p in parts:
+            n = len(next(iter(p.values())))
+            blocks.append(p[k] if k in p else np.full(n, np.nan))
+        out[k] = np.concatenate(blocks)
+    return out
