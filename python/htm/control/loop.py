@@ -141,9 +141,11 @@ class ControlLoop:
             fmax, fmin, _ = c.targets
             band = max(fmin - f, f - fmax) / (fmax - fmin)
         val[CH["force_band"]] = band
+        r = None
         if c.results != self._last_results:
             self._last_results = c.results
-            r = c.last_cycle()
+            r = c.last_cycle()  # None when a new test has just replaced the controller
+        if r is not None:
             r["period"] = self.k
             self.cycles.append(r)
             val[CH["amplitude_error_pct"]] = 0.0 if r["starting"] else r["df_err_pct"]

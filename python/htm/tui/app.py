@@ -88,7 +88,11 @@ class HtmApp(App[None]):
         Binding("ctrl+s", "simulate", "simulate"),
         Binding("q", "quit", "quit"),
     ]
-    CSS = "#events { height: 6; border-top: solid $accent; }"
+    CSS = """
+    #tabs { height: 1fr; }
+    TabPane { height: 1fr; padding: 0; }
+    #events { height: 6; border-top: solid $accent; }
+    """
 
     def __init__(self, *, config: Any = None, session: Any = None, session_factory: Callable[[], Any] | None = None,
                  poll: bool = True, store: Any = None, **kw: Any) -> None:

@@ -39,6 +39,8 @@ class SetupPane(Vertical):
     """The spec form. Posts `SpecChanged` whenever the document becomes valid or invalid."""
 
     DEFAULT_CSS = """
+    SetupPane { height: 1fr; }
+    SetupPane #form { height: 1fr; }
     SetupPane .row { height: 3; }
     SetupPane .row Label { width: 22; padding: 1 1 0 0; }
     SetupPane .row Input, SetupPane .row Select { width: 24; }
@@ -46,6 +48,9 @@ class SetupPane(Vertical):
     SetupPane .err { width: 1fr; padding: 1 0 0 1; color: $error; }
     SetupPane #setup-status { height: auto; padding: 0 1; }
     SetupPane #setup-bar { height: 3; }
+    SetupPane #setup-bar Select { width: 34; }
+    SetupPane #setup-bar Input { width: 1fr; }
+    SetupPane #setup-bar Button { width: auto; min-width: 8; }
     SetupPane #sim-result { height: auto; padding: 0 1; }
     """
 

@@ -1,0 +1,151 @@
+"""The operator console driven by Textual's pilot, one test per workflow, on the virtual rig."""
+import asyncio
+import time
+
+import pytest
+from textual.widgets import DataTable, Input, Static
+
+from htm.tui.app import HtmApp
+from htm.tui.setup import SetupPane
+
+
+def run(coro):
+    return asyncio.run(coro)
+
+
+async def until(pilot, cond, timeout: float = 20.0, step: float = 0.1) -> None:
+    """Let the app run until `cond()` holds (the loop and the poller run meanwhile)."""
+    t0 = time.monotonic()
+    while not cond():
+        if time.monotonic() - t0 > timeout:
+            raise AssertionError("condition not reached in time")
+        await pilot.pause(step)
+
+
+def text(app, sel: str) -> str:
+    return str(app.query_one(sel, Static).content)
+
+
+@pytest.fixture()
+def store(tmp_path, monkeypatch):
+    monkeypatch.setenv("HTM_STORE", str(tmp_path / "store"))
+    return tmp_path / "store"
+
+
+def test_setup_rejects_a_bad_field_and_simulates_a_valid_test(store):
+    async def go():
+        app = HtmApp(session_factory=lambda: None)
+        async with app.run_test(size=(140, 50)) as pilot:
+            pane = app.query_one(SetupPane)
+            assert pane.spec is not None, text(app, "#setup-status")
+            r = app.query_one("#loading-r_ratio", Input)
+            r.value = "1.5"
+            await pilot.pause()
+            assert pane.spec is None
+            assert "loading.r_ratio = 1.5 is out of range" in text(app, "#err-loading-r_ratio")
+            r.value = "abc"
+            await pilot.pause()
+            assert "not a number" in text(app, "#err-loading-r_ratio")
+            r.value = "0.1"
+            await pilot.pause()
+            assert pane.spec is not None and text(app, "#err-loading-r_ratio") == ""
+            # a/W limit and hidden fields: switching mode hides ΔF and asks for ΔK
+            app.query_one("#end-a_over_w", Input).value = "0.99"
+            await pilot.pause()
+            assert pane.spec is None and "end.a_over_w" in text(app, "#setup-status")
+            app.query_one("#end-a_over_w", Input).value = "0.6"
+            await pilot.press("ctrl+s")
+            await app.workers.wait_for_complete()
+            await pilot.pause()
+            assert "predicted life" in text(app, "#sim-result") and "cycles" in text(app, "#sim-result")
+    run(go())
+
+
+def test_spec_saves_and_loads_back(tmp_path, store):
+    async def go():
+        app = HtmApp(session_factory=lambda: None)
+        async with app.run_test(size=(140, 50)) as pilot:
+            app.query_one("#loading-delta_f_n", Input).value = "5"
+            app.query_one("#spec-path", Input).value = str(tmp_path / "mine.toml")
+            await pilot.pause()
+            await pilot.click("#save")
+            await pilot.pause()
+            assert (tmp_path / "mine.toml").exists()
+            app.query_one("#loading-delta_f_n", Input).value = "4"
+            await pilot.click("#load")
+            await pilot.pause()
+            assert app.query_one("#loading-delta_f_n", Input).value == "5"
+            assert app.query_one(SetupPane).spec.phases[-1].delta_f_n == pytest.approx(5000.0)
+    run(go())
+
+
+def test_install_jog_is_force_limited_by_specimen_protect(store):
+    async def go():
+        app = HtmApp()
+        async with app.run_test(size=(140, 50)) as pilot:
+            await until(pilot, lambda: app.session is not None)
+            await pilot.press("f3")
+            await pilot.press("o")
+            await until(pilot, lambda: app.session.snapshot()["state"] == "position")
+            await pilot.press("plus", "plus", "plus")  # 10 mm/s: into the specimen
+            await pilot.press("up")
+            await until(pilot, lambda: app.session.snapshot()["protecting"], timeout=30)
+            await pilot.pause(1.0)
+            snap = app.session.snapshot()
+            assert abs(snap["f"]) < 1.15 * 2000.0, snap["f"]   # protect at 2 kN holds the force
+            assert snap["interlock"] is None
+            assert "ON (limiting force)" in text(app, "#install-numbers")
+            await pilot.press("space")
+            await pilot.press("t")
+            await until(pilot, lambda: abs(app.session.snapshot()["f"]) < 200.0)
+    run(go())
+
+
+def test_run_start_cycles_advance_trip_latches_reset_and_stop(store):
+    async def go():
+        app = HtmApp()
+        async with app.run_test(size=(160, 60)) as pilot:
+            await until(pilot, lambda: app.session is not None)
+            await pilot.press("f4")
+            await pilot.press("s")
+            await until(pilot, lambda: app.session.snapshot()["cycles"] >= 30, timeout=60)
+            assert "running" in text(app, "#run-numbers") or "starting" in text(app, "#run-numbers")
+            # a fault: the supply pressure goes; its detector trips and latches power-off
+            app.session.rig.inject("supply_loss")
+            await until(pilot, lambda: app.session.snapshot()["interlock"] == "power_off", timeout=10)
+            await pilot.pause(0.3)
+            table = app.query_one("#detectors", DataTable)
+            row = table.get_row("supply_pressure")
+            assert row[4] == "tripped" and row[6] == "LATCHED"
+            await pilot.press("s")  # refused while latched
+            await pilot.pause(0.5)
+            assert app.session.snapshot()["state"] != "running"
+            app.session.rig.clear_faults()
+            await pilot.pause(0.5)
+            await pilot.press("ctrl+r")
+            await until(pilot, lambda: app.session.snapshot()["interlock"] is None, timeout=10)
+            await pilot.pause(0.3)
+            assert table.get_row("supply_pressure")[6] == ""
+            await pilot.press("s")
+            await until(pilot, lambda: app.session.snapshot()["state"] in ("starting", "running"), timeout=10)
+            await pilot.press("x")
+            await until(pilot, lambda: app.session.snapshot()["state"] in ("stopping", "stopped", "idle"), timeout=10)
+            await pilot.press("f12")
+            await until(pilot, lambda: app.session.snapshot()["estop"], timeout=5)
+            assert not app.session.snapshot()["amplifier"]
+    run(go())
+
+
+def test_help_screen_lists_the_handset_keys(store):
+    async def go():
+        app = HtmApp(session_factory=lambda: None)
+        async with app.run_test(size=(140, 50)) as pilot:
+            await pilot.press("f1")
+            await pilot.pause()
+            from htm.tui.app import HelpScreen
+
+            assert isinstance(app.screen, HelpScreen)
+            await pilot.press("escape")
+            await pilot.pause()
+            assert not isinstance(app.screen, HelpScreen)
+    run(go())
