@@ -149,3 +149,48 @@ def test_help_screen_lists_the_handset_keys(store):
             await pilot.pause()
             assert not isinstance(app.screen, HelpScreen)
     run(go())
+
+
+def test_results_lists_tests_opens_the_report_and_exports(store, tmp_path):
+    from htm.cli import main as htm_main
+
+    assert htm_main(["run", "examples/ct_constant_force.toml", "--out", str(tmp_path / "run"), "--quiet", "--no-recording"]) == 0
+
+    async def go():
+        app = HtmApp(session_factory=lambda: None, store=store)
+        async with app.run_test(size=(140, 50)) as pilot:
+            await pilot.press("f5")
+            await pilot.pause()
+            table = app.query_one("#results-table", DataTable)
+            assert table.row_count == 1
+            await pilot.press("down", "up")
+            await until(pilot, lambda: "target_crack_length" in text(app, "#results-summary"))
+            report = app.query_one("#results-report")
+            assert "Simulated test" in report.source
+            app.query_one("#export-dir", Input).value = str(tmp_path / "export")
+            await pilot.click("#export")
+            await until(pilot, lambda: (tmp_path / "export" / "cycles.parquet").exists())
+    run(go())
+
+
+def test_a_test_run_on_the_rig_is_recorded_and_shows_in_results(store):
+    async def go():
+        app = HtmApp(store=store)
+        async with app.run_test(size=(160, 60)) as pilot:
+            await until(pilot, lambda: app.session is not None)
+            await pilot.press("f4", "s")
+            await until(pilot, lambda: app.session.snapshot()["cycles"] >= 20, timeout=60)
+            await pilot.press("x")
+            await until(pilot, lambda: app.session.recorder is not None and app.session.recorder.status is not None, timeout=30)
+            test_id = app.session.recorder.test_id
+            await pilot.press("f5", "ctrl+l")
+            await pilot.pause()
+            table = app.query_one("#results-table", DataTable)
+            row = table.get_row(test_id)
+            assert row[2] == "device" and row[3] in ("finished", "stopped")
+            from htm.record import Store
+
+            with Store(store) as st:
+                cyc = st.cycles(test_id)["cycle"]
+            assert len(cyc) >= 20 and list(cyc) == list(range(int(cyc[0]), int(cyc[0]) + len(cyc)))  # no gap, no duplicate
+    run(go())

@@ -242,6 +242,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise HtmError(f"{out_dir} already holds a test (summary.json); choose another --out")
     if args.no_store:
         out, wall = run_spec(spec, mode, progress=not args.quiet)
+        s = write_outputs(out_dir, spec, out, wall, mode)
     else:
         from htm.record.store import Store
 
@@ -249,7 +250,11 @@ def cmd_run(args: argparse.Namespace) -> int:
             test_id, out, wall = run_recorded(spec, Path(args.spec).read_text(), mode, store, progress=not args.quiet,
                                               recording=not args.no_recording, spawn=args.spawn, connect=args.connect)
             print(f"store: test {test_id} in {store.root}" + ("" if args.no_recording else f" (recording {store.test_dir(test_id) / 'recording.rrd'})"))
-    s = write_outputs(out_dir, spec, out, wall, mode)
+            s = write_outputs(out_dir, spec, out, wall, mode)
+            # the outputs a person reads, referenced from the catalogue (Results, `htm db show`)
+            store.add_file(test_id, "summary", out_dir / "summary.json")
+            if s["report"] and not s["report"].startswith("not"):
+                store.add_file(test_id, "report", Path(s["report"]))
     print(summary_text(spec, s))
     print(f"outputs: {out_dir}/summary.json, cycles.parquet, summary.txt" + (f", {Path(s['report']).name}" if s["report"] and not s["report"].startswith("not") else ""))
     return 0

@@ -42,6 +42,13 @@ from htm.params import with_overrides
 COMMAND_TIMEOUT_S = 5.0
 
 
+def cfg_for_store(spec) -> dict[str, Any]:
+    """The spec as plain data for the store's catalogue (the rig parameters by name)."""
+    cfg = spec.to_config()
+    cfg["params"] = cfg["params"].to_dict()
+    return cfg
+
+
 def specimen_of(spec) -> dict[str, Any]:
     """The virtual rig's specimen dict for a `TestSpec`."""
     return {"geometry": spec.geometry, "width_m": spec.width_m, "thickness_m": spec.thickness_m, "a0_m": spec.a0_m,
@@ -57,6 +64,8 @@ class Session:
         self.loop: ControlLoop | None = None
         self.log = EventLog()
         self._thread: threading.Thread | None = None
+        self.recorder = None  # htm.control.recorder.LiveRecorder of the running test
+        self._paced = False
         self._net = None
         self._io = None
 
@@ -143,6 +152,9 @@ class Session:
     def close(self) -> None:
         """Stop the loop (valve null, amplifier off) and release the devices."""
         lp = self.loop
+        if self.recorder is not None:
+            self.recorder.stop()
+            self.recorder = None
         if lp is not None:
             lp.stop_requested = True
             if self._thread is not None:
@@ -237,9 +249,12 @@ class Session:
             return lp.load_offset_n
         return self._do(f, "tare load cell")
 
-    def start(self, spec, f0_n: float | None = None) -> None:
+    def start(self, spec, f0_n: float | None = None, *, record: bool = True, store: Any = None,
+              recording: bool = True) -> None:
         """Start the test `spec` (htm.spec.TestSpec) with a smooth ramp-in from the present force.
-        The controller is built here (its gain design takes milliseconds), then swapped in."""
+        The controller is built here (its gain design takes milliseconds), then swapped in.
+        With `record` the test goes into the test store (`store`: root folder, default
+        $HTM_STORE) with a rerun recording (`recording`), see `htm.control.recorder`."""
         self._motion_allowed()
         cfg = spec.to_config()
         cfg["params"] = with_overrides(_core.Params(self.cfg.rig_preset), self.cfg.rig_overrides)
@@ -252,7 +267,17 @@ class Session:
             self._motion_allowed()
             lp.ctrl = ctrl
             lp.energise()
+        if self.recorder is not None:
+            self.recorder.stop()
+            self.recorder = None
+        first_event = len(self.log.since(0))
         self._do(f, f"start test {spec.name}")
+        if record:
+            from htm.control.recorder import LiveRecorder
+            from htm.record.writer import spec_json
+
+            self.recorder = LiveRecorder(self, store, spec.name, spec_json(cfg_for_store(spec)), spec.frequency_hz,
+                                         first_event, recording=recording)
 
     def hold(self) -> None:
         self._do(self.loop.ctrl.hold, "hold")
