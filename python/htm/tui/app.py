@@ -14,6 +14,7 @@ from typing import Any, Callable
 from textual import work
 from textual.app import App, ComposeResult
 from textual.binding import Binding
+from textual.css.query import NoMatches
 from textual.containers import VerticalScroll
 from textual.screen import ModalScreen
 from textual.widgets import Footer, Header, Markdown, RichLog, TabbedContent, TabPane
@@ -164,8 +165,14 @@ class HtmApp(App[None]):
     def poll(self) -> None:
         """Read what the loop published since the last poll and hand it to the panes."""
         s = self.session
-        if s is None or getattr(s, "loop", None) is None:
+        if s is None or getattr(s, "loop", None) is None or not self.is_running:
             return
+        try:
+            self._poll(s)
+        except NoMatches:  # the screen is being torn down
+            pass
+
+    def _poll(self, s: Any) -> None:
         snap = s.snapshot()
         feed = s.feed_since(self._last_period)
         rows = s.cycles_since(self._last_cycle)

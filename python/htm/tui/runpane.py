@@ -11,7 +11,8 @@ from textual.app import ComposeResult
 from textual.binding import Binding
 from textual.containers import Grid, Horizontal, Vertical
 from textual.widgets import Button, DataTable, Static
-from textual_plotext import PlotextPlot
+
+from htm.tui.plot import LinePlot
 
 FEED_KEEP = 200     # decimated samples shown (≈ 10 s at 20 Hz)
 CYCLES_KEEP = 2000  # per-cycle points shown
@@ -50,18 +51,15 @@ class RunPane(Vertical):
             yield Button("Reset (ctrl+r)", id="reset")
         yield Static("", id="run-numbers")
         with Grid(id="plots"):
-            yield PlotextPlot(id="plot-force")
-            yield PlotextPlot(id="plot-peaks")
-            yield PlotextPlot(id="plot-a")
-            yield PlotextPlot(id="plot-dk")
+            yield LinePlot("force [kN] vs time [s]", id="plot-force")
+            yield LinePlot("peak/valley [kN] vs cycle, ±2 % band", id="plot-peaks")
+            yield LinePlot("crack length a [mm] vs cycle", id="plot-a")
+            yield LinePlot("ΔK [MPa·√m] vs cycle", id="plot-dk")
         yield DataTable(id="detectors", cursor_type="row", zebra_stripes=True)
 
     def on_mount(self) -> None:
         t = self.query_one("#detectors", DataTable)
         t.add_columns("detector", "channel", "limits", "value", "state", "action", "latched")
-        for pid, title in (("plot-force", "force [kN] vs time [s]"), ("plot-peaks", "peak/valley [kN] vs cycle, ±2 % band"),
-                           ("plot-a", "crack length a [mm] vs cycle"), ("plot-dk", "ΔK [MPa·√m] vs cycle")):
-            self.query_one(f"#{pid}", PlotextPlot).plt.title(title)
 
     # ---- data from the app's poller (≤ 10 Hz, coalesced) ---------------------------------------
     def add_feed(self, samples: list[dict[str, Any]]) -> None:
@@ -96,13 +94,7 @@ class RunPane(Vertical):
 
     def _plots(self) -> None:
         def draw(pid: str, series: list[tuple[list[float], list[float], str]]) -> None:
-            w = self.query_one(f"#{pid}", PlotextPlot)
-            plt = w.plt
-            plt.clear_data()
-            for x, y, label in series:
-                if x:
-                    plt.plot(x, y, label=label)
-            w.refresh()
+            self.query_one(f"#{pid}", LinePlot).set_series(series)
 
         c = {k: list(v) for k, v in self.cyc.items()}
         draw("plot-force", [(list(self.t), list(self.force), "F")])
