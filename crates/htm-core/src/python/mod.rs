@@ -15,12 +15,14 @@ use crate::Error;
 mod engine;
 mod fatigue;
 mod ident;
+mod replay;
 
 // Submodules add their own classes and functions here.
 pub(crate) fn register_extensions(m: &Bound<'_, PyModule>) -> PyResult<()> {
     fatigue::register(m)?;
     engine::register(m)?;
     ident::register(m)?;
+    replay::register(m)?;
     Ok(())
 }
 
