@@ -1,0 +1,536 @@
+"""`diagnose`: fit the EFFECTS.md base model to a record by simulation error, then trace what it
+still gets wrong to EFFECTS.md effects, keeping each only if it pays off on held-out data."""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from htm._core import Params
+from htm.errors import RecordError
+from htm.ident import features as ft
+from htm.ident.records import Record, validate_record
+
+FORMAT = "htm-diagnosis/1"
+MIN_SAMPLES = 200
+# Low-passed residual RMS over the noise floor above which a channel still holds structure.
+SYSTEMATIC = 1.0
+# A refit must cut the held-out weighted cost by this fraction (and win by BIC) to count.
+MIN_GAIN = 0.05
+# Evidence a candidate's signature must carry before it is refitted (chi^2 units, fraction).
+SCREEN_CHI2 = 25.0
+SCREEN_FRACTION = 0.01
+# Least-squares budgets (function evaluations; each Jacobian adds one simulation per parameter).
+BASE_NFEV, REFIT_NFEV, POLISH_NFEV = 12, 5, 8
+
+
+class IdentificationError(RecordError):
+    """The record cannot be identified (no excitation, wrong rig, too short): says why."""
+
+
+# --------------------------------------------------------------------------- parameters
+@dataclass(frozen=True)
+class Free:
+    """One free parameter in normalised coordinates x: value = ref*exp(x) (log) or origin + unit*x."""
+
+    key: str
+    lo: float
+    hi: float
+    log: bool = False
+    unit: float = 1.0
+    step: float = 0.02  # finite-difference / screening step in x
+    origin: float = 0.0  # the "effect off" value of a linear parameter (x = 0)
+
+    def value(self, x: float, ref: float) -> float:
+        return ref * math.exp(x) if self.log else self.origin + self.unit * x
+
+    def coord(self, value: float, ref: float) -> float:
+        return math.log(value / ref) if self.log else (value - self.origin) / self.unit
+
+
+def _set(p: Params, key: str, value: float) -> None:
+    if key == "friction_coulomb_n":  # the base model's Coulomb friction is symmetric
+        p["friction_coulomb_pos_n"] = value
+        p["friction_coulomb_neg_n"] = value
+    elif key == "friction_coulomb_diff_n":  # friction_asymmetry: pos = C + d, neg = C - d
+        c = p["friction_coulomb_pos_n"]
+        p["friction_coulomb_pos_n"] = max(0.0, c + value)
+        p["friction_coulomb_neg_n"] = max(0.0, c - value)
+    else:
+        p[key] = value
+
+
+def _get(p: Params, key: str) -> float:
+    if key == "friction_coulomb_n":
+        return 0.5 * (p["friction_coulomb_pos_n"] + p["friction_coulomb_neg_n"])
+    if key == "friction_coulomb_diff_n":
+        return 0.5 * (p["friction_coulomb_pos_n"] - p["friction_coulomb_neg_n"])
+    return p[key]
+
+
+@dataclass
+class Model:
+    """A parameter set: the nominal Params, the free parameters and their coordinates."""
+
+    nominal: Params
+    frees: list[Free]
+    x: np.ndarray
+
+    def params(self, x: np.ndarray | None = None) -> Params:
+        x = self.x if x is None else x
+        p = self.nominal.copy()
+        for f, xi in zip(self.frees, x):
+            _set(p, f.key, f.value(float(xi), _get(self.nominal, f.key) if f.log else 0.0))
+        return p
+
+    def with_candidate(self, cand: "Candidate", x0: float | None = None) -> "Model":
+        """This model with a candidate effect added (its first parameter at x0, default its step)."""
+        nominal = self.nominal
+        if cand.switch:
+            nominal = nominal.copy()
+            for k, v in cand.switch:
+                nominal[k] = v
+        xs = [cand.frees[0].step if x0 is None else x0, *cand.starts] if cand.frees else []
+        return Model(nominal, [*self.frees, *cand.frees], np.append(self.x, xs))
+
+    def values(self) -> dict[str, float]:
+        p = self.params()
+        out: dict[str, float] = {}
+        for f in self.frees:
+            if f.key == "friction_coulomb_n":
+                out["friction_coulomb_pos_n"] = p["friction_coulomb_pos_n"]
+                out["friction_coulomb_neg_n"] = p["friction_coulomb_neg_n"]
+            elif f.key != "friction_coulomb_diff_n":
+                out[f.key] = p[f.key]
+        if any(f.key == "friction_coulomb_diff_n" for f in self.frees):
+            out["friction_coulomb_pos_n"] = p["friction_coulomb_pos_n"]
+            out["friction_coulomb_neg_n"] = p["friction_coulomb_neg_n"]
+        return out
+
+
+# Base-model parameters stated by the metadata (nominal; bounds say how far a rig may be off).
+RIG_FREES = [
+    Free("moving_mass_kg", math.log(0.4), math.log(2.5), log=True),
+    Free("valve_rated_flow_m3_s", math.log(0.4), math.log(2.5), log=True),
+    Free("bulk_modulus_pa", math.log(0.4), math.log(2.5), log=True),
+    Free("dead_volume_a_m3", math.log(0.3), math.log(3.0), log=True, step=0.05),
+    Free("dead_volume_b_m3", math.log(0.3), math.log(3.0), log=True, step=0.05),
+    Free("supply_pressure_pa", math.log(0.5), math.log(1.5), log=True, step=0.01),
+]
+# Friction and underlap are not in the metadata: wide bounds.
+OTHER_FREES = [
+    Free("friction_viscous_n_s_m", math.log(0.02), math.log(20.0), log=True, step=0.05),
+    Free("friction_coulomb_n", math.log(0.02), math.log(20.0), log=True, step=0.05),
+    Free("friction_static_n", math.log(0.01), math.log(20.0), log=True, step=0.1),
+    Free("valve_underlap_v", 0.0, 5.0, unit=0.1, step=0.1),
+]
+
+
+# --------------------------------------------------------------------------- candidates
+@dataclass(frozen=True)
+class Candidate:
+    """An EFFECTS.md effect the model can take on: free parameters (the first is screened, the
+    others start at `starts`) and/or a switch applied to the nominal parameters."""
+
+    effect: str
+    channel: str | None
+    frees: tuple[Free, ...]
+    feature: str  # the regressor whose correlation with the residual is the effect's signature
+    starts: tuple[float, ...] = ()
+    switch: tuple[tuple[str, float], ...] = ()
+
+    def report(self, p: Params) -> dict[str, float]:
+        from htm.ident.sim import effect_values
+
+        return effect_values(p, self.effect, self.channel)
+
+    @property
+    def label(self) -> str:
+        return self.effect + (f" on {self.channel}" if self.channel else "")
+
+
+def _lin(key: str, unit: float, lo: float, hi: float, step: float = 1.0, origin: float = 0.0) -> Free:
+    return Free(key, lo, hi, unit=unit, step=step, origin=origin)
+
+
+def candidates(p: Params, rec: Record, channels: list[str], scales: dict[str, float], rate_hz: float) -> list[Candidate]:
+    """Every effect the core can switch on for this record (sensor effects on its channels)."""
+    out: list[Candidate] = []
+    dt = 1.0 / rate_hz
+    for c in channels:
+        out += [
+            Candidate("sensor_offset", c, (_lin(f"sensor_offset_{c}", scales[c], -1e3, 1e3),), "constant"),
+            Candidate("sensor_gain", c, (_lin(f"sensor_gain_{c}", 0.01, -50.0, 50.0, origin=1.0),), f"predicted {c}"),
+            Candidate("sensor_delay", c, (_lin(f"sensor_delay_{c}_s", dt, 0.0, 100.0),), f"d(predicted {c})/dt"),
+        ]
+    out += [
+        Candidate("valve_null_bias", None, (_lin("valve_null_bias_v", 0.02, -50.0, 50.0),), "small |u|"),
+        Candidate("valve_dynamics", None, (_lin("valve_tau_s", 1e-3, 0.0, 100.0, step=2.0),), "du/dt"),
+        Candidate("valve_deadband", None, (_lin("valve_deadband_half_width_v", 0.05, 0.0, 40.0),), "small |u|"),
+        Candidate("valve_hysteresis", None, (_lin("valve_hysteresis_half_width_v", 0.05, 0.0, 40.0),), "sign(du/dt)"),
+        Candidate("supply_pressure_sag", None, (_lin("supply_resistance_pa_s_per_m3", 1e9, 0.0, 1e3),), "v"),
+        Candidate("internal_leakage", None, (_lin("leakage_coeff_m3_per_s_pa", 1e-12, 0.0, 1e3),), "load pressure"),
+        Candidate("friction_asymmetry", None, (_lin("friction_coulomb_diff_n", 50.0, -100.0, 100.0),), "sign(v)"),
+        Candidate("pressure_dependent_friction", None, (_lin("friction_pressure_coeff_n_per_pa", 1e-6, 0.0, 1e3, step=2.0),),
+                  "(p_a + p_b) sign(v)"),
+        Candidate("entrained_air", None, (_lin("air_fraction", 1e-3, 0.0, 100.0, step=5.0),), "p_a + p_b"),
+    ]
+    if p["valve_linear_flow"] > 0.5:  # a declared linear valve may in truth feel the load pressure
+        out.append(Candidate("load_pressure_feedback", None, (), "load pressure", switch=(("valve_linear_flow", 0.0),)))
+    if p["specimen_stiffness_n_m"] > 0 and "f" in channels:
+        # The closure position is not smooth to find: screen a few along the travel.
+        k = p["specimen_stiffness_n_m"]
+        y = np.asarray(rec.columns["y"], dtype=float)
+        y0 = p["specimen_zero_force_position_m"]
+        unit_off = max(1e-5, float(np.nanstd(y)) * 0.1)
+        for q in (10, 30, 50, 70, 90):
+            off = float(np.nanpercentile(y, q)) - y0
+            out.append(Candidate("specimen_nonlinearity", "f",
+                                 (_lin("specimen_closure_stiffness_n_m", 0.1 * k, 0.0, 1e3),
+                                  _lin("specimen_closure_offset_m", unit_off, -1e4, 1e4)), "y", starts=(off / unit_off,)))
+    return [c for c in out if all(f.key in p or f.key == "friction_coulomb_diff_n" for f in c.frees)]
+
+
+# --------------------------------------------------------------------------- the fitting problem
+@dataclass
+class Problem:
+    """A record, its channels and noise floors, the fit/validation split and a simulation count.
+
+    Fits run on a working window (the record's first `work_s` seconds, the whole of a short
+    record), on its interleaved fit blocks; everything else is held out for validation."""
+
+    rec: Record
+    channels: list[str]
+    sigma: dict[str, float]
+    weight: dict[str, float]
+    n_work: int
+    fit_mask: np.ndarray  # over the working window
+    val_mask: np.ndarray  # over the whole record
+    horizon_s: float | None = None
+    simulations: int = 0
+    meas: dict[str, np.ndarray] = field(default_factory=dict)
+    work: Record | None = None
+
+    def __post_init__(self) -> None:
+        self.meas = {c: np.asarray(self.rec.columns[c], dtype=float) for c in self.channels}
+        n = len(self.rec.columns["t"])
+        self.work = self.rec if self.n_work >= n else Record({k: np.asarray(v)[: self.n_work] for k, v in self.rec.columns.items()},
+                                                             self.rec.meta, self.rec.name)
+
+    @property
+    def truncated(self) -> bool:
+        return self.work is not self.rec
+
+    def predict(self, plist: list[Params], *, whole: bool = False) -> list[dict[str, np.ndarray]]:
+        """Sensor readings predicted for each parameter set over the working window (or the whole record)."""
+        from htm.ident.sim import predict
+
+        self.simulations += len(plist)
+        kw = {} if self.horizon_s is None else {"horizon_s": self.horizon_s}
+        out = predict(plist, self.rec if whole else self.work, **kw)
+        return [{c: np.asarray(pr[c], dtype=float) for c in self.channels} for pr in out]
+
+    def whole(self, model: "Model", work_pred: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """The whole-record prediction of a model whose working-window prediction is known."""
+        return self.predict([model.params()], whole=True)[0] if self.truncated else work_pred
+
+    def residual(self, pred: dict[str, np.ndarray], mask: np.ndarray) -> np.ndarray:
+        """Weighted residual (prediction - measurement)/noise over `mask`, channels stacked;
+        dropped samples count zero, a failed simulation counts as a huge error."""
+        parts = []
+        for c in self.channels:
+            m = self.meas[c][: len(mask)]
+            r = (pred[c] - m)[mask] / self.weight[c]
+            bad = ~np.isfinite(r)
+            if bad.any():
+                r = np.where(np.isfinite(m[mask]), np.where(bad, 1e4, r), 0.0)
+            parts.append(r)
+        return np.concatenate(parts)
+
+    def channel_ssr(self, pred: dict[str, np.ndarray], mask: np.ndarray) -> dict[str, tuple[float, int]]:
+        """Per channel: weighted sum of squared residuals over `mask` and its sample count."""
+        out = {}
+        for c in self.channels:
+            m = self.meas[c][: len(mask)]
+            r = (pred[c] - m)[mask] / self.weight[c]
+            ok = np.isfinite(m[mask])
+            r = np.where(np.isfinite(r), r, 1e4)[ok]
+            out[c] = (float(np.dot(r, r)), int(ok.sum()))
+        return out
+
+    def ratios(self, pred: dict[str, np.ndarray], rate: float) -> dict[str, float]:
+        """Per channel: low-passed residual RMS over the noise floor (whole-record prediction)."""
+        return {c: ft.systematic_ratio(pred[c] - self.meas[c], self.sigma[c], rate) for c in self.channels}
+
+
+def fit(prob: Problem, model: Model, *, max_nfev: int, free_mask: np.ndarray | None = None) -> tuple[Model, dict, np.ndarray]:
+    """Bounded least squares of the weighted fit-segment residual over the model's free
+    parameters (finite-difference Jacobians, one batch of simulations per Jacobian).
+    Returns the fitted model, its working-window prediction and the Jacobian at the optimum."""
+    n = len(model.frees)
+    active = np.ones(n, bool) if free_mask is None else free_mask
+    idx = np.flatnonzero(active)
+    lo = np.array([f.lo for f in model.frees])[idx]
+    hi = np.array([f.hi for f in model.frees])[idx]
+    steps = np.array([f.step for f in model.frees])[idx]
+    cache: dict[bytes, tuple[np.ndarray, dict]] = {}
+
+    def full(z: np.ndarray) -> np.ndarray:
+        x = model.x.copy()
+        x[idx] = z
+        return x
+
+    def fun(z: np.ndarray) -> np.ndarray:
+        key = z.tobytes()
+        if key not in cache:
+            pred = prob.predict([model.params(full(z))])[0]
+            cache[key] = (prob.residual(pred, prob.fit_mask), pred)
+        return cache[key][0]
+
+    def jac(z: np.ndarray) -> np.ndarray:
+        r0 = fun(z)
+        hs = np.where(z + steps <= hi, steps, -steps)  # step inwards at an upper bound
+        zs = [z + h * e for h, e in zip(hs, np.eye(len(z)))]
+        preds = prob.predict([model.params(full(zz)) for zz in zs])
+        cols = [(prob.residual(pr, prob.fit_mask) - r0) / h for pr, h in zip(preds, hs)]
+        return np.column_stack(cols)
+
+    z0 = np.clip(model.x[idx], lo, hi)
+    res = least_squares(fun, z0, jac=jac, bounds=(lo, hi), method="trf", x_scale=1.0, max_nfev=max_nfev,
+                        xtol=1e-4, ftol=1e-4, gtol=1e-6)
+    out = Model(model.nominal, model.frees, full(res.x))
+    fun(res.x)
+    return out, cache[res.x.tobytes()][1], res.jac
+
+
+# --------------------------------------------------------------------------- diagnosis
+def _blocks(n_work: int, n: int, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """Fit mask over the working window (even blocks of ~8 interleaved ones, each >= 0.5 s)
+    and validation mask over the whole record (the odd blocks and all beyond the window)."""
+    nblk = int(max(2, min(8, n_work / (0.5 * rate_hz))))
+    fit_mask = (np.arange(n_work) * nblk // n_work) % 2 == 0
+    val_mask = np.ones(n, bool)
+    val_mask[:n_work] = ~fit_mask
+    return fit_mask, val_mask
+
+
+def _rmse(prob: Problem, pred: dict[str, np.ndarray]) -> dict[str, float]:
+    out = {}
+    for c in prob.channels:
+        r = np.asarray(pred[c], dtype=float) - prob.meas[c]
+        r = r[np.isfinite(prob.meas[c])]
+        out[c] = float(np.sqrt(np.mean(r**2))) if np.all(np.isfinite(r)) else float("nan")
+    return out
+
+
+def _bic_delta(prob: Problem, before: dict, after: dict, extra: int) -> tuple[float, float]:
+    """ΔBIC of adding `extra` parameters on the validation samples (per-channel Gaussian
+    likelihoods with unknown variance) and the relative change of the weighted validation cost."""
+    s0 = prob.channel_ssr(before, prob.val_mask)
+    s1 = prob.channel_ssr(after, prob.val_mask)
+    n_all = sum(n for _, n in s0.values())
+    d = sum(n * math.log(max(s1[c][0], 1e-300) / max(s0[c][0], 1e-300)) for c, (_, n) in s0.items())
+    tot0 = sum(v for v, _ in s0.values())
+    tot1 = sum(v for v, _ in s1.values())
+    return d + extra * math.log(max(n_all, 2)), (tot1 - tot0) / max(tot0, 1e-300)
+
+
+def _check_excitation(rec: Record, sigma: dict[str, float]) -> None:
+    y = np.asarray(rec.columns["y"], dtype=float)
+    u = np.asarray(rec.columns["u"], dtype=float)
+    span_y = float(np.nanmax(y) - np.nanmin(y))
+    span_u = float(np.nanmax(u) - np.nanmin(u))
+    stroke = float((rec.meta.get("rig") or {}).get("stroke_m") or 0.0)
+    if span_y < max(50 * sigma["y"], 1e-4 * stroke):
+        raise IdentificationError(
+            f"cannot identify `{rec.name}`: no excitation — position y moves only {span_y:.3g} m "
+            f"(noise {sigma['y']:.2g} m) and command u spans {span_u:.3g} V; record a moving experiment "
+            "(ramps, sines, steps)")
+
+
+def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: int = 3, max_refits: int = 3,
+             work_s: float = 20.0, horizon_s: float | None = None, verbose: bool = False) -> dict[str, Any]:
+    """Diagnose a record: base-model fit, residual diagnostics, effects kept only if they pay off
+    on held-out segments. Returns the report.json content (DATA_FORMAT.md); with `out_dir` also
+    writes report.json, predictions.csv, report.md and plots there.
+
+    Raises IdentificationError ("cannot identify ...: why") for a record that carries no
+    information (too short, no excitation) or that does not belong to its metadata's rig.
+    """
+    from htm.ident.sim import params_from_meta
+
+    t_start = time.perf_counter()
+    try:
+        validate_record(rec, min_samples=MIN_SAMPLES)
+    except RecordError as e:
+        raise IdentificationError(f"cannot identify: {e}") from None
+    rate = float(rec.meta.get("sample_rate_hz") or 1.0 / float(np.median(np.diff(rec.columns["t"]))))
+    channels = ft.measured_channels(rec.columns)
+    sigma = {c: ft.noise_floor(rec.columns[c], ft.declared_resolution(rec.meta, c)) for c in channels}
+    _check_excitation(rec, sigma)
+    scales = {c: max(sigma[c] * 10, 1e-6 * float(np.nanmax(np.abs(rec.columns[c])) or 1.0)) for c in channels}
+    weight = dict(sigma)
+    n = len(rec.columns["t"])
+    n_work = min(n, int(round(work_s * rate)))
+    fit_mask, val_mask = _blocks(n_work, n, rate)
+    prob = Problem(rec, channels, sigma, weight, n_work, fit_mask, val_mask, horizon_s=horizon_s)
+    log: Callable[..., None] = (lambda *a: print(f"[{time.perf_counter() - t_start:6.1f}s {prob.simulations:4d} sims]", *a)) if verbose else (lambda *a: None)
+
+    nominal = params_from_meta(rec.meta)
+    if "p_s" in channels:  # a measured supply starts the fit at what the gauge reads at rest
+        nominal["supply_pressure_pa"] = float(np.nanpercentile(rec.columns["p_s"], 90))
+    frees = [f for f in RIG_FREES + OTHER_FREES if f.key in nominal or f.key == "friction_coulomb_n"]
+    x0 = np.array([0.0 if f.log else f.coord(_get(nominal, f.key), 0.0) for f in frees])
+    # A zero nominal friction term cannot be scaled: start it at a small value instead.
+    for i, f in enumerate(frees):
+        if f.log and _get(nominal, f.key) <= 0:
+            raise IdentificationError(f"cannot identify: nominal {f.key} is {_get(nominal, f.key)}; need > 0")
+    base = Model(nominal, frees, x0)
+
+    base, work_pred, jac = fit(prob, base, max_nfev=BASE_NFEV)
+    base_pred = prob.whole(base, work_pred)
+    log("baseline", {k: f"{v:.4g}" for k, v in base.values().items()}, _rmse(prob, base_pred))
+
+    model, pred = base, base_pred
+    findings: list[dict[str, Any]] = []
+    pool = candidates(nominal, rec, channels, scales, rate)
+    while len(findings) < max_findings:
+        ratios = prob.ratios(pred, rate)
+        log("systematic ratios", {c: round(v, 2) for c, v in ratios.items()})
+        if max(ratios.values()) <= SYSTEMATIC:
+            break  # at the noise floor: nothing left to explain
+        ranked = _screen(prob, model, work_pred, jac, pool)
+        log("screen", [(c.effect, c.channel, round(g, 3)) for c, g, _ in ranked[:6]])
+        best = None
+        for cand, _gain, step in ranked[:max_refits]:
+            trial, twork, tjac = fit(prob, model.with_candidate(cand, step), max_nfev=REFIT_NFEV)
+            tpred = prob.whole(trial, twork)
+            dbic, dcost = _bic_delta(prob, pred, tpred, 1)
+            log("refit", cand.effect, cand.channel, cand.report(trial.params()), f"dBIC {dbic:.1f} dcost {dcost:+.3f}")
+            if dbic < 0 and dcost < -MIN_GAIN and (best is None or dbic < best[1]):
+                best = (cand, dbic, trial, twork, tjac, tpred)
+        if best is None:
+            break  # no candidate pays off on the held-out data
+        cand, _, trial, twork, tjac, tpred = best
+        # Polish the winner before it is reported and the next round is screened from it.
+        trial, twork, tjac = fit(prob, trial, max_nfev=POLISH_NFEV)
+        tpred = prob.whole(trial, twork)
+        dbic, dcost = _bic_delta(prob, pred, tpred, 1)
+        findings.append(_finding(prob, rec, cand, model, pred, trial, tpred, dbic, dcost, rate))
+        pool = [c for c in pool if (c.effect, c.channel) != (cand.effect, cand.channel)]
+        model, pred, work_pred, jac = trial, tpred, twork, tjac
+
+    _check_rig(rec, prob, model, pred, rate)
+    ratios = prob.ratios(pred, rate)
+    unexplained = bool(max(ratios.values()) > SYSTEMATIC)
+    report: dict[str, Any] = {
+        "format": FORMAT,
+        "record": rec.name,
+        "baseline": {"params": base.values(), "rmse": _rmse(prob, base_pred)},
+        "findings": [{k: v for k, v in f.items() if not k.startswith("_")} for f in findings],
+        "final": {"params": _final_params(model), "rmse": _rmse(prob, pred)},
+        "unexplained": unexplained,
+        "predictions": "predictions.csv",
+    }
+    if rec.meta.get("controller") is None:
+        from htm.ident import sim
+
+        report["horizon_s"] = horizon_s if horizon_s is not None else getattr(sim, "DEFAULT_HORIZON_S", None)
+    log("done", report["final"]["rmse"], "unexplained" if unexplained else "")
+    prob_info = {"simulations": prob.simulations, "seconds": time.perf_counter() - t_start,
+                 "noise_floor": sigma, "systematic_ratio": ratios}
+    if out_dir is not None:
+        from htm.ident.diagnose_report import write_diagnosis
+
+        write_diagnosis(Path(out_dir), rec, report, base_pred, pred, findings, prob_info)
+    report["_run"] = prob_info
+    return report
+
+
+def _final_params(model: Model) -> dict[str, float]:
+    vals = model.values()
+    return vals
+
+
+def _screen(prob: Problem, model: Model, work_pred: dict, jac: np.ndarray,
+            pool: list[Candidate]) -> list[tuple[Candidate, float, float | None]]:
+    """Rank candidates by how much of the fit residual their simulated signature explains beyond
+    what the current free parameters absorb (a linearised score test, one simulation each).
+    Returns (candidate, explained fraction of the cost, starting value of its first parameter),
+    best first, one entry per effect and channel."""
+    r0 = prob.residual(work_pred, prob.fit_mask)
+    cost = float(r0 @ r0)
+    trials = [model.with_candidate(c) for c in pool]
+    preds = prob.predict([t.params() for t in trials])
+    q = np.linalg.qr(jac)[0] if jac.size else np.zeros((len(r0), 0))
+    pr = r0 - q @ (q.T @ r0)
+    best: dict[tuple[str, str | None], tuple[Candidate, float, float | None]] = {}
+    for c, t, p in zip(pool, trials, preds):
+        s = prob.residual(p, prob.fit_mask) - r0
+        ps = s - q @ (q.T @ s)
+        ss = float(ps @ ps)
+        if not np.isfinite(ss) or ss <= 0:
+            continue
+        if c.frees:  # best linear step along the signature, within the bounds
+            h = c.frees[0].step
+            step = float(np.clip(-float(ps @ pr) / ss * h, c.frees[0].lo, c.frees[0].hi))
+            e = pr + ps * (step / h)
+        else:  # a switch: all or nothing
+            step, e = None, pr + ps
+        gain = float(pr @ pr - e @ e)
+        key = (c.effect, c.channel)
+        if gain > SCREEN_CHI2 and gain > SCREEN_FRACTION * cost and (key not in best or gain / cost > best[key][1]):
+            best[key] = (c, gain / cost, step)
+    return sorted(best.values(), key=lambda g: -g[1])
+
+
+def _finding(prob: Problem, rec: Record, cand: Candidate, before: Model, pred0: dict, after: Model, pred1: dict,
+             dbic: float, dcost: float, rate: float) -> dict[str, Any]:
+    rb, ra = _rmse(prob, pred0), _rmse(prob, pred1)
+    # The channel the effect shows in: its own for a sensor effect, else the one it improves most.
+    ch = cand.channel or min(prob.channels, key=lambda c: ra[c] / rb[c] if rb[c] > 0 else 1.0)
+    resid = np.asarray(pred0[ch]) - prob.meas[ch]
+    regs = ft.regressors(rec.columns, rate)
+    if cand.feature.startswith("predicted"):
+        regs[cand.feature] = np.asarray(pred0[ch], dtype=float)
+    if cand.feature.startswith("d(predicted"):
+        regs[cand.feature] = np.gradient(np.asarray(pred0[ch], dtype=float))
+    corr = ft.correlations(resid, {cand.feature: regs[cand.feature]}).get(cand.feature, float("nan"))
+    unit = ft.UNITS[ch]
+    what = "mean/RMS" if cand.feature == "constant" else f"correlation with {cand.feature}"
+    params = cand.report(after.params())
+    ptxt = ", ".join(f"{k} = {v:.4g}" for k, v in params.items())
+    evidence = (f"Before: the {ch} residual (RMS {rb[ch]:.3g} {unit}, noise floor {prob.sigma[ch]:.2g} {unit}) has "
+                f"{what} {corr:+.2f}. Adding {cand.effect}{f' on {ch}' if cand.channel else ''} ({ptxt}) brings it to "
+                f"{ra[ch]:.3g} {unit} and cuts the held-out cost by {-dcost:.0%} (ΔBIC {dbic:.0f}).")
+    return {
+        "effect": cand.effect,
+        "channel": cand.channel,
+        "params": params,
+        "rmse_before": rb,
+        "rmse_after": ra,
+        "evidence": evidence,
+        "_pred_before": pred0,
+        "_pred_after": pred1,
+        "_focus": ch,
+        "_feature": (cand.feature, regs[cand.feature]),
+    }
+
+
+def _check_rig(rec: Record, prob: Problem, base: Model, pred: dict, rate: float) -> None:
+    """Refuse a record the base model cannot approach with the metadata's rig: rig parameters
+    pinned at their bounds while the residual stays far above the noise floor."""
+    pinned = [f.key for f, x in zip(base.frees, base.x) if f in RIG_FREES and (x <= f.lo + 0.02 or x >= f.hi - 0.02)]
+    ratios = prob.ratios(pred, rate)
+    worst = max(ratios, key=ratios.get)
+    if pinned and ratios[worst] > 10:
+        vals = base.values()
+        raise IdentificationError(
+            f"cannot identify `{rec.name}`: the record does not match its metadata's rig — the base model fit pins "
+            + ", ".join(f"{k} = {vals[k]:.4g} (nominal {_get(base.nominal, k):.4g})" for k in pinned)
+            + f" at its bound and still misses {worst} by {ratios[worst]:.0f}x its noise floor; check the `rig` metadata")
