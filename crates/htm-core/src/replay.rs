@@ -186,17 +186,20 @@ impl<'a> Replay<'a> {
         slots.into_iter().map(|r| r.expect("every slot filled")).collect()
     }
 
-    /// True start position: the first measured position through the inverse sensor, else the
-    /// reference (position control), else mid-stroke / the specimen's zero-force position.
+    /// True start position. Position control: where the sensor reads the first reference (the
+    /// pre-roll then settles the loop as the rig was settled; starting from the measured position
+    /// instead would add a second settling, which with a dead band or stiction ends elsewhere).
+    /// Otherwise the first measured position through the inverse sensor, else mid-stroke or the
+    /// specimen's zero-force position.
     fn start_position(&self, m: &Machine, s: &Sensors) -> f64 {
         let p = &m.plant.p;
         let first = |x: &[f64]| x.iter().take(20).copied().find(|v| v.is_finite());
-        let y = self.measured[0].and_then(first).map(|r| s.0[0].unread(r)).or_else(|| match &self.closed_loop {
+        let y = match &self.closed_loop {
             Some((Controller::PositionPff { .. }, r)) => first(r),
-            _ => None,
-        });
+            _ => self.measured[0].and_then(first),
+        };
         let fallback = if p.specimen_stiffness_n_m > 0.0 { p.specimen_zero_force_position_m } else { 0.5 * p.stroke_m };
-        y.unwrap_or(fallback).clamp(0.0, p.stroke_m)
+        y.map(|r| s.0[0].unread(r)).unwrap_or(fallback).clamp(0.0, p.stroke_m)
     }
 
     /// Open loop: set position, velocity and chamber pressures from the measurements at sample

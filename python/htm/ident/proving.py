@@ -61,20 +61,17 @@ def rich_reference(duration_s: float, rate_hz: float, *, centre_m: float = CENTR
         n = max(2, int(round(abs(y1 - y0) / speed / dt)))
         return y0 + (y1 - y0) * np.arange(1, n + 1) / n
 
-    lo = centre_m - half_range_m
     block: list[np.ndarray] = [hold(centre_m, 0.4)]
-    for speed in (0.01, 0.03, 0.08):
-        top = centre_m + min(speed * 1.0 * s, half_range_m)
-        block += [ramp(centre_m, top, speed * s), hold(top, 0.3), ramp(top, centre_m, speed * s), hold(centre_m, 0.3)]
-    for freq, amp in ((0.5, 0.03), (2.0, 0.005)):
-        n = int(round(2.0 / freq / dt))
+    for step in (0.01, -0.02, 0.01):  # steps
+        block.append(hold(block[-1][-1] + step * s, 0.4))
+    for freq, amp, cycles in ((0.5, 0.03, 1), (2.0, 0.005, 2)):  # sines
+        n = int(round(cycles / freq / dt))
         block.append(centre_m + amp * s * np.sin(2 * np.pi * freq * dt * np.arange(1, n + 1)))
     block.append(hold(centre_m, 0.3))
-    for step in (0.01, -0.02, 0.01):
-        y = block[-1][-1] + step * s
-        block.append(hold(y, 0.4))
-    block += [ramp(centre_m, lo + 0.2 * half_range_m, 0.05 * s), hold(lo + 0.2 * half_range_m, 0.3),
-              ramp(lo + 0.2 * half_range_m, centre_m, 0.05 * s)]
+    for speed in (0.01, 0.03, 0.08):  # constant-velocity ramps both ways at three speeds
+        top, bottom = centre_m + min(speed * 0.6, 0.06) * s, centre_m - min(speed * 0.6, 0.06) * s
+        block += [ramp(centre_m, top, speed * s), hold(top, 0.25), ramp(top, bottom, speed * s), hold(bottom, 0.25),
+                  ramp(bottom, centre_m, speed * s), hold(centre_m, 0.25)]
     one = np.concatenate(block)
     n = int(round(duration_s * rate_hz))
     return np.resize(one, n)
