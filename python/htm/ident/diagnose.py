@@ -9,7 +9,6 @@ from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from htm._core import Params
 from htm.errors import RecordError
@@ -25,8 +24,20 @@ MIN_GAIN = 0.05
 # Evidence a candidate's signature must carry before it is refitted (chi^2 units, fraction).
 SCREEN_CHI2 = 25.0
 SCREEN_FRACTION = 0.01
-# Least-squares budgets (function evaluations; each Jacobian adds one simulation per parameter).
-BASE_NFEV, REFIT_NFEV, POLISH_NFEV = 12, 5, 8
+# Distance (in normalised coordinates) from a bound at which a parameter counts as pinned.
+PIN = 0.02
+# A fit whose noise-scaled cost per residual falls below this is at the noise: stop iterating.
+NOISE_COST = 1.2
+# Largest LM step of any normalised coordinate (a factor e for a log parameter): far jumps land in
+# wrong basins (friction trading against compressibility).
+RADIUS_MAX = 1.0
+# Candidates refitted per round: those whose screened gain is at least this share of the best.
+REFIT_SHARE = 0.3
+# Least-squares budgets: Jacobians (one simulation per free parameter each, plus 3 trial steps).
+BASE_ITERS, REFIT_ITERS, POLISH_ITERS = 10, 4, 8
+
+
+DEBUG = False
 
 
 class IdentificationError(RecordError):
@@ -34,6 +45,12 @@ class IdentificationError(RecordError):
 
 
 # --------------------------------------------------------------------------- parameters
+# Weak prior on the base parameters, as a share of the noise-level cost that a change of `prior`
+# (normalised coordinates) costs: it gives the flat valleys (bulk modulus vs dead volumes)
+# curvature without moving what the data determine.
+PRIOR_SHARE = 0.003
+
+
 @dataclass(frozen=True)
 class Free:
     """One free parameter in normalised coordinates x: value = ref*exp(x) (log) or origin + unit*x."""
@@ -45,6 +62,7 @@ class Free:
     unit: float = 1.0
     step: float = 0.02  # finite-difference / screening step in x
     origin: float = 0.0  # the "effect off" value of a linear parameter (x = 0)
+    prior: float = 0.0  # prior width in x around the nominal (0 = no prior)
 
     def value(self, x: float, ref: float) -> float:
         return ref * math.exp(x) if self.log else self.origin + self.unit * x
@@ -88,6 +106,15 @@ class Model:
             _set(p, f.key, f.value(float(xi), _get(self.nominal, f.key) if f.log else 0.0))
         return p
 
+    def unpinned(self, start: np.ndarray) -> "Model":
+        """This model with parameters that sit at a bound moved back to `start`: a base parameter
+        pinned at its bound was standing in for an effect the model lacked."""
+        x = self.x.copy()
+        for i, f in enumerate(self.frees[: len(start)]):
+            if x[i] <= f.lo + PIN or x[i] >= f.hi - PIN:
+                x[i] = start[i]
+        return Model(self.nominal, self.frees, x)
+
     def with_candidate(self, cand: "Candidate", x0: float | None = None) -> "Model":
         """This model with a candidate effect added (its first parameter at x0, default its step)."""
         nominal = self.nominal
@@ -115,19 +142,19 @@ class Model:
 
 # Base-model parameters stated by the metadata (nominal; bounds say how far a rig may be off).
 RIG_FREES = [
-    Free("moving_mass_kg", math.log(0.4), math.log(2.5), log=True),
-    Free("valve_rated_flow_m3_s", math.log(0.4), math.log(2.5), log=True),
-    Free("bulk_modulus_pa", math.log(0.4), math.log(2.5), log=True),
-    Free("dead_volume_a_m3", math.log(0.3), math.log(3.0), log=True, step=0.05),
-    Free("dead_volume_b_m3", math.log(0.3), math.log(3.0), log=True, step=0.05),
-    Free("supply_pressure_pa", math.log(0.5), math.log(1.5), log=True, step=0.01),
+    Free("moving_mass_kg", math.log(0.4), math.log(2.5), log=True, prior=0.3),
+    Free("valve_rated_flow_m3_s", math.log(0.4), math.log(2.5), log=True, prior=0.3),
+    Free("bulk_modulus_pa", math.log(0.4), math.log(2.5), log=True, prior=0.3),
+    Free("dead_volume_a_m3", math.log(0.3), math.log(3.0), log=True, step=0.05, prior=0.3),
+    Free("dead_volume_b_m3", math.log(0.3), math.log(3.0), log=True, step=0.05, prior=0.3),
+    Free("supply_pressure_pa", math.log(0.5), math.log(1.5), log=True, step=0.01, prior=0.1),
 ]
-# Friction and underlap are not in the metadata: wide bounds.
+# Friction and underlap are not in the metadata: wide bounds, wide priors.
 OTHER_FREES = [
-    Free("friction_viscous_n_s_m", math.log(0.02), math.log(20.0), log=True, step=0.05),
-    Free("friction_coulomb_n", math.log(0.02), math.log(20.0), log=True, step=0.05),
-    Free("friction_static_n", math.log(0.01), math.log(20.0), log=True, step=0.1),
-    Free("valve_underlap_v", 0.0, 5.0, unit=0.1, step=0.1),
+    Free("friction_viscous_n_s_m", math.log(0.02), math.log(20.0), log=True, step=0.05, prior=1.0),
+    Free("friction_coulomb_n", math.log(0.02), math.log(20.0), log=True, step=0.05, prior=1.0),
+    Free("friction_static_n", math.log(0.01), math.log(20.0), log=True, step=0.1, prior=1.0),
+    Free("valve_underlap_v", 0.0, 5.0, unit=0.1, step=0.1, prior=1.0),
 ]
 
 
@@ -162,7 +189,13 @@ def candidates(p: Params, rec: Record, channels: list[str], scales: dict[str, fl
     """Every effect the core can switch on for this record (sensor effects on its channels)."""
     out: list[Candidate] = []
     dt = 1.0 / rate_hz
+    ctrl = (rec.meta.get("controller") or {}).get("type")
     for c in channels:
+        # The loop regulates what its own sensor reads: an offset or gain of that sensor only moves
+        # the true position, which nothing measures unless a specimen's force does.
+        if (c, ctrl) in (("y", "position_pff"), ("f", "force_p")) and not (c == "y" and "f" in channels):
+            out.append(Candidate("sensor_delay", c, (_lin(f"sensor_delay_{c}_s", dt, 0.0, 100.0),), f"d(predicted {c})/dt"))
+            continue
         out += [
             Candidate("sensor_offset", c, (_lin(f"sensor_offset_{c}", scales[c], -1e3, 1e3),), "constant"),
             Candidate("sensor_gain", c, (_lin(f"sensor_gain_{c}", 0.01, -50.0, 50.0, origin=1.0),), f"predicted {c}"),
@@ -263,49 +296,89 @@ class Problem:
             out[c] = (float(np.dot(r, r)), int(ok.sum()))
         return out
 
+    def fit_cost(self, pred: dict[str, np.ndarray]) -> float:
+        """Weighted cost over the fit blocks of a working-window prediction."""
+        r = self.residual(pred, self.fit_mask)
+        return float(r @ r)
+
     def ratios(self, pred: dict[str, np.ndarray], rate: float) -> dict[str, float]:
         """Per channel: low-passed residual RMS over the noise floor (whole-record prediction)."""
         return {c: ft.systematic_ratio(pred[c] - self.meas[c], self.sigma[c], rate) for c in self.channels}
 
 
-def fit(prob: Problem, model: Model, *, max_nfev: int, free_mask: np.ndarray | None = None) -> tuple[Model, dict, np.ndarray]:
-    """Bounded least squares of the weighted fit-segment residual over the model's free
-    parameters (finite-difference Jacobians, one batch of simulations per Jacobian).
-    Returns the fitted model, its working-window prediction and the Jacobian at the optimum."""
-    n = len(model.frees)
-    active = np.ones(n, bool) if free_mask is None else free_mask
-    idx = np.flatnonzero(active)
-    lo = np.array([f.lo for f in model.frees])[idx]
-    hi = np.array([f.hi for f in model.frees])[idx]
-    steps = np.array([f.step for f in model.frees])[idx]
-    cache: dict[bytes, tuple[np.ndarray, dict]] = {}
+def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None,
+        ftol: float = 2e-3) -> tuple[Model, dict, np.ndarray]:
+    """Bounded Levenberg-Marquardt on the weighted fit-segment residual over the model's free
+    parameters: forward-difference Jacobians (one batch of simulations), then three damping
+    levels tried at once (one more batch). At most `iters` Jacobians; stops when an iteration
+    gains less than `ftol` of the cost. `pred0`: the model's working-window prediction, if known.
+    Returns the fitted model, its working-window prediction and the Jacobian there."""
+    lo = np.array([f.lo for f in model.frees])
+    hi = np.array([f.hi for f in model.frees])
+    steps = np.array([f.step for f in model.frees])
+    x = np.clip(model.x, lo, hi)
+    at = Model(model.nominal, model.frees, x)
+    pred = pred0 if pred0 is not None and np.array_equal(x, model.x) else prob.predict([at.params()])[0]
+    r_data = prob.residual(pred, prob.fit_mask)
+    n_data = len(r_data)
+    # Prior rows: sqrt(W) (x - x_nominal) / width, W a small share of the noise-level cost.
+    has = np.array([f.prior > 0 for f in model.frees])
+    width = np.array([f.prior if f.prior > 0 else 1.0 for f in model.frees])
+    x_nom = np.array([0.0 if f.log else f.coord(_get(model.nominal, f.key), 0.0) for f in model.frees])
+    wp = math.sqrt(PRIOR_SHARE * n_data) * has / width
 
-    def full(z: np.ndarray) -> np.ndarray:
-        x = model.x.copy()
-        x[idx] = z
-        return x
+    def full(rd: np.ndarray, xx: np.ndarray) -> np.ndarray:
+        return np.concatenate([rd, wp * (xx - x_nom)])
 
-    def fun(z: np.ndarray) -> np.ndarray:
-        key = z.tobytes()
-        if key not in cache:
-            pred = prob.predict([model.params(full(z))])[0]
-            cache[key] = (prob.residual(pred, prob.fit_mask), pred)
-        return cache[key][0]
-
-    def jac(z: np.ndarray) -> np.ndarray:
-        r0 = fun(z)
-        hs = np.where(z + steps <= hi, steps, -steps)  # step inwards at an upper bound
-        zs = [z + h * e for h, e in zip(hs, np.eye(len(z)))]
-        preds = prob.predict([model.params(full(zz)) for zz in zs])
-        cols = [(prob.residual(pr, prob.fit_mask) - r0) / h for pr, h in zip(preds, hs)]
-        return np.column_stack(cols)
-
-    z0 = np.clip(model.x[idx], lo, hi)
-    res = least_squares(fun, z0, jac=jac, bounds=(lo, hi), method="trf", x_scale=1.0, max_nfev=max_nfev,
-                        xtol=1e-4, ftol=1e-4, gtol=1e-6)
-    out = Model(model.nominal, model.frees, full(res.x))
-    fun(res.x)
-    return out, cache[res.x.tobytes()][1], res.jac
+    r = full(r_data, x)
+    cost = float(r @ r)
+    lam, radius = 1e-2, 0.5  # damping; largest step of any normalised coordinate
+    small = 0  # iterations in a row that gained less than ftol
+    jac = np.zeros((n_data, len(x)))
+    for _ in range(iters):
+        hs = np.where(x + steps <= hi, steps, -steps)  # step inwards at an upper bound
+        preds = prob.predict([Model(model.nominal, model.frees, x + h * e).params() for h, e in zip(hs, np.eye(len(x)))])
+        jac = np.column_stack([(prob.residual(pr, prob.fit_mask) - r[:n_data]) / h for pr, h in zip(preds, hs)])
+        jfull = np.vstack([jac, np.diag(wp)])
+        g = jfull.T @ r
+        # Parameters at a bound that the gradient pushes outward stay put.
+        free = ~(((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0)))
+        jtj = jfull.T @ jfull
+        d = np.maximum(np.diag(jtj), 1e-12 * max(1.0, float(np.max(np.diag(jtj)))))
+        improved = False
+        for _retry in range(3):
+            lams = [lam * 0.1, lam, lam * 10]
+            trials = []
+            for lm in lams:
+                step = np.zeros_like(x)
+                a = jtj[np.ix_(free, free)] + lm * np.diag(d[free])
+                try:
+                    step[free] = np.linalg.solve(a, -g[free])
+                except np.linalg.LinAlgError:
+                    step[free] = -g[free] / (lm * d[free])
+                big = float(np.max(np.abs(step)))
+                if big > radius:
+                    step *= radius / big
+                trials.append(np.clip(x + step, lo, hi))
+            tpreds = prob.predict([Model(model.nominal, model.frees, xt).params() for xt in trials])
+            tres = [full(prob.residual(tp, prob.fit_mask), xt) for tp, xt in zip(tpreds, trials)]
+            tcost = [float(tr @ tr) for tr in tres]
+            k = int(np.argmin(tcost))
+            if tcost[k] < cost:
+                gain = (cost - tcost[k]) / cost
+                if np.max(np.abs(trials[k] - x)) >= 0.99 * radius:
+                    radius = min(RADIUS_MAX, 2.0 * radius)  # the step was capped and still good: widen
+                x, pred, r, cost, lam = trials[k], tpreds[k], tres[k], tcost[k], max(lams[k] * (0.3 if k == 0 else 1.0), 1e-7)
+                improved = True
+                break
+            lam *= 100.0
+            radius *= 0.25
+        if DEBUG:
+            print(f"    LM cost {cost:.6g} lam {lam:.3g} radius {radius:.3g} free {int(free.sum())}/{len(x)} improved {improved}")
+        small = 0 if improved and gain >= ftol else small + 1
+        if not improved or small >= 2 or cost < NOISE_COST * n_data:
+            break  # stalled, or down to the noise (the residual is noise-scaled)
+    return Model(model.nominal, model.frees, x), pred, jac
 
 
 # --------------------------------------------------------------------------- diagnosis
@@ -353,11 +426,17 @@ def _check_excitation(rec: Record, sigma: dict[str, float]) -> None:
             "(ramps, sines, steps)")
 
 
-def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: int = 3, max_refits: int = 3,
-             work_s: float = 20.0, horizon_s: float | None = None, verbose: bool = False) -> dict[str, Any]:
+def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: int = 3, max_refits: int = 2,
+             work_s: float = 20.0, horizon_s: float | None = None, verbose: bool = False,
+             stats: dict[str, Any] | None = None) -> dict[str, Any]:
     """Diagnose a record: base-model fit, residual diagnostics, effects kept only if they pay off
     on held-out segments. Returns the report.json content (DATA_FORMAT.md); with `out_dir` also
-    writes report.json, predictions.csv, report.md and plots there.
+    writes report.json, predictions.csv, report.md and plots there. `stats`, if given, receives
+    `simulations`, `seconds`, per-channel `noise_floor` and `systematic_ratio` and the whole-record
+    predictions `before`/`after` (SI arrays per channel).
+
+    Fits use the first `work_s` seconds (interleaved fit/validation blocks); the rest of a longer
+    record is held out too.
 
     Raises IdentificationError ("cannot identify ...: why") for a record that carries no
     information (too short, no excitation) or that does not belong to its metadata's rig.
@@ -392,39 +471,90 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
             raise IdentificationError(f"cannot identify: nominal {f.key} is {_get(nominal, f.key)}; need > 0")
     base = Model(nominal, frees, x0)
 
-    base, work_pred, jac = fit(prob, base, max_nfev=BASE_NFEV)
+    base, work_pred, jac = fit(prob, base, iters=BASE_ITERS)
     base_pred = prob.whole(base, work_pred)
     log("baseline", {k: f"{v:.4g}" for k, v in base.values().items()}, _rmse(prob, base_pred))
 
     model, pred = base, base_pred
     findings: list[dict[str, Any]] = []
     pool = candidates(nominal, rec, channels, scales, rate)
-    while len(findings) < max_findings:
+    for _round in range(max_findings + 2):
+        if len(findings) >= max_findings:
+            break
         ratios = prob.ratios(pred, rate)
         log("systematic ratios", {c: round(v, 2) for c, v in ratios.items()})
         if max(ratios.values()) <= SYSTEMATIC:
             break  # at the noise floor: nothing left to explain
+        # The same budget without a new effect: a candidate must beat a model merely fitted longer.
+        model, work_pred, jac = fit(prob, model, iters=REFIT_ITERS, pred0=work_pred)
+        pred = prob.whole(model, work_pred)
+        ratios = prob.ratios(pred, rate)
+        log("refit without effect", {c: round(v, 2) for c, v in ratios.items()})
+        if max(ratios.values()) <= SYSTEMATIC:
+            break
         ranked = _screen(prob, model, work_pred, jac, pool)
         log("screen", [(c.effect, c.channel, round(g, 3)) for c, g, _ in ranked[:6]])
-        best = None
-        for cand, _gain, step in ranked[:max_refits]:
-            trial, twork, tjac = fit(prob, model.with_candidate(cand, step), max_nfev=REFIT_NFEV)
+        good: list[tuple[Candidate, dict, Model, dict]] = []
+        better_base: tuple[float, Model] | None = None
+        for cand, gain, step in ranked[:max_refits]:
+            if gain < REFIT_SHARE * ranked[0][1]:
+                break
+            # Refit from the current fit and from the nominal base parameters (the current fit may
+            # have bent them to stand in for this very effect), each at the best size of the
+            # candidate's parameter; keep the better fit.
+            restart = model.x.copy()
+            restart[: len(x0)] = x0
+            fits = [fit(prob, _scan(prob, [start.with_candidate(cand, step)], cand), iters=REFIT_ITERS)
+                    for start in (model.unpinned(x0), Model(model.nominal, model.frees, restart))]
+            trial, twork, tjac = min(fits, key=lambda f: prob.fit_cost(f[1]))
             tpred = prob.whole(trial, twork)
-            dbic, dcost = _bic_delta(prob, pred, tpred, 1)
-            log("refit", cand.effect, cand.channel, cand.report(trial.params()), f"dBIC {dbic:.1f} dcost {dcost:+.3f}")
-            if dbic < 0 and dcost < -MIN_GAIN and (best is None or dbic < best[1]):
-                best = (cand, dbic, trial, twork, tjac, tpred)
-        if best is None:
-            break  # no candidate pays off on the held-out data
-        cand, _, trial, twork, tjac, tpred = best
-        # Polish the winner before it is reported and the next round is screened from it.
-        trial, twork, tjac = fit(prob, trial, max_nfev=POLISH_NFEV)
-        tpred = prob.whole(trial, twork)
-        dbic, dcost = _bic_delta(prob, pred, tpred, 1)
-        findings.append(_finding(prob, rec, cand, model, pred, trial, tpred, dbic, dcost, rate))
+            verdict = _pays_off(prob, pred, trial, tpred, model, cand)
+            log("refit", cand.label, cand.report(trial.params()), verdict)
+            if verdict["ok"]:
+                good.append((cand, verdict, trial, twork))
+            elif verdict["dcost"] < -MIN_GAIN:
+                # Not the effect but a better fit of the base parameters: remember those.
+                cost = prob.fit_cost(twork)
+                if better_base is None or cost < better_base[0]:
+                    better_base = (cost, Model(model.nominal, trial.frees[: len(model.x)], trial.x[: len(model.x)]))
+        if not good:
+            if better_base is None:
+                break  # no candidate pays off on the held-out data
+            model = better_base[1]
+            work_pred = prob.predict([model.params()])[0]
+            pred = prob.whole(model, work_pred)
+            log("kept better base parameters")
+            continue
+        good.sort(key=lambda g: g[1]["dbic"])
+        # Close contenders (e.g. an offset and a gain of the same sensor) are told apart polished.
+        contenders = [g for g in good[:2] if g[1]["dbic"] <= 0.5 * good[0][1]["dbic"]]
+        polished = []
+        for cand, _, trial, twork in contenders:
+            trial, twork, tjac = fit(prob, trial, iters=POLISH_ITERS, pred0=twork)
+            tpred = prob.whole(trial, twork)
+            polished.append((cand, _pays_off(prob, pred, trial, tpred, model, cand), trial, twork, tjac, tpred))
+        cand, verdict, trial, twork, tjac, tpred = min(polished, key=lambda g: g[1]["dbic"])
         pool = [c for c in pool if (c.effect, c.channel) != (cand.effect, cand.channel)]
+        if not verdict["ok"]:
+            # Polished, the effect no longer matters: keep the better-fitted model without it.
+            k = len(model.x)
+            model = Model(model.nominal, trial.frees[:k], trial.x[:k])
+            work_pred = prob.predict([model.params()])[0]
+            pred, jac = prob.whole(model, work_pred), tjac[:, :k]
+            log("polished away", cand.label, verdict)
+            continue
+        if not findings:  # the baseline is the base model as fitted just before the first finding
+            base, base_pred = model, pred
+        findings.append(_finding(prob, rec, cand, model, pred, trial, tpred, verdict, rate))
         model, pred, work_pred, jac = trial, tpred, twork, tjac
 
+    if not findings:
+        base, base_pred = model, pred
+    else:  # refits after the last finding belong to it: its "after" is the final model
+        last = findings[-1]
+        last["_pred_after"] = pred
+        last["rmse_after"] = _rmse(prob, pred)
+        last["params"] = last["_cand"].report(model.params())
     _check_rig(rec, prob, model, pred, rate)
     ratios = prob.ratios(pred, rate)
     unexplained = bool(max(ratios.values()) > SYSTEMATIC)
@@ -442,19 +572,59 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
 
         report["horizon_s"] = horizon_s if horizon_s is not None else getattr(sim, "DEFAULT_HORIZON_S", None)
     log("done", report["final"]["rmse"], "unexplained" if unexplained else "")
-    prob_info = {"simulations": prob.simulations, "seconds": time.perf_counter() - t_start,
-                 "noise_floor": sigma, "systematic_ratio": ratios}
+    info = {"simulations": prob.simulations, "seconds": time.perf_counter() - t_start,
+            "noise_floor": sigma, "systematic_ratio": ratios}
     if out_dir is not None:
         from htm.ident.diagnose_report import write_diagnosis
 
-        write_diagnosis(Path(out_dir), rec, report, base_pred, pred, findings, prob_info)
-    report["_run"] = prob_info
+        write_diagnosis(Path(out_dir), rec, report, base_pred, pred, findings, info)
+    if stats is not None:
+        stats.update(info, before=base_pred, after=pred, seconds=time.perf_counter() - t_start)
     return report
 
 
 def _final_params(model: Model) -> dict[str, float]:
     vals = model.values()
     return vals
+
+
+def _scan(prob: Problem, starts: list[Model], cand: Candidate) -> Model:
+    """The best start for a refit among `starts` and a few sizes of the candidate's first
+    parameter (its cost is not convex for a delay, a dead band or play): one batch of simulations."""
+    models = list(starts)
+    if cand.frees:
+        f = cand.frees[0]
+        i = len(starts[0].x) - len(cand.frees)
+        x_lin = starts[0].x[i]
+        sign = -1.0 if x_lin < 0 else 1.0
+        values = sorted({float(np.clip(v, f.lo, f.hi)) for v in (sign * f.step * 2.0**k for k in range(-1, 7))} - {x_lin})
+        for start in starts:
+            for v in values:
+                x = start.x.copy()
+                x[i] = v
+                models.append(Model(start.nominal, start.frees, x))
+    preds = prob.predict([m.params() for m in models])
+    costs = [float(np.sum(prob.residual(p, prob.fit_mask) ** 2)) for p in preds]
+    return models[int(np.argmin(costs))]
+
+
+def _ablated(trial: Model, before: Model, cand: Candidate) -> Model:
+    """`trial` with the candidate effect switched off (its parameters at their off value)."""
+    x = trial.x.copy()
+    x[len(before.x):] = 0.0
+    return Model(before.nominal if cand.switch else trial.nominal, trial.frees, x)
+
+
+def _pays_off(prob: Problem, pred0: dict, trial: Model, tpred: dict, before: Model, cand: Candidate) -> dict[str, Any]:
+    """Does the effect pay off on the held-out data? It must beat the model without it by the
+    information criterion and by MIN_GAIN of the cost, and so must it against its own refit
+    with the effect switched off (else it only helped the base parameters converge)."""
+    k = max(1, len(cand.frees))
+    dbic, dcost = _bic_delta(prob, pred0, tpred, k)
+    abl = prob.predict([_ablated(trial, before, cand).params()], whole=True)[0]
+    abic, acost = _bic_delta(prob, abl, tpred, k)
+    ok = dbic < 0 and dcost < -MIN_GAIN and abic < 0 and acost < -MIN_GAIN
+    return {"ok": bool(ok), "dbic": dbic, "dcost": dcost, "ablation_dcost": acost}
 
 
 def _screen(prob: Problem, model: Model, work_pred: dict, jac: np.ndarray,
@@ -490,7 +660,7 @@ def _screen(prob: Problem, model: Model, work_pred: dict, jac: np.ndarray,
 
 
 def _finding(prob: Problem, rec: Record, cand: Candidate, before: Model, pred0: dict, after: Model, pred1: dict,
-             dbic: float, dcost: float, rate: float) -> dict[str, Any]:
+             verdict: dict[str, Any], rate: float) -> dict[str, Any]:
     rb, ra = _rmse(prob, pred0), _rmse(prob, pred1)
     # The channel the effect shows in: its own for a sensor effect, else the one it improves most.
     ch = cand.channel or min(prob.channels, key=lambda c: ra[c] / rb[c] if rb[c] > 0 else 1.0)
@@ -507,7 +677,9 @@ def _finding(prob: Problem, rec: Record, cand: Candidate, before: Model, pred0: 
     ptxt = ", ".join(f"{k} = {v:.4g}" for k, v in params.items())
     evidence = (f"Before: the {ch} residual (RMS {rb[ch]:.3g} {unit}, noise floor {prob.sigma[ch]:.2g} {unit}) has "
                 f"{what} {corr:+.2f}. Adding {cand.effect}{f' on {ch}' if cand.channel else ''} ({ptxt}) brings it to "
-                f"{ra[ch]:.3g} {unit} and cuts the held-out cost by {-dcost:.0%} (ΔBIC {dbic:.0f}).")
+                f"{ra[ch]:.3g} {unit} and cuts the held-out cost by {-verdict['dcost']:.0%} (ΔBIC {verdict['dbic']:.0f}); "
+                f"Switched off again, other parameters kept, the held-out cost would be "
+                f"{1 / max(1 + verdict['ablation_dcost'], 1e-9):.3g}x higher.")
     return {
         "effect": cand.effect,
         "channel": cand.channel,
@@ -518,6 +690,7 @@ def _finding(prob: Problem, rec: Record, cand: Candidate, before: Model, pred0: 
         "_pred_before": pred0,
         "_pred_after": pred1,
         "_focus": ch,
+        "_cand": cand,
         "_feature": (cand.feature, regs[cand.feature]),
     }
 

@@ -71,12 +71,23 @@ def smooth(x: np.ndarray, n: int) -> np.ndarray:
 
 
 def systematic_ratio(residual: np.ndarray, sigma: float, rate_hz: float) -> float:
-    """RMS of the low-passed residual over the noise floor: ~1/sqrt(window) for white noise,
-    above 1 when the model's error is larger than the sensor noise."""
+    """Size of the residual's non-noise part over the noise floor: the larger of the low-passed
+    residual's RMS (slow errors; ~1/sqrt(window) for white noise) and the RMS left after the
+    noise variance is taken out (fast errors such as a delay; ~0 for white noise), both over
+    sigma. Above 1: the model's error exceeds the sensor noise."""
+    r = np.asarray(residual, dtype=float)
+    r = r[np.isfinite(r)]
+    if not len(r):
+        return 0.0
     n = max(1, int(round(SMOOTH_S * rate_hz)))
-    s = smooth(residual, n)
-    s = s[np.isfinite(s)]
-    return float(np.sqrt(np.mean(s**2)) / sigma) if len(s) else 0.0
+    s = smooth(r, n)
+    slow = float(np.sqrt(np.mean(s**2)))
+    fast = float(np.sqrt(max(0.0, np.mean(r**2) - sigma**2)))
+    return max(slow, fast / FAST_SHARE) / sigma
+
+
+# The part of the residual beyond the noise counts as systematic above this share of sigma.
+FAST_SHARE = 0.6
 
 
 def lag_samples(measured: np.ndarray, predicted: np.ndarray, max_lag: int) -> float:
