@@ -24,6 +24,10 @@ MIN_GAIN = 0.05
 # Evidence a candidate's signature must carry before it is refitted (chi^2 units, fraction).
 SCREEN_CHI2 = 25.0
 SCREEN_FRACTION = 0.01
+# Which of two effects that explain a record equally well is named (the more common first).
+PREFERENCE = ("sensor_offset", "valve_null_bias", "sensor_gain", "sensor_delay", "valve_dynamics", "internal_leakage",
+              "friction_asymmetry", "valve_deadband", "valve_hysteresis", "supply_pressure_sag",
+              "pressure_dependent_friction", "entrained_air", "load_pressure_feedback", "specimen_nonlinearity")
 # Distance (in normalised coordinates) from a bound at which a parameter counts as pinned.
 PIN = 0.02
 # A fit whose noise-scaled cost per residual falls below this is at the noise: stop iterating.
@@ -533,7 +537,17 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
             trial, twork, tjac = fit(prob, trial, iters=POLISH_ITERS, pred0=twork)
             tpred = prob.whole(trial, twork)
             polished.append((cand, _pays_off(prob, pred, trial, tpred, model, cand), trial, twork, tjac, tpred))
-        cand, verdict, trial, twork, tjac, tpred = min(polished, key=lambda g: g[1]["dbic"])
+        # Both at the noise floor: the record cannot tell them apart; name the more common effect
+        # (EFFECTS.md order: an offset before a gain before a delay...) and say so.
+        at_floor = [g for g in polished if max(prob.ratios(g[5], rate).values()) <= SYSTEMATIC]
+        if len(at_floor) == 2:
+            at_floor.sort(key=lambda g: PREFERENCE.index(g[0].effect) if g[0].effect in PREFERENCE else len(PREFERENCE))
+            cand, verdict, trial, twork, tjac, tpred = at_floor[0]
+            other = at_floor[1]
+            verdict["alternative"] = (f" {other[0].label} ({', '.join(f'{k} = {v:.4g}' for k, v in other[0].report(other[2].params()).items())}) "
+                                      "explains the record as well; this record cannot tell the two apart.")
+        else:
+            cand, verdict, trial, twork, tjac, tpred = min(polished, key=lambda g: g[1]["dbic"])
         pool = [c for c in pool if (c.effect, c.channel) != (cand.effect, cand.channel)]
         if not verdict["ok"]:
             # Polished, the effect no longer matters: keep the better-fitted model without it.
@@ -642,20 +656,24 @@ def _screen(prob: Problem, model: Model, work_pred: dict, jac: np.ndarray,
     best: dict[tuple[str, str | None], tuple[Candidate, float, float | None]] = {}
     for c, t, p in zip(pool, trials, preds):
         s = prob.residual(p, prob.fit_mask) - r0
-        ps = s - q @ (q.T @ s)
-        ss = float(ps @ ps)
-        if not np.isfinite(ss) or ss <= 0:
+        if not np.all(np.isfinite(s)) or not np.any(s):
             continue
-        if c.frees:  # best linear step along the signature, within the bounds
-            h = c.frees[0].step
-            step = float(np.clip(-float(ps @ pr) / ss * h, c.frees[0].lo, c.frees[0].hi))
-            e = pr + ps * (step / h)
-        else:  # a switch: all or nothing
-            step, e = None, pr + ps
-        gain = float(pr @ pr - e @ e)
-        key = (c.effect, c.channel)
-        if gain > SCREEN_CHI2 and gain > SCREEN_FRACTION * cost and (key not in best or gain / cost > best[key][1]):
-            best[key] = (c, gain / cost, step)
+        # Two readings of the signature: beyond what the base parameters absorb (projected), and
+        # on its own (the current fit may have bent the base parameters to mimic the effect).
+        for sig, res in ((s - q @ (q.T @ s), pr), (s, r0)):
+            ss = float(sig @ sig)
+            if ss <= 0:
+                continue
+            if c.frees:  # best linear step along the signature, within the bounds
+                h = c.frees[0].step
+                step = float(np.clip(-float(sig @ res) / ss * h, c.frees[0].lo, c.frees[0].hi))
+                e = res + sig * (step / h)
+            else:  # a switch: all or nothing
+                step, e = None, res + sig
+            gain = float(res @ res - e @ e)
+            key = (c.effect, c.channel)
+            if gain > SCREEN_CHI2 and gain > SCREEN_FRACTION * cost and (key not in best or gain / cost > best[key][1]):
+                best[key] = (c, gain / cost, step)
     return sorted(best.values(), key=lambda g: -g[1])
 
 
@@ -679,7 +697,7 @@ def _finding(prob: Problem, rec: Record, cand: Candidate, before: Model, pred0: 
                 f"{what} {corr:+.2f}. Adding {cand.effect}{f' on {ch}' if cand.channel else ''} ({ptxt}) brings it to "
                 f"{ra[ch]:.3g} {unit} and cuts the held-out cost by {-verdict['dcost']:.0%} (ΔBIC {verdict['dbic']:.0f}); "
                 f"Switched off again, other parameters kept, the held-out cost would be "
-                f"{1 / max(1 + verdict['ablation_dcost'], 1e-9):.3g}x higher.")
+                f"{1 / max(1 + verdict['ablation_dcost'], 1e-9):.3g}x higher." + verdict.get("alternative", ""))
     return {
         "effect": cand.effect,
         "channel": cand.channel,
