@@ -30,6 +30,9 @@ PREFERENCE = ("sensor_offset", "valve_null_bias", "sensor_gain", "sensor_delay",
               "pressure_dependent_friction", "entrained_air", "load_pressure_feedback", "specimen_nonlinearity")
 # Distance (in normalised coordinates) from a bound at which a parameter counts as pinned.
 PIN = 0.02
+# A fit that pins a metadata parameter at its bound and still misses a channel by this many noise
+# floors says the record is not of the stated rig.
+RIG_MISS = 3.0
 # A fit whose noise-scaled cost per residual falls below this is at the noise: stop iterating.
 NOISE_COST = 1.2
 # Largest LM step of any normalised coordinate (a factor e for a log parameter): far jumps land in
@@ -149,15 +152,15 @@ RIG_FREES = [
     Free("moving_mass_kg", math.log(0.4), math.log(2.5), log=True, prior=0.3),
     Free("valve_rated_flow_m3_s", math.log(0.4), math.log(2.5), log=True, prior=0.3),
     Free("bulk_modulus_pa", math.log(0.4), math.log(2.5), log=True, prior=0.3),
-    Free("dead_volume_a_m3", math.log(0.3), math.log(3.0), log=True, step=0.05, prior=0.3),
-    Free("dead_volume_b_m3", math.log(0.3), math.log(3.0), log=True, step=0.05, prior=0.3),
+    Free("dead_volume_a_m3", math.log(0.5), math.log(2.0), log=True, step=0.05, prior=0.3),
+    Free("dead_volume_b_m3", math.log(0.5), math.log(2.0), log=True, step=0.05, prior=0.3),
     Free("supply_pressure_pa", math.log(0.5), math.log(1.5), log=True, step=0.01, prior=0.1),
 ]
 # Friction and underlap are not in the metadata: wide bounds, wide priors.
 OTHER_FREES = [
     Free("friction_viscous_n_s_m", math.log(0.02), math.log(20.0), log=True, step=0.05, prior=1.0),
     Free("friction_coulomb_n", math.log(0.02), math.log(20.0), log=True, step=0.05, prior=1.0),
-    Free("friction_static_n", math.log(0.01), math.log(20.0), log=True, step=0.1, prior=1.0),
+    Free("friction_static_n", math.log(0.2), math.log(4.0), log=True, step=0.1, prior=0.5),
     Free("valve_underlap_v", 0.0, 5.0, unit=0.1, step=0.1, prior=1.0),
 ]
 
@@ -454,7 +457,9 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
         raise IdentificationError(f"cannot identify: {e}") from None
     rate = float(rec.meta.get("sample_rate_hz") or 1.0 / float(np.median(np.diff(rec.columns["t"]))))
     channels = ft.measured_channels(rec.columns)
-    sigma = {c: ft.noise_floor(rec.columns[c], ft.declared_resolution(rec.meta, c)) for c in channels}
+    # A declared sensor noise (datasheet) is the floor; else it is estimated from the record.
+    sigma = {c: ft.declared_noise(rec.meta, c) or ft.noise_floor(rec.columns[c], ft.declared_resolution(rec.meta, c))
+             for c in channels}
     _check_excitation(rec, sigma)
     scales = {c: max(sigma[c] * 10, 1e-6 * float(np.nanmax(np.abs(rec.columns[c])) or 1.0)) for c in channels}
     weight = dict(sigma)
@@ -497,6 +502,7 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
         if max(ratios.values()) <= SYSTEMATIC:
             break
         ranked = _screen(prob, model, work_pred, jac, pool)
+        q = np.linalg.qr(jac)[0]  # what the base parameters can absorb, to first order
         log("screen", [(c.effect, c.channel, round(g, 3)) for c, g, _ in ranked[:6]])
         good: list[tuple[Candidate, dict, Model, dict]] = []
         better_base: tuple[float, Model] | None = None
@@ -508,7 +514,7 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
             # candidate's parameter; keep the better fit.
             restart = model.x.copy()
             restart[: len(x0)] = x0
-            fits = [fit(prob, _scan(prob, [start.with_candidate(cand, step)], cand), iters=REFIT_ITERS)
+            fits = [fit(prob, _scan(prob, [start.with_candidate(cand, step)], cand, q), iters=REFIT_ITERS)
                     for start in (model.unpinned(x0), Model(model.nominal, model.frees, restart))]
             trial, twork, tjac = min(fits, key=lambda f: prob.fit_cost(f[1]))
             tpred = prob.whole(trial, twork)
@@ -562,6 +568,20 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
         findings.append(_finding(prob, rec, cand, model, pred, trial, tpred, verdict, rate))
         model, pred, work_pred, jac = trial, tpred, twork, tjac
 
+    # Backward check: an earlier finding that the later ones make redundant is dropped.
+    for f in list(findings[:-1]) if len(findings) > 1 else []:
+        without = _without(model, f["_cand"], nominal)
+        wmodel, wwork, wjac = fit(prob, without, iters=REFIT_ITERS)
+        wpred = prob.whole(wmodel, wwork)
+        dbic, dcost = _bic_delta(prob, wpred, pred, max(1, len(f["_cand"].frees)))
+        log("backward check", f["_cand"].label, f"dBIC {dbic:.0f} dcost {dcost:+.3f}")
+        if not (dbic < 0 and dcost < -MIN_GAIN):
+            findings.remove(f)
+            model, pred, work_pred, jac = wmodel, wpred, wwork, wjac
+    if findings and findings[0]["_pred_before"] is not base_pred:
+        first = findings[0]  # after a drop, the first remaining finding starts from the baseline
+        first["_pred_before"] = base_pred
+        first["rmse_before"] = _rmse(prob, base_pred)
     if not findings:
         base, base_pred = model, pred
     else:  # refits after the last finding belong to it: its "after" is the final model
@@ -602,9 +622,10 @@ def _final_params(model: Model) -> dict[str, float]:
     return vals
 
 
-def _scan(prob: Problem, starts: list[Model], cand: Candidate) -> Model:
+def _scan(prob: Problem, starts: list[Model], cand: Candidate, q: np.ndarray) -> Model:
     """The best start for a refit among `starts` and a few sizes of the candidate's first
-    parameter (its cost is not convex for a delay, a dead band or play): one batch of simulations."""
+    parameter (its cost is not convex for a delay, a dead band or play): one batch of simulations,
+    each judged by the cost left once the base parameters absorb what they can (columns `q`)."""
     models = list(starts)
     if cand.frees:
         f = cand.frees[0]
@@ -618,8 +639,26 @@ def _scan(prob: Problem, starts: list[Model], cand: Candidate) -> Model:
                 x[i] = v
                 models.append(Model(start.nominal, start.frees, x))
     preds = prob.predict([m.params() for m in models])
-    costs = [float(np.sum(prob.residual(p, prob.fit_mask) ** 2)) for p in preds]
+    costs = []
+    for p in preds:
+        r = prob.residual(p, prob.fit_mask)
+        r = r - q @ (q.T @ r)
+        costs.append(float(r @ r))
     return models[int(np.argmin(costs))]
+
+
+def _without(model: Model, cand: Candidate, nominal: Params) -> Model:
+    """`model` with an accepted effect taken out (its parameters removed, its switch undone)."""
+    nom = model.nominal
+    if cand.switch:
+        nom = nom.copy()
+        for k, _ in cand.switch:
+            nom[k] = nominal[k]
+    if not cand.frees:
+        return Model(nom, model.frees, model.x)
+    i = model.frees.index(cand.frees[0])
+    j = i + len(cand.frees)
+    return Model(nom, model.frees[:i] + model.frees[j:], np.concatenate([model.x[:i], model.x[j:]]))
 
 
 def _ablated(trial: Model, before: Model, cand: Candidate) -> Model:
@@ -716,12 +755,13 @@ def _finding(prob: Problem, rec: Record, cand: Candidate, before: Model, pred0: 
 def _check_rig(rec: Record, prob: Problem, base: Model, pred: dict, rate: float) -> None:
     """Refuse a record the base model cannot approach with the metadata's rig: rig parameters
     pinned at their bounds while the residual stays far above the noise floor."""
-    pinned = [f.key for f, x in zip(base.frees, base.x) if f in RIG_FREES and (x <= f.lo + 0.02 or x >= f.hi - 0.02)]
+    pinned = [f.key for f, x in zip(base.frees, base.x) if f in RIG_FREES and (x <= f.lo + PIN or x >= f.hi - PIN)]
     ratios = prob.ratios(pred, rate)
     worst = max(ratios, key=ratios.get)
-    if pinned and ratios[worst] > 10:
+    if pinned and ratios[worst] > RIG_MISS:
         vals = base.values()
         raise IdentificationError(
-            f"cannot identify `{rec.name}`: the record does not match its metadata's rig — the base model fit pins "
+            f"cannot identify `{rec.name}`: the record does not match its metadata's rig — the model fit pins "
             + ", ".join(f"{k} = {vals[k]:.4g} (nominal {_get(base.nominal, k):.4g})" for k in pinned)
-            + f" at its bound and still misses {worst} by {ratios[worst]:.0f}x its noise floor; check the `rig` metadata")
+            + f" at its bound and still misses {worst} by {ratios[worst]:.0f}x its noise floor, and no EFFECTS.md effect "
+            "closes the gap; check the `rig` metadata (or the record holds an effect outside the table)")

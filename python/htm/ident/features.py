@@ -48,6 +48,13 @@ def noise_floor(x: np.ndarray, resolution: float | None = None) -> float:
     return max(sigma, 1e-9 * max(scale, 1e-12))
 
 
+def declared_noise(meta: Mapping, channel: str) -> float | None:
+    """The `sensors.<channel>.noise_std` value of the metadata (sensor datasheet), if any."""
+    s = (meta.get("sensors") or {}).get(channel) or {}
+    v = s.get("noise_std")
+    return float(v) if isinstance(v, (int, float)) and v > 0 else None
+
+
 def declared_resolution(meta: Mapping, channel: str) -> float | None:
     """The `sensors.<channel>.resolution_*` value of the metadata, if any."""
     s = (meta.get("sensors") or {}).get(channel) or {}
