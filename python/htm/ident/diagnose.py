@@ -17,8 +17,10 @@ from htm.ident.records import Record, validate_record
 
 FORMAT = "htm-diagnosis/1"
 MIN_SAMPLES = 200
-# Low-passed residual RMS over the noise floor above which a channel still holds structure.
+# Non-noise residual over the noise floor (features.systematic_ratio): the search stops at or
+# below SYSTEMATIC; structure is reported unexplained above UNEXPLAINED (a clear margin).
 SYSTEMATIC = 1.0
+UNEXPLAINED = 1.5
 # A refit must cut the held-out weighted cost by this fraction (and win by BIC) to count.
 MIN_GAIN = 0.05
 # Evidence a candidate's signature must carry before it is refitted (chi^2 units, fraction).
@@ -591,7 +593,7 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
         last["params"] = last["_cand"].report(model.params())
     _check_rig(rec, prob, model, pred, rate)
     ratios = prob.ratios(pred, rate)
-    unexplained = bool(max(ratios.values()) > SYSTEMATIC)
+    unexplained = bool(max(ratios.values()) > UNEXPLAINED)
     report: dict[str, Any] = {
         "format": FORMAT,
         "record": rec.name,
@@ -748,7 +750,8 @@ def _finding(prob: Problem, rec: Record, cand: Candidate, before: Model, pred0: 
         "_pred_after": pred1,
         "_focus": ch,
         "_cand": cand,
-        "_feature": (cand.feature, regs[cand.feature]),
+        # An offset shows best against the reading itself (a shift; a gain would be a slope).
+        "_feature": (f"measured {ch}", prob.meas[ch]) if cand.feature == "constant" else (cand.feature, regs[cand.feature]),
     }
 
 

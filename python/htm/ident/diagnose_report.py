@@ -81,7 +81,7 @@ def _write_markdown(out: Path, rec: Record, report: dict[str, Any], before: dict
         lines.append(f"**Yes.** Systematic residual remains that no candidate accounts for: the low-passed {worst} residual is "
                      f"{info['systematic_ratio'][worst]:.1f}x its noise floor. Do not read the findings above as the whole story.")
     else:
-        lines.append("No: every channel's remaining residual is at its noise floor.")
+        lines.append("No: on every channel what remains is within 1.5x the noise floor (low-passed, and beyond the noise variance).")
     _plot_residuals(out / "residuals.png", rec, before, after, sigma)
     (out / "report.md").write_text("\n".join(lines) + "\n")
 
