@@ -121,3 +121,18 @@ def test_a_record_of_another_rig_is_refused_not_diagnosed():
     meta["rig"]["valve_rated_flow_m3_s"] *= 3.0
     with pytest.raises(IdentificationError, match="cannot identify.*does not match its metadata's rig"):
         diagnose(Record(rec.columns, meta, "other_rig"))
+
+
+def test_an_open_loop_record_states_its_horizon_and_keeps_rmse_consistent(tmp_path):
+    """Without a controller the predictions replay the recorded command open loop, restarted
+    from the measurement every horizon_s, which report.json then states."""
+    rec, _ = proving.make_record({}, seed=8, duration_s=4)
+    meta = {**rec.meta, "controller": None}
+    report = diagnose(Record(rec.columns, meta, "open"), out_dir=tmp_path)
+    on_disk = json.loads((tmp_path / "report.json").read_text())
+    assert on_disk == json.loads(json.dumps(report))
+    assert set(report) == REPORT_KEYS | {"horizon_s"} and report["horizon_s"] == pytest.approx(0.5)
+    pred = read_predictions(tmp_path / "predictions.csv")
+    for c, value in report["final"]["rmse"].items():
+        assert value == pytest.approx(rmse(pred[f"{c}_after"], rec.columns[c]), rel=1e-6)
+        assert value < 3 * proving.NOISE_STD[c]  # open loop over 0.5 s horizons tracks to the noise
