@@ -43,7 +43,7 @@ RADIUS_MAX = 1.0
 # Candidates refitted per round: those whose screened gain is at least this share of the best.
 REFIT_SHARE = 0.3
 # Least-squares budgets: Jacobians (one simulation per free parameter each, plus 3 trial steps).
-BASE_ITERS, REFIT_ITERS, POLISH_ITERS = 10, 4, 8
+BASE_ITERS, REFIT_ITERS, POLISH_ITERS = 10, 4, 15
 
 
 DEBUG = False
@@ -489,6 +489,7 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
     model, pred = base, base_pred
     findings: list[dict[str, Any]] = []
     pool = candidates(nominal, rec, channels, scales, rate)
+    kept_base = False
     for _round in range(max_findings + 2):
         if len(findings) >= max_findings:
             break
@@ -530,8 +531,9 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
                 if better_base is None or cost < better_base[0]:
                     better_base = (cost, Model(model.nominal, trial.frees[: len(model.x)], trial.x[: len(model.x)]))
         if not good:
-            if better_base is None:
+            if better_base is None or kept_base:
                 break  # no candidate pays off on the held-out data
+            kept_base = True  # once: a second time the search would only go round in circles
             model = better_base[1]
             work_pred = prob.predict([model.params()])[0]
             pred = prob.whole(model, work_pred)
