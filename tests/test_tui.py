@@ -194,3 +194,28 @@ def test_a_test_run_on_the_rig_is_recorded_and_shows_in_results(store):
                 cyc = st.cycles(test_id)["cycle"]
             assert len(cyc) >= 20 and list(cyc) == list(range(int(cyc[0]), int(cyc[0]) + len(cyc)))  # no gap, no duplicate
     run(go())
+
+
+def test_diagnose_runs_on_a_record_and_shows_findings(store, tmp_path):
+    from htm.ident.proving import make_record
+    from htm.ident.records import write_record
+
+    rec, truth = make_record({"sensor_offset": {"channel": "p_a", "offset_pa": 4e5}}, seed=3, duration_s=10.0)
+    table, _ = write_record(rec, tmp_path / "rec")
+
+    async def go():
+        app = HtmApp(session_factory=lambda: None, store=store)
+        async with app.run_test(size=(160, 50)) as pilot:
+            await pilot.press("f6")
+            app.query_one("#diag-record", Input).value = str(table)
+            app.query_one("#diag-out", Input).value = str(tmp_path / "diag")
+            await pilot.click("#diag-run")
+            await until(pilot, lambda: "report:" in text(app, "#diag-status") or "[red]" in text(app, "#diag-status"), timeout=300)
+            status = text(app, "#diag-status")
+            assert "finding" in status and "report:" in status, status
+            rows = app.query_one("#findings", DataTable)
+            assert rows.row_count >= 1
+            first = rows.get_row_at(0)
+            assert first[1] == "sensor_offset" and first[2] == "p_a"
+            assert (tmp_path / "diag" / "report.json").exists()
+    run(go())

@@ -158,3 +158,11 @@ class RigPlant:
     def outcome(self) -> dict[str, Any] | None: ...
     @staticmethod
     def raw_columns() -> list[str]: ...
+
+# --- record re-simulation (crates/htm-core/src/replay.rs, measure.rs); see htm.ident.sim ---
+
+def replay(params: list[Params], dt: float, u: npt.NDArray[np.float64], measured: dict[str, npt.NDArray[np.float64]] | None = None,
+           controller: dict[str, Any] | None = None, reference: npt.NDArray[np.float64] | None = None,
+           horizon_s: float = 0.5, preroll_s: float = 1.0, rtol: float = 1e-4,
+           noise: dict[str, npt.NDArray[np.float64]] | None = None, quantum: dict[str, float] | None = None,
+           threads: int = 0) -> list[dict[str, Any]]: ...

@@ -16,6 +16,10 @@ pub const V: usize = 3;
 pub const SPOOL: usize = 4;
 pub const NX: usize = 5;
 
+/// Width over which the specimen's closure corner is rounded [m] (keeps the force smooth for
+/// the integrator; far from the corner the error is k_c*w^2/(4|dy|)).
+pub const CLOSURE_SMOOTHING_M: f64 = 2.0e-5;
+
 /// Default relative tolerance of the plant integrator.
 pub const DEFAULT_RTOL: f64 = 1e-6;
 
@@ -125,10 +129,40 @@ impl Plant {
     }
 
     /// Specimen force, tension positive [N]: the specimen is stretched as y rises above its
-    /// zero-force position and pulls the piston back down.
+    /// zero-force position and pulls the piston back down. Below the closure position the
+    /// closure stiffness adds (bilinear spring, corner smoothed over `CLOSURE_SMOOTHING_M`).
     #[inline]
     pub fn specimen_force(&self, y: f64) -> f64 {
-        self.p.specimen_stiffness_n_m * (y - self.p.specimen_zero_force_position_m)
+        let p = &self.p;
+        let mut f = p.specimen_stiffness_n_m * (y - p.specimen_zero_force_position_m);
+        if p.specimen_closure_stiffness_n_m > 0.0 {
+            let closed = smooth_opening(p.specimen_zero_force_position_m + p.specimen_closure_offset_m - y, CLOSURE_SMOOTHING_M);
+            f -= p.specimen_closure_stiffness_n_m * closed;
+        }
+        f
+    }
+
+    /// Extra Coulomb level of the friction bump at position `y` [N] (Gaussian in y).
+    #[inline]
+    fn bump(&self, y: f64) -> f64 {
+        let p = &self.p;
+        if p.friction_bump_n == 0.0 {
+            return 0.0;
+        }
+        let z = (y - p.friction_bump_position_m) / p.friction_bump_width_m;
+        p.friction_bump_n * (-0.5 * z * z).exp()
+    }
+
+    /// d(specimen_force)/dy [N/m].
+    #[inline]
+    pub fn specimen_stiffness(&self, y: f64) -> f64 {
+        let p = &self.p;
+        let mut k = p.specimen_stiffness_n_m;
+        if p.specimen_closure_stiffness_n_m > 0.0 {
+            let x = p.specimen_zero_force_position_m + p.specimen_closure_offset_m - y;
+            k += p.specimen_closure_stiffness_n_m * smooth_opening_dx(x, CLOSURE_SMOOTHING_M);
+        }
+        k
     }
 
     pub fn outputs(&self, x: &[f64; NX]) -> Outputs {
@@ -179,7 +213,7 @@ impl Plant {
         dx[PB] = self.bulk.at(pb) / vb * (qb + p.area_b_m2 * v + q_leak);
         // Piston (eq. 2.23, 2.27)
         let f_h = p.area_a_m2 * pa - p.area_b_m2 * pb;
-        let f_f = self.friction.force(v, pa + pb);
+        let f_f = self.friction.force(v, pa + pb) + self.bump(y) * sig(v, self.friction.smoothing_m_s);
         let f_g = p.moving_mass_kg * p.gravity_m_s2;
         let mut f_stop = 0.0;
         if y < 0.0 {
@@ -247,6 +281,9 @@ impl OdeSystem<NX> for Plant {
         let level = mean + half * s + fr.pressure_coeff_n_per_pa * (pa + pb) + e;
         let dff_dv = fr.viscous_n_s_m + ds * level + s * (half * ds - e * v.signum() / fr.stribeck_m_s);
         let dff_dpsum = fr.pressure_coeff_n_per_pa * s;
+        let b = self.bump(y);
+        let dff_dv = dff_dv + b * ds;
+        let dff_dy = -b * (y - p.friction_bump_position_m) / (p.friction_bump_width_m * p.friction_bump_width_m) * s;
         let (mut dstop_dy, mut dstop_dv) = (0.0, 0.0);
         if (y < 0.0 && -y * p.end_stop_stiffness_n_m - v * p.end_stop_damping_n_s_m > 0.0)
             || (y > p.stroke_m && (p.stroke_m - y) * p.end_stop_stiffness_n_m - v * p.end_stop_damping_n_s_m < 0.0)
@@ -258,7 +295,7 @@ impl OdeSystem<NX> for Plant {
         jac[V] = [
             (p.area_a_m2 - dff_dpsum) / m,
             (-p.area_b_m2 - dff_dpsum) / m,
-            (-p.specimen_stiffness_n_m + dstop_dy) / m,
+            (-self.specimen_stiffness(y) - dff_dy + dstop_dy) / m,
             (-dff_dv + dstop_dv) / m,
             0.0,
         ];
@@ -396,6 +433,10 @@ mod tests {
         p.friction_coulomb_neg_n = 600.0;
         p.friction_pressure_coeff_n_per_pa = 1e-5;
         p.air_fraction = 0.01;
+        p.specimen_closure_stiffness_n_m = 5e7;
+        p.specimen_closure_offset_m = 2e-4;
+        p.friction_bump_n = 300.0;
+        p.friction_bump_position_m = 0.052;
         check(p.clone(), &states, -0.7);
         p.valve_linear_flow = 1.0;
         p.eggerth_k1_per_pa = 1.0 / 1.6e9;

@@ -128,7 +128,9 @@ define_params! {
     valve_deadband_half_width_v ["V"] = 0.0, closed 0.0, 5.0;
     /// Backlash between command and spool (EFFECTS valve_hysteresis); 0 = off
     valve_hysteresis_half_width_v ["V"] = 0.0, closed 0.0, 5.0;
-    /// 1 = flow proportional to spool only (no sqrt(dp) load feedback); 0 = orifice law
+    /// 1 = flow proportional to spool only (no sqrt(dp) load feedback); 0 = orifice law.
+    /// EFFECTS `load_pressure_feedback` is this switch going from 1 to 0: a rig whose metadata
+    /// declares a linear (pressure-compensated) valve whose flow still falls with load pressure
     valve_linear_flow ["-"] = 0.0, closed 0.0, 1.0;
     /// Supply sag: p_s = p_s0 - R*Q_in (EFFECTS supply_pressure_sag); 0 = stiff supply
     supply_resistance_pa_s_per_m3 ["Pa s/m^3"] = 0.0, closed 0.0, 1.0e13;
@@ -148,14 +150,63 @@ define_params! {
     friction_smoothing_m_s ["m/s"] = 1.0e-3, open 0.0, 1.0;
     /// Coulomb growth with p_a + p_b (EFFECTS pressure_dependent_friction)
     friction_pressure_coeff_n_per_pa ["N/Pa"] = 0.0, closed 0.0, 1.0e-2;
+    /// Extra friction in a band of positions (a scored rod or bore). Not an EFFECTS.md id: the
+    /// proving ground's effect outside the table; 0 = off
+    friction_bump_n ["N"] = 0.0, closed 0.0, 1.0e6;
+    /// Centre of the friction bump
+    friction_bump_position_m ["m"] = 0.1, closed 0.0, 10.0;
+    /// Half width (Gaussian sigma) of the friction bump
+    friction_bump_width_m ["m"] = 5.0e-3, open 0.0, 10.0;
     /// Specimen stiffness K_sp; 0 = free piston (C(T) of Table B.1: 1.04e8, NOTES item 10)
     specimen_stiffness_n_m ["N/m"] = 0.0, closed 0.0, 1.0e11;
     /// Piston position at which the specimen carries no force
     specimen_zero_force_position_m ["m"] = 0.1, closed 0.0, 10.0;
+    /// Crack-closure stiffness added below the closure position (EFFECTS specimen_nonlinearity,
+    /// a bilinear spring); 0 = linear specimen
+    specimen_closure_stiffness_n_m ["N/m"] = 0.0, closed 0.0, 1.0e11;
+    /// Closure position relative to the zero-force position: the closure stiffness acts for
+    /// y < specimen_zero_force_position_m + this
+    specimen_closure_offset_m ["m"] = 0.0, closed -1.0, 1.0;
     /// End-stop contact stiffness at y = 0 and y = L
     end_stop_stiffness_n_m ["N/m"] = 5.0e9, open 0.0, 1.0e12;
     /// End-stop contact damping
     end_stop_damping_n_s_m ["N s/m"] = 1.0e6, closed 0.0, 1.0e9;
+    /// Sensor offset of `y` (position): the sensor reads offset + gain * true (EFFECTS sensor_offset)
+    sensor_offset_y ["m"] = 0.0, closed -1.0, 1.0;
+    /// Sensor gain of `y` (EFFECTS sensor_gain); 1 = ideal
+    sensor_gain_y ["-"] = 1.0, open 0.0, 10.0;
+    /// Transport delay of the `y` measurement (EFFECTS sensor_delay); 0 = none
+    sensor_delay_y_s ["s"] = 0.0, closed 0.0, 1.0;
+    /// Sensor offset of `v` (velocity): the sensor reads offset + gain * true (EFFECTS sensor_offset)
+    sensor_offset_v ["m/s"] = 0.0, closed -10.0, 10.0;
+    /// Sensor gain of `v` (EFFECTS sensor_gain); 1 = ideal
+    sensor_gain_v ["-"] = 1.0, open 0.0, 10.0;
+    /// Transport delay of the `v` measurement (EFFECTS sensor_delay); 0 = none
+    sensor_delay_v_s ["s"] = 0.0, closed 0.0, 1.0;
+    /// Sensor offset of `p_a` (chamber A pressure): the sensor reads offset + gain * true (EFFECTS sensor_offset)
+    sensor_offset_p_a ["Pa"] = 0.0, closed -1.0e8, 1.0e8;
+    /// Sensor gain of `p_a` (EFFECTS sensor_gain); 1 = ideal
+    sensor_gain_p_a ["-"] = 1.0, open 0.0, 10.0;
+    /// Transport delay of the `p_a` measurement (EFFECTS sensor_delay); 0 = none
+    sensor_delay_p_a_s ["s"] = 0.0, closed 0.0, 1.0;
+    /// Sensor offset of `p_b` (chamber B pressure): the sensor reads offset + gain * true (EFFECTS sensor_offset)
+    sensor_offset_p_b ["Pa"] = 0.0, closed -1.0e8, 1.0e8;
+    /// Sensor gain of `p_b` (EFFECTS sensor_gain); 1 = ideal
+    sensor_gain_p_b ["-"] = 1.0, open 0.0, 10.0;
+    /// Transport delay of the `p_b` measurement (EFFECTS sensor_delay); 0 = none
+    sensor_delay_p_b_s ["s"] = 0.0, closed 0.0, 1.0;
+    /// Sensor offset of `p_s` (supply pressure): the sensor reads offset + gain * true (EFFECTS sensor_offset)
+    sensor_offset_p_s ["Pa"] = 0.0, closed -1.0e8, 1.0e8;
+    /// Sensor gain of `p_s` (EFFECTS sensor_gain); 1 = ideal
+    sensor_gain_p_s ["-"] = 1.0, open 0.0, 10.0;
+    /// Transport delay of the `p_s` measurement (EFFECTS sensor_delay); 0 = none
+    sensor_delay_p_s_s ["s"] = 0.0, closed 0.0, 1.0;
+    /// Sensor offset of `f` (load cell force): the sensor reads offset + gain * true (EFFECTS sensor_offset)
+    sensor_offset_f ["N"] = 0.0, closed -1.0e8, 1.0e8;
+    /// Sensor gain of `f` (EFFECTS sensor_gain); 1 = ideal
+    sensor_gain_f ["-"] = 1.0, open 0.0, 10.0;
+    /// Transport delay of the `f` measurement (EFFECTS sensor_delay); 0 = none
+    sensor_delay_f_s ["s"] = 0.0, closed 0.0, 1.0;
 }
 
 impl Default for Params {

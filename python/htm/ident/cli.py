@@ -68,4 +68,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--meta", help="metadata JSON (default: NAME.json beside the table)")
     p.add_argument("--out", required=True, help="output directory")
     p.set_defaults(func=cmd_identify)
+    from htm.ident.diagnose_report import register as register_diagnose
+
+    register_diagnose(sub)
 

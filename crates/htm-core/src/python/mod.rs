@@ -17,6 +17,7 @@ mod engine;
 mod fatigue;
 mod ident;
 mod outer_loop;
+mod replay;
 
 // Submodules add their own classes and functions here.
 pub(crate) fn register_extensions(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -25,6 +26,7 @@ pub(crate) fn register_extensions(m: &Bound<'_, PyModule>) -> PyResult<()> {
     engine::register(m)?;
     ident::register(m)?;
     outer_loop::register(m)?;
+    replay::register(m)?;
     Ok(())
 }
 

@@ -1,0 +1,164 @@
+"""The proving ground: closed-loop position records from the Rust simulator with any EFFECTS.md
+effects switched on, rig parameters spread around the nominal rig, and realistic sensors."""
+from __future__ import annotations
+
+from typing import Any, Mapping
+
+import numpy as np
+
+from htm._core import Params, replay
+from htm.errors import InputError
+from htm.ident.experiments import POSITION_LAW
+from htm.ident.records import FORMAT, Record
+from htm.ident.sim import CHANNELS, PREROLL_S, SENSOR_EFFECTS, effect_fields, params_from_meta, with_effect
+from htm.params import rig_metadata
+
+# Effect parameters used when a caller switches an effect on without values (SI): sizes a real
+# rig shows and a diagnosis should find in a 10-20 s record.
+DEFAULT_EFFECTS: dict[str, dict[str, Any]] = {
+    "sensor_offset": {"channel": "p_a"},  # offset by channel below
+    "sensor_gain": {"channel": "p_a", "gain": 1.15},
+    "sensor_delay": {"channel": "p_a", "delay_s": 0.008},
+    "valve_null_bias": {"bias_v": 0.15},
+    "valve_dynamics": {"tau_s": 0.015},
+    "valve_deadband": {"half_width_v": 0.2},
+    "valve_hysteresis": {"half_width_v": 0.25},
+    "supply_pressure_sag": {"resistance_pa_s_per_m3": 1.0e10},
+    "internal_leakage": {"coeff_m3_per_s_pa": 3.0e-12},
+    "friction_asymmetry": {"coulomb_pos_n": 1100.0, "coulomb_neg_n": 500.0},
+    "pressure_dependent_friction": {"coeff_n_per_pa": 6.0e-5},
+    "entrained_air": {"air_fraction": 0.05},
+    "load_pressure_feedback": {},
+    "specimen_nonlinearity": {"closure_stiffness_n_m": 2.0e6, "closure_offset_m": -0.002},
+}
+DEFAULT_OFFSET = {"y": 1e-3, "v": 5e-3, "p_a": 4e5, "p_b": 4e5, "p_s": 4e5, "f": 500.0}
+
+# Rig parameters drawn around the nominal rig (the baseline's free parameters); the Coulomb pair
+# moves together so the truth stays symmetric unless friction_asymmetry is on.
+SPREAD_FIELDS = ("moving_mass_kg", "friction_viscous_n_s_m", "friction_coulomb_n", "friction_static_n",
+                 "valve_rated_flow_m3_s", "bulk_modulus_pa", "dead_volume_a_m3", "dead_volume_b_m3")
+
+# Sensors: white noise standard deviation and quantization step per channel (SI).
+NOISE_STD = {"y": 2e-6, "v": 5e-4, "p_a": 3e4, "p_b": 3e4, "p_s": 3e4, "f": 20.0}
+QUANTUM = {"y": 1e-6, "v": 1e-5, "p_a": 1.2e3, "p_b": 1.2e3, "p_s": 1.2e3, "f": 2.0}
+
+SPECIMEN_STIFFNESS_N_M = 2.0e6
+CENTRE_M = 0.1
+CONTROLLER = {"type": "position_pff", "kp_v_per_m": -150.0, "kff_v_per_m_s": -14.3, "u_max_v": 10.0, "law": POSITION_LAW}
+OUTSIDE = {"friction_bump": {"friction_bump_n": 500.0, "friction_bump_width_m": 0.006}}
+
+
+def rich_reference(duration_s: float, rate_hz: float, *, centre_m: float = CENTRE_M, half_range_m: float = 0.06) -> np.ndarray:
+    """Position reference [m]: holds, up-and-down ramps at several speeds, sines and steps,
+    repeated to fill `duration_s`; excursions scale with `half_range_m` around `centre_m`."""
+    dt = 1.0 / rate_hz
+    s = half_range_m / 0.06
+
+    def hold(y: float, sec: float) -> np.ndarray:
+        return np.full(max(1, int(round(sec / dt))), y)
+
+    def ramp(y0: float, y1: float, speed: float) -> np.ndarray:
+        n = max(2, int(round(abs(y1 - y0) / speed / dt)))
+        return y0 + (y1 - y0) * np.arange(1, n + 1) / n
+
+    block: list[np.ndarray] = [hold(centre_m, 0.4)]
+    for step in (0.01, -0.02, 0.01):  # steps
+        block.append(hold(block[-1][-1] + step * s, 0.4))
+    for freq, amp, cycles in ((0.5, 0.03, 1), (2.0, 0.005, 2)):  # sines
+        n = int(round(cycles / freq / dt))
+        block.append(centre_m + amp * s * np.sin(2 * np.pi * freq * dt * np.arange(1, n + 1)))
+    block.append(hold(centre_m, 0.3))
+    for speed in (0.01, 0.03, 0.08):  # constant-velocity ramps both ways at three speeds
+        top, bottom = centre_m + min(speed * 0.6, 0.06) * s, centre_m - min(speed * 0.6, 0.06) * s
+        block += [ramp(centre_m, top, speed * s), hold(top, 0.25), ramp(top, bottom, speed * s), hold(bottom, 0.25),
+                  ramp(bottom, centre_m, speed * s), hold(centre_m, 0.25)]
+    one = np.concatenate(block)
+    n = int(round(duration_s * rate_hz))
+    return np.resize(one, n)
+
+
+def make_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, seed: int, rate_hz: float = 500,
+                duration_s: float = 20, rig_spread: float = 0.3, noise: bool = True, experiment: str = "rich",
+                specimen: bool | None = None, effect_outside_table: str | None = None) -> tuple[Record, dict[str, Any]]:
+    """A closed-loop position record of the simulated rig with `effects` on (EFFECTS.md ids ->
+    parameter dicts in EFFECTS.md names; sensor effects carry `channel`; empty dicts take
+    `DEFAULT_EFFECTS`). The rig's free parameters are drawn uniformly within +-`rig_spread` of the
+    nominal thesis rig while the metadata states the nominal values; readings get white noise
+    and quantization (`NOISE_STD`, `QUANTUM`) inside the loop. A specimen (2e6 N/m, with an `f`
+    column) is fitted when asked, or when an effect needs one. `effect_outside_table`:
+    "friction_bump" adds a position-dependent friction bump that no EFFECTS.md id describes.
+
+    Returns (record, truth) with truth = {"effects": {id: {"channel", "params"}}, "params": the
+    true Params as a dict, "spread": {field: factor}, "outside": name or None}.
+    """
+    effects = dict(effects or {})
+    if experiment != "rich":
+        raise InputError(f"experiment = {experiment!r}: only \"rich\" exists")
+    if not (100 <= rate_hz <= 10000):
+        raise InputError(f"rate_hz = {rate_hz}: allowed [100, 10000] Hz")
+    if not (1.0 <= duration_s <= 3600):
+        raise InputError(f"duration_s = {duration_s}: allowed [1, 3600] s")
+    if not (0 <= rig_spread < 1):
+        raise InputError(f"rig_spread = {rig_spread}: allowed [0, 1)")
+    if effect_outside_table not in (None, *OUTSIDE):
+        raise InputError(f"effect_outside_table = {effect_outside_table!r}: use one of {', '.join(OUTSIDE)} or None")
+    resolved: dict[str, dict[str, Any]] = {}
+    for eid, given in effects.items():
+        if eid not in DEFAULT_EFFECTS:
+            raise InputError(f"unknown effect `{eid}`; EFFECTS.md ids: {', '.join(DEFAULT_EFFECTS)}")
+        vals = dict(given) if given else dict(DEFAULT_EFFECTS[eid])
+        channel = vals.pop("channel", DEFAULT_EFFECTS[eid].get("channel")) if eid in SENSOR_EFFECTS else None
+        if eid == "sensor_offset" and not vals:
+            vals = {next(iter(effect_fields(eid, channel))): DEFAULT_OFFSET[channel]}
+        effect_fields(eid, channel)  # validates the channel
+        resolved[eid] = {"channel": channel, "params": {k: float(v) for k, v in vals.items()}}
+    needs_f = "specimen_nonlinearity" in resolved or any(e["channel"] == "f" for e in resolved.values())
+    with_specimen = needs_f if specimen is None else bool(specimen)
+    if needs_f and not with_specimen:
+        raise InputError("effects on the force channel need a specimen (specimen=True)")
+
+    rng = np.random.default_rng(seed)
+    nominal = Params("base")
+    meta: dict[str, Any] = {
+        "format": FORMAT,
+        "sample_rate_hz": rate_hz,
+        "rig": rig_metadata(nominal),
+        "specimen": {"stiffness_n_m": SPECIMEN_STIFFNESS_N_M, "zero_force_position_m": CENTRE_M} if with_specimen else None,
+        "controller": dict(CONTROLLER),
+    }
+    if "load_pressure_feedback" in resolved:
+        meta["rig"]["valve_flow_law"] = "linear"
+    truth = params_from_meta(meta)
+    spread = {f: float(rng.uniform(1 - rig_spread, 1 + rig_spread)) for f in SPREAD_FIELDS}
+    for f, k in spread.items():
+        if f == "friction_coulomb_n":
+            for side in ("friction_coulomb_pos_n", "friction_coulomb_neg_n"):
+                truth[side] = truth[side] * k
+        else:
+            truth[f] = truth[f] * k
+    for eid, e in resolved.items():
+        truth = with_effect(truth, eid, e["params"], e["channel"])
+    if effect_outside_table == "friction_bump":
+        for k, v in OUTSIDE["friction_bump"].items():
+            truth[k] = v
+        truth["friction_bump_position_m"] = CENTRE_M + (0.004 if with_specimen else 0.03)
+
+    dt = 1.0 / rate_hz
+    half = 0.008 if with_specimen else 0.06
+    ref = rich_reference(duration_s, rate_hz, centre_m=CENTRE_M, half_range_m=half)
+    n = len(ref)
+    chans = [c for c in CHANNELS if c != "f" or with_specimen]
+    kw: dict[str, Any] = {}
+    meta["sensors"] = {}
+    if noise:
+        kw["noise"] = {c: rng.normal(0.0, NOISE_STD[c], n) for c in chans}
+        kw["quantum"] = {c: QUANTUM[c] for c in chans}
+        meta["sensors"] = {c: {"resolution": QUANTUM[c], "noise_std": NOISE_STD[c]} for c in chans}
+    out = replay([truth], dt, np.zeros(n), controller=CONTROLLER, reference=ref, preroll_s=PREROLL_S, rtol=1e-6,
+                 threads=1, **kw)[0]
+    if out["error"] is not None:
+        raise InputError(f"the simulated rig failed (seed {seed}, effects {sorted(resolved)}): {out['error']}")
+    cols = {"t": dt * np.arange(n), "u": out["u"], **{c: out[c] for c in chans}, "y_ref": ref}
+    name = "proving_" + ("_".join(sorted(resolved)) or "clean") + (f"_{effect_outside_table}" if effect_outside_table else "") + f"_s{seed}"
+    rec = Record(cols, meta, name)
+    return rec, {"effects": resolved, "params": truth.to_dict(), "spread": spread, "outside": effect_outside_table}

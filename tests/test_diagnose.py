@@ -1,0 +1,138 @@
+"""`htm diagnose`: the CLI and its files per DATA_FORMAT.md, predictions.csv <-> rmse consistency,
+and honest refusals of garbage (wrong rig, no excitation, a 3-sample file)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from htm.cli import main
+from htm.ident import proving
+from htm.ident.diagnose import IdentificationError, diagnose
+from htm.ident.diagnose_report import read_predictions
+from htm.ident.records import Record, write_record
+
+REPORT_KEYS = {"format", "record", "baseline", "findings", "final", "unexplained", "predictions"}
+FINDING_KEYS = {"effect", "channel", "params", "rmse_before", "rmse_after", "evidence"}
+
+
+def rmse(pred: np.ndarray, meas: np.ndarray) -> float:
+    ok = np.isfinite(meas)
+    return float(np.sqrt(np.mean((pred[ok] - meas[ok]) ** 2)))
+
+
+@pytest.fixture(scope="module")
+def offset_run(tmp_path_factory) -> tuple[Record, Path, int, str]:
+    """The thesis's discovery on the proving ground: a 4 bar offset on p_a, diagnosed by the CLI,
+    with the metadata kept apart from the table (--meta)."""
+    tmp = tmp_path_factory.mktemp("diag")
+    rec, _ = proving.make_record({"sensor_offset": {"channel": "p_a", "offset_pa": 4e5}}, seed=11, duration_s=8)
+    table, meta = write_record(rec, tmp / "rec" / "offset_pa")
+    moved = tmp / "meta.json"
+    meta.rename(moved)
+    out = tmp / "out"
+    code = main(["diagnose", str(table), "--meta", str(moved), "--out", str(out)])
+    return rec, out, code, table.name
+
+
+def test_cli_writes_report_json_exactly_per_data_format(offset_run):
+    rec, out, code, _ = offset_run
+    assert code == 0
+    report = json.loads((out / "report.json").read_text())
+    assert set(report) == REPORT_KEYS  # closed loop: no horizon_s
+    assert report["format"] == "htm-diagnosis/1"
+    assert report["record"] == "offset_pa"
+    assert report["predictions"] == "predictions.csv"
+    channels = ["y", "v", "p_a", "p_b", "p_s"]
+    assert set(report["baseline"]) == {"params", "rmse"} and set(report["final"]) == {"params", "rmse"}
+    assert list(report["baseline"]["rmse"]) == channels and list(report["final"]["rmse"]) == channels
+    assert "moving_mass_kg" in report["baseline"]["params"] and "bulk_modulus_pa" in report["baseline"]["params"]
+    assert report["unexplained"] is False
+    [f] = report["findings"]
+    assert set(f) == FINDING_KEYS
+    assert (f["effect"], f["channel"]) == ("sensor_offset", "p_a")
+    assert f["params"]["offset_pa"] == pytest.approx(4e5, rel=0.05)
+    assert "p_a" in f["evidence"]
+    assert f["rmse_after"]["p_a"] < 0.2 * f["rmse_before"]["p_a"]
+
+
+def test_every_rmse_comes_from_the_predictions_csv(offset_run):
+    rec, out, _, _ = offset_run
+    report = json.loads((out / "report.json").read_text())
+    pred = read_predictions(out / "predictions.csv")
+    assert list(pred) == ["t"] + [f"{c}_{w}" for c in ("y", "v", "p_a", "p_b", "p_s") for w in ("before", "after")]
+    np.testing.assert_allclose(pred["t"], rec.columns["t"], rtol=0, atol=1e-9)
+    for c in report["final"]["rmse"]:
+        before = rmse(pred[f"{c}_before"], rec.columns[c])
+        after = rmse(pred[f"{c}_after"], rec.columns[c])
+        assert report["baseline"]["rmse"][c] == pytest.approx(before, rel=1e-6)
+        assert report["findings"][0]["rmse_before"][c] == pytest.approx(before, rel=1e-6)
+        assert report["findings"][-1]["rmse_after"][c] == pytest.approx(after, rel=1e-6)
+        assert report["final"]["rmse"][c] == pytest.approx(after, rel=1e-6)
+
+
+def test_report_md_shows_residuals_and_evidence_plots(offset_run):
+    _, out, _, _ = offset_run
+    md = (out / "report.md").read_text()
+    assert "sensor_offset" in md and "Unexplained" in md
+    images = [line.split("(")[1].rstrip(")") for line in md.splitlines() if line.startswith("![")]
+    assert "residuals.png" in images and any(i.startswith("finding_1_sensor_offset") for i in images)
+    for name in images:
+        png = (out / name).read_bytes()
+        assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 5000
+
+
+def _cli_error(args: list[str], capsys) -> str:
+    code = main(args)
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert "Traceback" not in err and len(err.splitlines()) == 1
+    return err
+
+
+def test_a_three_sample_file_cannot_be_identified(tmp_path, capsys):
+    rec, _ = proving.make_record({}, seed=3, duration_s=2)
+    tiny = Record({k: v[:3] for k, v in rec.columns.items()}, rec.meta, "tiny")
+    table, _ = write_record(tiny, tmp_path / "tiny")
+    err = _cli_error(["diagnose", str(table), "--out", str(tmp_path / "out")], capsys)
+    assert "cannot identify" in err and "3 samples" in err
+    assert not (tmp_path / "out" / "report.json").exists()
+
+
+def test_a_constant_signal_cannot_be_identified(tmp_path, capsys):
+    rec, _ = proving.make_record({}, seed=4, duration_s=4)
+    n = len(rec.columns["t"])
+    cols = {"t": rec.columns["t"], "u": np.zeros(n), "y": np.full(n, 0.1), "y_ref": np.full(n, 0.1),
+            "p_a": np.full(n, 9.6e6), "p_b": np.full(n, 9.4e6), "p_s": np.full(n, 19e6)}
+    table, _ = write_record(Record(cols, rec.meta, "flat"), tmp_path / "flat")
+    err = _cli_error(["diagnose", str(table), "--out", str(tmp_path / "out")], capsys)
+    assert "cannot identify" in err and "no excitation" in err
+
+
+def test_a_record_of_another_rig_is_refused_not_diagnosed():
+    """The table comes from the proving-ground rig; the metadata claims a cylinder with 2.5x the
+    area (and so 2.5x the force per bar) and a valve of 3x the flow. No effect may be claimed."""
+    rec, _ = proving.make_record({}, seed=5, duration_s=6)
+    meta = json.loads(json.dumps(rec.meta))
+    for k in ("area_a_m2", "area_b_m2"):
+        meta["rig"][k] *= 2.5
+    meta["rig"]["valve_rated_flow_m3_s"] *= 3.0
+    with pytest.raises(IdentificationError, match="cannot identify.*does not match its metadata's rig"):
+        diagnose(Record(rec.columns, meta, "other_rig"))
+
+
+def test_an_open_loop_record_states_its_horizon_and_keeps_rmse_consistent(tmp_path):
+    """Without a controller the predictions replay the recorded command open loop, restarted
+    from the measurement every horizon_s, which report.json then states."""
+    rec, _ = proving.make_record({}, seed=8, duration_s=4)
+    meta = {**rec.meta, "controller": None}
+    report = diagnose(Record(rec.columns, meta, "open"), out_dir=tmp_path)
+    on_disk = json.loads((tmp_path / "report.json").read_text())
+    assert on_disk == json.loads(json.dumps(report))
+    assert set(report) == REPORT_KEYS | {"horizon_s"} and report["horizon_s"] == pytest.approx(0.5)
+    pred = read_predictions(tmp_path / "predictions.csv")
+    for c, value in report["final"]["rmse"].items():
+        assert value == pytest.approx(rmse(pred[f"{c}_after"], rec.columns[c]), rel=1e-6)
+        assert value < 3 * proving.NOISE_STD[c]  # open loop over 0.5 s horizons tracks to the noise

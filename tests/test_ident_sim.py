@@ -1,0 +1,171 @@
+"""Record re-simulation: the base model from metadata, the sensor model inside the loop, closed
+and open-loop predictions, and the batch that the model fit runs on all cores."""
+import numpy as np
+import pytest
+
+from htm import Params
+from htm.errors import RecordError, SolverError
+from htm.ident import proving, sim
+from htm.ident.records import Record
+
+
+def truth_params(rec, truth):
+    p = sim.params_from_meta(rec.meta)
+    for k, v in truth["params"].items():
+        p[k] = v
+    return p
+
+
+def rmse(a, b):
+    return float(np.sqrt(np.mean((np.asarray(a) - np.asarray(b)) ** 2)))
+
+
+def test_params_from_meta_is_the_effects_base_model_with_the_nominal_rig():
+    rec, _ = proving.make_record({}, seed=0, duration_s=2, noise=False)
+    meta = rec.meta
+    meta["rig"]["moving_mass_kg"] = 61.0
+    p = sim.params_from_meta(meta)
+    assert p["moving_mass_kg"] == 61.0 and p["bulk_modulus_pa"] == meta["rig"]["bulk_modulus_pa"]
+    for eid in sim.EFFECT_FIELDS:
+        if eid in ("friction_asymmetry", "load_pressure_feedback"):
+            continue
+        assert all(v == 0.0 for v in sim.effect_values(p, eid).values()), eid
+    assert p["friction_coulomb_pos_n"] == p["friction_coulomb_neg_n"]
+    for c in sim.CHANNELS:
+        assert (p[f"sensor_offset_{c}"], p[f"sensor_gain_{c}"], p[f"sensor_delay_{c}_s"]) == (0.0, 1.0, 0.0)
+    assert p.valve_map == ([], []) and p["valve_linear_flow"] == 0.0
+    assert p["valve_polarity"] == -1.0, "kp < 0 in the declared loop means the thesis valve polarity"
+    assert p["specimen_stiffness_n_m"] == 0.0 and p["gravity_m_s2"] > 9
+    lin = sim.params_from_meta({**meta, "rig": {**meta["rig"], "valve_flow_law": "linear", "orientation": "horizontal"},
+                                "specimen": {"stiffness_n_m": 3e6, "zero_force_position_m": 0.09}})
+    assert lin["valve_linear_flow"] == 1.0 and lin["gravity_m_s2"] == 0.0
+    assert lin["specimen_stiffness_n_m"] == 3e6 and lin["specimen_zero_force_position_m"] == 0.09
+    on = sim.with_effect(lin, "load_pressure_feedback", {})
+    assert on["valve_linear_flow"] == 0.0
+
+
+def test_params_from_meta_rejects_bad_metadata_by_name():
+    with pytest.raises(RecordError, match="rig"):
+        sim.params_from_meta({"format": "htm-record/1"})
+    rec, _ = proving.make_record({}, seed=0, duration_s=2, noise=False)
+    bad = {**rec.meta, "rig": {**rec.meta["rig"], "moving_mass_kg": "heavy"}}
+    with pytest.raises(RecordError, match="moving_mass_kg"):
+        sim.params_from_meta(bad)
+    bad = {**rec.meta, "rig": {**rec.meta["rig"], "bulk_modulus_pa": -5.0}}
+    with pytest.raises(RecordError, match="bulk_modulus_pa"):
+        sim.params_from_meta(bad)
+
+
+def test_effect_table_maps_every_effects_id_to_params_fields():
+    p = Params("base")
+    for eid in sim.EFFECT_IDS:
+        ch = "p_a" if eid in sim.SENSOR_EFFECTS else None
+        for field in sim.effect_fields(eid, ch).values():
+            assert field in p, (eid, field)
+    assert sim.effect_fields("sensor_offset", "y") == {"offset_m": "sensor_offset_y"}
+    assert sim.effect_fields("sensor_offset", "v") == {"offset_m_s": "sensor_offset_v"}
+    assert sim.effect_fields("sensor_offset", "f") == {"offset_n": "sensor_offset_f"}
+    assert sim.effect_fields("sensor_delay", "p_b") == {"delay_s": "sensor_delay_p_b_s"}
+    q = sim.with_effect(p, "valve_dynamics", {"tau_s": 0.01})
+    assert q["valve_tau_s"] == 0.01 and p["valve_tau_s"] == 0.0
+    with pytest.raises(KeyError, match="tau"):
+        sim.with_effect(p, "valve_dynamics", {"tau": 0.01})
+    with pytest.raises(KeyError, match="channel"):
+        sim.effect_fields("sensor_gain", None)
+
+
+def test_closed_loop_prediction_with_the_true_parameters_reproduces_a_noise_free_record():
+    rec, truth = proving.make_record({"valve_dynamics": {}, "sensor_offset": {"channel": "p_b"}}, seed=3,
+                                     duration_s=6, noise=False)
+    base = sim.params_from_meta(rec.meta)
+    good, nominal = sim.predict([truth_params(rec, truth), base], rec)
+    assert rmse(good["y"], rec.columns["y"]) < 2e-7
+    assert rmse(good["p_a"], rec.columns["p_a"]) < 3e3 and rmse(good["p_b"], rec.columns["p_b"]) < 3e3
+    assert rmse(nominal["y"], rec.columns["y"]) > 50 * rmse(good["y"], rec.columns["y"])
+    assert set(good) == {"y", "v", "p_a", "p_b", "p_s"}, "only the record's channels"
+
+
+def test_a_pressure_offset_shifts_only_that_reading_and_a_velocity_gain_scales_only_v():
+    rec, _ = proving.make_record({}, seed=1, duration_s=4, noise=False)
+    base = sim.params_from_meta(rec.meta)
+    off = sim.with_effect(base, "sensor_offset", {"offset_pa": 4e5}, "p_a")
+    gain = sim.with_effect(base, "sensor_gain", {"gain": 1.2}, "v")
+    a, b, c = sim.predict([base, off, gain], rec)
+    np.testing.assert_allclose(b["p_a"] - a["p_a"], 4e5, atol=1e-6)
+    np.testing.assert_array_equal(b["y"], a["y"])
+    np.testing.assert_allclose(c["v"], 1.2 * a["v"], rtol=1e-12, atol=1e-15)
+    np.testing.assert_array_equal(c["p_b"], a["p_b"])
+
+
+def test_a_delayed_position_sensor_acts_inside_the_loop():
+    # the controller reads y 20 ms late: the motion itself changes, not just the reading's timing
+    rec, _ = proving.make_record({}, seed=2, duration_s=6, noise=False)
+    base = sim.params_from_meta(rec.meta)
+    late = sim.with_effect(base, "sensor_delay", {"delay_s": 0.02}, "y")
+    a, b = sim.predict([base, late], rec)
+    shift = 10  # 20 ms at 500 Hz
+    assert rmse(b["y"][shift:], a["y"][:-shift]) > 1e-5
+    assert rmse(b["p_a"], a["p_a"]) > 1e4, "chamber pressures show the different motion"
+
+
+def test_delayed_pressure_reading_is_the_ideal_reading_shifted():
+    rec, _ = proving.make_record({}, seed=2, duration_s=4, noise=False)
+    base = sim.params_from_meta(rec.meta)
+    a, b = sim.predict([base, sim.with_effect(base, "sensor_delay", {"delay_s": 0.006}, "p_a")], rec)
+    np.testing.assert_allclose(b["p_a"][3:], a["p_a"][:-3], atol=1e-6)  # 3 samples at 500 Hz
+    np.testing.assert_array_equal(b["y"], a["y"])
+
+
+def test_specimen_closure_stiffens_the_force_below_the_closure_position():
+    rec, truth = proving.make_record({"specimen_nonlinearity": {}}, seed=4, duration_s=8, noise=False)
+    y, f = rec.columns["y"], rec.columns["f"]
+    p = truth["params"]
+    y0, yc = p["specimen_zero_force_position_m"], p["specimen_zero_force_position_m"] + p["specimen_closure_offset_m"]
+    above, below = y > yc + 5e-4, y < yc - 5e-4
+    assert above.sum() > 100 and below.sum() > 100
+    k_above = np.polyfit(y[above], f[above], 1)[0]
+    k_below = np.polyfit(y[below], f[below], 1)[0]
+    assert k_above == pytest.approx(p["specimen_stiffness_n_m"], rel=1e-3)
+    assert k_below == pytest.approx(p["specimen_stiffness_n_m"] + p["specimen_closure_stiffness_n_m"], rel=1e-3)
+    assert abs(np.interp(y0, np.sort(y[above]), f[above][np.argsort(y[above])])) < 50
+
+
+def test_open_loop_prediction_restarts_from_the_measurement_every_horizon():
+    rec, truth = proving.make_record({}, seed=5, duration_s=6, noise=False)
+    rec.meta["controller"] = None
+    assert not sim.closed_loop(rec)
+    good = sim.predict(truth_params(rec, truth), rec)
+    assert rmse(good["y"], rec.columns["y"]) < 1e-6
+    wrong = truth_params(rec, truth)
+    wrong["valve_rated_flow_m3_s"] *= 1.3
+    short, long = (sim.predict(wrong, rec, horizon_s=h)["y"] for h in (0.1, 2.0))
+    e_short, e_long = rmse(short, rec.columns["y"]), rmse(long, rec.columns["y"])
+    assert e_long > 3 * e_short, (e_short, e_long)
+    k = int(round(0.1 * 500)) * 7  # a restart sample: the prediction equals the measurement there
+    assert short[k] == pytest.approx(rec.columns["y"][k], abs=1e-12)
+
+
+def test_batch_runs_in_parallel_equal_single_runs_and_failures_are_nan():
+    rec, truth = proving.make_record({}, seed=6, duration_s=3)
+    base = sim.params_from_meta(rec.meta)
+    broken = base.copy()
+    broken["moving_mass_kg"] = -1.0  # set without validation: the simulation must fail, not raise
+    batch = sim.predict([base, truth_params(rec, truth), broken, base], rec, threads=2)
+    single = sim.predict(base, rec)
+    for c in single:
+        np.testing.assert_array_equal(batch[0][c], single[c])
+        np.testing.assert_array_equal(batch[3][c], single[c])
+        assert np.all(np.isnan(batch[2][c]))
+    assert not np.array_equal(batch[1]["y"], single["y"])
+    with pytest.raises((SolverError, Exception), match="moving_mass_kg"):
+        sim.predict(broken, rec)
+
+
+def test_predict_refuses_a_declared_controller_without_its_reference():
+    rec, _ = proving.make_record({}, seed=0, duration_s=2)
+    cols = {k: v for k, v in rec.columns.items() if k != "y_ref"}
+    with pytest.raises(RecordError, match="y_ref"):
+        sim.predict(sim.params_from_meta(rec.meta), Record(cols, rec.meta, "no_ref"))
+    meta = {**rec.meta, "controller": {"type": "pid", "kp": 1}}
+    with pytest.raises(RecordError, match="pid"):
+        sim.predict(sim.params_from_meta(rec.meta), Record(dict(rec.columns), meta, "pid"))
