@@ -26,6 +26,8 @@ MIN_GAIN = 0.05
 # Evidence a candidate's signature must carry before it is refitted (chi^2 units, fraction).
 SCREEN_CHI2 = 25.0
 SCREEN_FRACTION = 0.01
+# Length of the interleaved fit/validation blocks (s).
+BLOCK_S = 0.3
 # Which of two effects that explain a record equally well is named (the more common first).
 PREFERENCE = ("sensor_offset", "valve_null_bias", "sensor_gain", "sensor_delay", "valve_dynamics", "internal_leakage",
               "friction_asymmetry", "valve_deadband", "valve_hysteresis", "supply_pressure_sag",
@@ -43,7 +45,7 @@ RADIUS_MAX = 1.0
 # Candidates refitted per round: those whose screened gain is at least this share of the best.
 REFIT_SHARE = 0.3
 # Least-squares budgets: Jacobians (one simulation per free parameter each, plus 3 trial steps).
-BASE_ITERS, REFIT_ITERS, POLISH_ITERS = 10, 4, 15
+BASE_ITERS, REFIT_ITERS, POLISH_ITERS = 10, 6, 15
 
 
 DEBUG = False
@@ -392,9 +394,10 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None,
 
 # --------------------------------------------------------------------------- diagnosis
 def _blocks(n_work: int, n: int, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
-    """Fit mask over the working window (even blocks of ~8 interleaved ones, each >= 0.5 s)
-    and validation mask over the whole record (the odd blocks and all beyond the window)."""
-    nblk = int(max(2, min(8, n_work / (0.5 * rate_hz))))
+    """Fit mask over the working window (the even ones of interleaved ~0.3 s blocks) and
+    validation mask over the whole record (the odd blocks and all beyond the window). Short
+    blocks put every phase of the experiment (holds, ramps, sines, steps) on both sides."""
+    nblk = int(max(2, n_work / (BLOCK_S * rate_hz)))
     fit_mask = (np.arange(n_work) * nblk // n_work) % 2 == 0
     val_mask = np.ones(n, bool)
     val_mask[:n_work] = ~fit_mask
@@ -545,6 +548,12 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
         polished = []
         for cand, _, trial, twork in contenders:
             trial, twork, tjac = fit(prob, trial, iters=POLISH_ITERS, pred0=twork)
+            again = trial.unpinned(x0)
+            if not np.array_equal(again.x, trial.x):
+                # Stuck with base parameters at a bound: polish once more from their nominal values.
+                retry = fit(prob, again, iters=POLISH_ITERS)
+                if prob.fit_cost(retry[1]) < prob.fit_cost(twork):
+                    trial, twork, tjac = retry
             tpred = prob.whole(trial, twork)
             polished.append((cand, _pays_off(prob, pred, trial, tpred, model, cand), trial, twork, tjac, tpred))
         # Both at the noise floor: the record cannot tell them apart; name the more common effect
