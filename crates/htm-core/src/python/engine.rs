@@ -156,20 +156,7 @@ fn outcome_dict<'py>(py: Python<'py>, o: Outcome) -> PyResult<Bound<'py, PyDict>
         gd.set_item("window", g.window)?;
         d.set_item("demod_gains", gd)?;
     }
-    let r = o.records;
-    let t = PyDict::new(py);
-    t.set_item("cycle", PyArray1::from_vec(py, r.cycle))?;
-    t.set_item("phase", PyArray1::from_vec(py, r.phase))?;
-    t.set_item("events", PyArray1::from_vec(py, r.events))?;
-    for (k, v) in [
-        ("fmax_n", r.fmax_n), ("fmin_n", r.fmin_n), ("fmax_target_n", r.fmax_target_n), ("fmin_target_n", r.fmin_target_n),
-        ("peak_err_pct", r.peak_err_pct), ("df_err_pct", r.df_err_pct), ("a_m", r.a_m), ("delta_k_pa_sqrt_m", r.delta_k),
-        ("delta_k_target_pa_sqrt_m", r.delta_k_target), ("kmax_pa_sqrt_m", r.kmax), ("dadn_m_per_cycle", r.dadn_m),
-        ("k_sp_n_m", r.k_sp_n_m), ("ctrl_u1_v", r.ctrl_u1_v), ("ctrl_u2_v", r.ctrl_u2_v),
-    ] {
-        t.set_item(k, PyArray1::from_vec(py, v))?;
-    }
-    d.set_item("table", t)?;
+    d.set_item("table", records_dict(py, o.records)?)?;
     Ok(d)
 }
 
