@@ -47,7 +47,6 @@ KNOWN = {
     "valve_hysteresis": "the proving ground's 0.25 V play makes the P loop hunt on its noise: no free-run "
                         "simulation reproduces the record even with the true parameters; diagnose refuses it",
     "pressure_dependent_friction": "at 6e-5 N/Pa the base refit alone reaches the noise floor: not identifiable here",
-    "entrained_air": "found, but the air fraction comes out ~0.02 against 0.05 (outside 30 %)",
 }
 
 

@@ -355,6 +355,9 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None,
         # Parameters at a bound that the gradient pushes outward stay put.
         free = ~(((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0)))
         jtj = jfull.T @ jfull
+        # A linear parameter far from its origin may move in proportion to its size (air at 50
+        # units would otherwise crawl one unit per iteration); a log parameter moves by `radius`.
+        reach = np.array([1.0 if f.log else max(1.0, 0.5 * abs(xi)) for f, xi in zip(model.frees, x)])
         d = np.maximum(np.diag(jtj), 1e-12 * max(1.0, float(np.max(np.diag(jtj)))))
         improved = False
         for _retry in range(3):
@@ -367,7 +370,7 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None,
                     step[free] = np.linalg.solve(a, -g[free])
                 except np.linalg.LinAlgError:
                     step[free] = -g[free] / (lm * d[free])
-                big = float(np.max(np.abs(step)))
+                big = float(np.max(np.abs(step) / reach))
                 if big > radius:
                     step *= radius / big
                 trials.append(np.clip(x + step, lo, hi))
@@ -377,7 +380,7 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None,
             k = int(np.argmin(tcost))
             if tcost[k] < cost:
                 gain = (cost - tcost[k]) / cost
-                if np.max(np.abs(trials[k] - x)) >= 0.99 * radius:
+                if np.max(np.abs(trials[k] - x) / reach) >= 0.99 * radius:
                     radius = min(RADIUS_MAX, 2.0 * radius)  # the step was capped and still good: widen
                 x, pred, r, cost, lam = trials[k], tpreds[k], tres[k], tcost[k], max(lams[k] * (0.3 if k == 0 else 1.0), 1e-7)
                 improved = True
@@ -387,9 +390,16 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None,
         if DEBUG:
             print(f"    LM cost {cost:.6g} lam {lam:.3g} radius {radius:.3g} free {int(free.sum())}/{len(x)} improved {improved}")
         small = 0 if improved and gain >= ftol else small + 1
-        if not improved or small >= 2 or cost < NOISE_COST * n_data:
-            break  # stalled, or down to the noise (the residual is noise-scaled)
+        if not improved or small >= 2 or _at_noise(r[:n_data], len(prob.channels)):
+            break  # stalled, or down to the noise on every channel
     return Model(model.nominal, model.frees, x), pred, jac
+
+
+def _at_noise(r_data: np.ndarray, n_channels: int) -> bool:
+    """Is the noise-scaled residual at the noise on every channel? (Judged per channel: one
+    channel's systematic misfit must not hide among channels that are at their floor.)"""
+    per = r_data.reshape(n_channels, -1)
+    return bool(np.max(np.mean(per * per, axis=1)) < NOISE_COST)
 
 
 # --------------------------------------------------------------------------- diagnosis
