@@ -44,9 +44,10 @@ PAIRS = [
 # Cases the current diagnosis still gets wrong (run 1, see the report); a fix shows as XPASS.
 KNOWN = {
     # open gaps of issue 5 (each still runs; an unexpected pass shows as XPASS)
-    "valve_hysteresis": "the proving ground's 0.25 V play makes the P loop hunt on its noise: no free-run "
-                        "simulation reproduces the record even with the true parameters; diagnose refuses it",
-    "pressure_dependent_friction": "at 6e-5 N/Pa the base refit alone reaches the noise floor: not identifiable here",
+    "valve_hysteresis": "with play the P+FF loop hunts inside the play band in slow ramps and holds, a limit "
+                        "cycle whose phase the in-loop sensor noise sets: even the true parameters re-simulate "
+                        "the record at ~5x (0.01-0.05 V) to ~1000x (0.25 V) the position noise; a free-run "
+                        "closed-loop fit cannot follow it (needs re-anchoring to the measured state)",
 }
 
 

@@ -87,7 +87,9 @@ def test_every_effects_id_changes_the_record_it_is_switched_on_in():
             fields = {"": "valve_linear_flow"}
         for field in fields.values():
             off[field] = base[field]
-        with_e, without = sim.predict([true, off], rec, rtol=1e-6)
+        # the power unit's true schedule (estimating it from p_s is sim.supply_schedule's test)
+        known = proving.supply_profile(np.asarray(rec.columns["y_ref"]), rec.meta["sample_rate_hz"])
+        with_e, without = sim.predict([true, off], rec, rtol=1e-6, supply=known)
         for c in with_e:
             assert np.max(np.abs(with_e[c] - rec.columns[c])) < 0.5 * proving.NOISE_STD[c], (eid, c)
         worst = max(np.max(np.abs(without[c] - rec.columns[c])) / proving.NOISE_STD[c] for c in with_e)

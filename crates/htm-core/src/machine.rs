@@ -178,6 +178,19 @@ impl Plant {
         }
     }
 
+    /// The supply set-point p_s0 at which the supply reads `p_rest` with the spool at null and
+    /// the chambers centred: with sag, the underlap's standing leakage already pulls the supply
+    /// below its set-point (a record's supply level is what its gauge reads at rest).
+    pub fn setpoint_for_rest(&self, p_rest: f64) -> f64 {
+        let p = &self.p;
+        if p.supply_resistance_pa_s_per_m3 <= 0.0 {
+            return p_rest;
+        }
+        let (open_a, open_b) = self.openings(0.0);
+        let dp = 0.5 * (p_rest - p.tank_pressure_pa);
+        p_rest + p.supply_resistance_pa_s_per_m3 * (self.edge(open_a, dp) + self.edge(open_b, dp))
+    }
+
     /// A state at rest at position `y`: chamber pressures centred between supply and tank and
     /// split so that the hydraulic force carries gravity and the specimen.
     pub fn rest_state(&self, y: f64) -> [f64; NX] {
@@ -384,6 +397,22 @@ impl Machine {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_rest_setpoint_makes_a_sagging_supply_read_its_level_at_rest() {
+        let mut p = Params::base();
+        p.supply_resistance_pa_s_per_m3 = 1e10;
+        p.gravity_m_s2 = 0.0;
+        let mut plant = Plant::new(p.clone()).unwrap();
+        let x = plant.rest_state(0.1);
+        let sagged = plant.outputs(&x).p_s;
+        assert!(sagged < p.supply_pressure_pa - 1e4, "the underlap's leakage sags the supply: {sagged}");
+        plant.p.supply_pressure_pa = plant.setpoint_for_rest(p.supply_pressure_pa);
+        let x = [x[PA], x[PB], x[Y], x[V], x[SPOOL]];
+        assert!((plant.outputs(&x).p_s - p.supply_pressure_pa).abs() < 1e3, "{}", plant.outputs(&x).p_s);
+        p.supply_resistance_pa_s_per_m3 = 0.0;
+        assert_eq!(Plant::new(p.clone()).unwrap().setpoint_for_rest(1.5e7), 1.5e7);
+    }
 
     fn check(p: Params, states: &[[f64; NX]], target: f64) {
         let mut plant = Plant::new(p).unwrap();

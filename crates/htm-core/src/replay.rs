@@ -31,6 +31,10 @@ pub struct Replay<'a> {
     pub rtol: f64,
     /// noise and quantization of the readings (record generation only; default none)
     pub corruption: Corruption<'a>,
+    /// supply pressure read at rest, per sample, as a factor of `supply_pressure_pa` (a power
+    /// unit switched between pressure levels; with sag the set-point is higher by the standing
+    /// leakage's drop); None = the constant set-point `supply_pressure_pa`
+    pub supply: Option<&'a [f64]>,
 }
 
 /// A re-simulated record: per channel what the sensors read, and the command applied.
@@ -60,6 +64,7 @@ impl<'a> Replay<'a> {
             preroll_s: DEFAULT_PREROLL_S,
             rtol: DEFAULT_RTOL,
             corruption: Corruption::default(),
+            supply: None,
         }
     }
 
@@ -75,6 +80,14 @@ impl<'a> Replay<'a> {
         }
         if !(self.dt.is_finite() && self.dt > 0.0) {
             return Err(Error::Input(format!("sample period dt = {} s must be > 0", self.dt)));
+        }
+        if let Some(s) = self.supply {
+            if s.len() != n {
+                return Err(Error::Input(format!("supply schedule has {} samples but `u` has {n}", s.len())));
+            }
+            if let Some(x) = s.iter().find(|x| !(x.is_finite() && **x > 0.0 && **x <= 10.0)) {
+                return Err(Error::Parameter { field: "supply schedule".into(), value: *x, allowed: "(0, 10] x supply_pressure_pa".into() });
+            }
         }
         let names = crate::measure::CHANNELS;
         for (i, m) in self.measured.iter().enumerate() {
@@ -120,6 +133,13 @@ impl<'a> Replay<'a> {
         let n = self.n();
         let sensors = Sensors::from_params(p);
         let mut m = Machine::new(p.clone())?.with_rtol(self.rtol)?;
+        // The supply set-point per sample: the schedule is the supply read at rest (above tank,
+        // so that the valve keeps a drop), as a factor of `supply_pressure_pa`.
+        let setpoints: Option<Vec<f64>> = self.supply.map(|s| {
+            s.iter().map(|f| m.plant.setpoint_for_rest((p.supply_pressure_pa * f).max(p.tank_pressure_pa + 1e5))).collect()
+        });
+        let supply_at = |k: usize| setpoints.as_ref().map(|s| s[k]).unwrap_or(p.supply_pressure_pa);
+        m.plant.p.supply_pressure_pa = supply_at(0);
         let y0 = self.start_position(&m, &sensors);
         m.x = m.plant.rest_state(y0);
         let pre = match self.closed_loop {
@@ -137,6 +157,7 @@ impl<'a> Replay<'a> {
                     m.step(uk, self.dt)?;
                 }
                 for k in 0..n {
+                    m.plant.p.supply_pressure_pa = supply_at(k); // read at k and held to k + 1
                     probe.push(&m.outputs());
                     let mut rd = probe.read_latest();
                     corrupt(&mut rd, &self.corruption, k);
@@ -149,6 +170,7 @@ impl<'a> Replay<'a> {
                 let u = held(self.u);
                 let every = ((self.horizon_s / self.dt).round() as usize).max(1);
                 for k in 0..n {
+                    m.plant.p.supply_pressure_pa = supply_at(k);
                     if k % every == 0 {
                         self.restart(&mut m, &sensors, k);
                     }
@@ -276,6 +298,27 @@ mod tests {
         for k in 0..r.len() {
             assert!((a.readings[0][k] - tr.y[k]).abs() < 1e-12 && (a.u[k] - tr.u[k]).abs() < 1e-9, "sample {k}");
         }
+    }
+
+    #[test]
+    fn a_supply_schedule_sets_the_supply_and_chamber_pressures_per_sample() {
+        let r = ramp(2000);
+        let u = vec![0.0; r.len()];
+        let sched: Vec<f64> = (0..r.len()).map(|k| if k < 1000 { 1.0 } else { 0.6 }).collect();
+        let mut rp = Replay::new(2e-3, &u);
+        rp.closed_loop = Some((PFF, &r));
+        rp.supply = Some(&sched);
+        let p = Params::base();
+        let a = rp.run(&p).unwrap();
+        let ps = &a.readings[4];
+        assert!((ps[500] - p.supply_pressure_pa).abs() < 1.0 && (ps[1500] - 0.6 * p.supply_pressure_pa).abs() < 1.0);
+        // a symmetric actuator holds p_a + p_b near the supply: it follows the new level
+        let sum = |k: usize| a.readings[2][k] + a.readings[3][k];
+        assert!((sum(1900) / (0.6 * p.supply_pressure_pa) - 1.0).abs() < 0.05, "{}", sum(1900));
+        assert!((sum(900) / p.supply_pressure_pa - 1.0).abs() < 0.05, "{}", sum(900));
+        let bad = vec![1.0; 10];
+        rp.supply = Some(&bad);
+        assert!(rp.run(&p).unwrap_err().to_string().contains("supply schedule"));
     }
 
     #[test]

@@ -259,9 +259,13 @@ class Problem:
     simulations: int = 0
     meas: dict[str, np.ndarray] = field(default_factory=dict)
     work: Record | None = None
+    supply: np.ndarray | None = None
 
     def __post_init__(self) -> None:
+        from htm.ident.sim import supply_schedule
+
         self.meas = {c: np.asarray(self.rec.columns[c], dtype=float) for c in self.channels}
+        self.supply = supply_schedule(self.rec)  # once: a switched supply the model follows
         n = len(self.rec.columns["t"])
         self.work = self.rec if self.n_work >= n else Record({k: np.asarray(v)[: self.n_work] for k, v in self.rec.columns.items()},
                                                              self.rec.meta, self.rec.name)
@@ -276,7 +280,8 @@ class Problem:
 
         self.simulations += len(plist)
         kw = {} if self.horizon_s is None else {"horizon_s": self.horizon_s}
-        out = predict(plist, self.rec if whole else self.work, **kw)
+        supply = self.supply if self.supply is None or whole else self.supply[: self.n_work]
+        out = predict(plist, self.rec if whole else self.work, supply=supply, **kw)
         return [{c: np.asarray(pr[c], dtype=float) for c in self.channels} for pr in out]
 
     def whole(self, model: "Model", work_pred: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -520,7 +525,7 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
         ranked = _screen(prob, model, work_pred, jac, pool)
         q = np.linalg.qr(jac)[0]  # what the base parameters can absorb, to first order
         log("screen", [(c.effect, c.channel, round(g, 3)) for c, g, _ in ranked[:6]])
-        good: list[tuple[Candidate, dict, Model, dict]] = []
+        good: list[tuple[Candidate, dict, Model, dict, tuple]] = []
         better_base: tuple[float, Model] | None = None
         for cand, gain, step in ranked[:max_refits]:
             if gain < REFIT_SHARE * ranked[0][1]:
@@ -532,12 +537,13 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
             restart[: len(x0)] = x0
             fits = [fit(prob, _scan(prob, [start.with_candidate(cand, step)], cand, q), iters=REFIT_ITERS)
                     for start in (model.unpinned(x0), Model(model.nominal, model.frees, restart))]
-            trial, twork, tjac = min(fits, key=lambda f: prob.fit_cost(f[1]))
+            fits.sort(key=lambda f: prob.fit_cost(f[1]))
+            trial, twork, tjac = fits[0]
             tpred = prob.whole(trial, twork)
             verdict = _pays_off(prob, pred, trial, tpred, model, cand)
             log("refit", cand.label, cand.report(trial.params()), verdict)
             if verdict["ok"]:
-                good.append((cand, verdict, trial, twork))
+                good.append((cand, verdict, trial, twork, fits[1]))
             elif verdict["dcost"] < -MIN_GAIN:
                 # Not the effect but a better fit of the base parameters: remember those.
                 cost = prob.fit_cost(twork)
@@ -556,12 +562,18 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
         # Close contenders (e.g. an offset and a gain of the same sensor) are told apart polished.
         contenders = [g for g in good[:2] if g[1]["dbic"] <= 0.5 * good[0][1]["dbic"]]
         polished = []
-        for cand, _, trial, twork in contenders:
+        for cand, _, trial, twork, other in contenders:
             trial, twork, tjac = fit(prob, trial, iters=POLISH_ITERS, pred0=twork)
             again = trial.unpinned(x0)
             if not np.array_equal(again.x, trial.x):
                 # Stuck with base parameters at a bound: polish once more from their nominal values.
                 retry = fit(prob, again, iters=POLISH_ITERS)
+                if prob.fit_cost(retry[1]) < prob.fit_cost(twork):
+                    trial, twork, tjac = retry
+            if not _at_noise(prob.residual(twork, prob.fit_mask), len(prob.channels)):
+                # Still off the noise: the refit from the other start may be in the better basin
+                # (the current fit's base parameters were bent by the missing effect).
+                retry = fit(prob, other[0], iters=POLISH_ITERS, pred0=other[1])
                 if prob.fit_cost(retry[1]) < prob.fit_cost(twork):
                     trial, twork, tjac = retry
             tpred = prob.whole(trial, twork)

@@ -45,6 +45,11 @@ QUANTUM = {"y": 1e-6, "v": 1e-5, "p_a": 1.2e3, "p_b": 1.2e3, "p_s": 1.2e3, "f": 
 SPECIMEN_STIFFNESS_N_M = 2.0e6
 CENTRE_M = 0.1
 CONTROLLER = {"type": "position_pff", "kp_v_per_m": -150.0, "kff_v_per_m_s": -14.3, "u_max_v": 10.0, "law": POSITION_LAW}
+# The power unit is switched from high to low pressure part-way (at the first hold after this
+# share of the record, to this share of the supply, with this lag [s]): at one supply the chamber pressures of a
+# symmetric actuator always sum to about p_s, so pressure-dependent seal friction would look
+# like Coulomb friction; a second level tells them apart.
+SUPPLY_SWITCH_AT, SUPPLY_LOW, SUPPLY_LAG_S = 0.55, 0.6, 0.1
 OUTSIDE = {"friction_bump": {"friction_bump_n": 500.0, "friction_bump_width_m": 0.006}}
 
 
@@ -77,12 +82,27 @@ def rich_reference(duration_s: float, rate_hz: float, *, centre_m: float = CENTR
     return np.resize(one, n)
 
 
+def supply_profile(ref: np.ndarray, rate_hz: float) -> np.ndarray:
+    """The supply (read at rest) per sample as a factor of nominal: high, then low from the first
+    hold of the reference after `SUPPLY_SWITCH_AT` of the record (an operator switches the power
+    unit with the actuator at rest), with a first-order lag `SUPPLY_LAG_S`."""
+    n = len(ref)
+    t = np.arange(n) / rate_hz
+    still = np.r_[np.diff(ref) == 0, False]
+    k = int(SUPPLY_SWITCH_AT * n)
+    run = max(2, int(0.2 * rate_hz))  # a hold at least this long
+    starts = [i for i in range(k, n - run) if still[i:i + run].all() and (i == 0 or not still[i - 1])]
+    t0 = (starts[0] if starts else k) / rate_hz + 0.05
+    return 1.0 - (1.0 - SUPPLY_LOW) * np.where(t < t0, 0.0, 1.0 - np.exp(-(t - t0) / SUPPLY_LAG_S))
+
+
 def make_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, seed: int, rate_hz: float = 500,
                 duration_s: float = 20, rig_spread: float = 0.3, noise: bool = True, experiment: str = "rich",
                 specimen: bool | None = None, effect_outside_table: str | None = None) -> tuple[Record, dict[str, Any]]:
     """A closed-loop position record of the simulated rig with `effects` on (EFFECTS.md ids ->
     parameter dicts in EFFECTS.md names; sensor effects carry `channel`; empty dicts take
-    `DEFAULT_EFFECTS`). The rig's free parameters are drawn uniformly within +-`rig_spread` of the
+    `DEFAULT_EFFECTS`). The experiment (`rich_reference`) switches the power unit from high to
+    low supply pressure part-way (`supply_profile`). The rig's free parameters are drawn uniformly within +-`rig_spread` of the
     nominal thesis rig while the metadata states the nominal values; readings get white noise
     and quantization (`NOISE_STD`, `QUANTUM`) inside the loop. A specimen (2e6 N/m, with an `f`
     column) is fitted when asked, or when an effect needs one. `effect_outside_table`:
@@ -155,7 +175,7 @@ def make_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, seed:
         kw["quantum"] = {c: QUANTUM[c] for c in chans}
         meta["sensors"] = {c: {"resolution": QUANTUM[c], "noise_std": NOISE_STD[c]} for c in chans}
     out = replay([truth], dt, np.zeros(n), controller=CONTROLLER, reference=ref, preroll_s=PREROLL_S, rtol=1e-6,
-                 threads=1, **kw)[0]
+                 supply=supply_profile(ref, rate_hz), threads=1, **kw)[0]
     if out["error"] is not None:
         raise InputError(f"the simulated rig failed (seed {seed}, effects {sorted(resolved)}): {out['error']}")
     cols = {"t": dt * np.arange(n), "u": out["u"], **{c: out[c] for c in chans}, "y_ref": ref}

@@ -35,6 +35,13 @@ PREROLL_S = 1.0
 # (far below sensor noise) at a fifth of the cost; see benchmarks/replay_speed.py.
 RTOL = 1e-4
 
+# A measured supply whose level moves by more than this share was switched between pressure
+# levels (a power unit's low and high pressure): the model's supply set-point follows it.
+SUPPLY_SWITCH = 0.05
+# Window of the supply's upper envelope [s]: longer than a motion's sag dip, so that the sag
+# stays for the model to explain (it is zero whenever the valve closes, at every reversal).
+SUPPLY_WINDOW_S = 2.5
+
 _OFFSET_NAME = {"y": "offset_m", "v": "offset_m_s", "p_a": "offset_pa", "p_b": "offset_pa", "p_s": "offset_pa", "f": "offset_n"}
 
 # EFFECTS.md id -> {effect parameter name: Params field}; sensor effects are per channel.
@@ -163,13 +170,50 @@ def closed_loop(rec: Record) -> bool:
     return bool(rec.meta.get("controller"))
 
 
-def _setup(rec: Record) -> dict[str, Any]:
+def supply_schedule(rec: Record) -> np.ndarray | None:
+    """The supply set-point over time, as a factor of the metadata's `supply_pressure_pa` (else of
+    its median), read from the measured `p_s`: its upper envelope, a closing (rolling max, then
+    rolling min over `SUPPLY_WINDOW_S`) that removes the sag dips of motions and keeps level
+    switches where they happen. None when there is no `p_s` or its level stays within
+    `SUPPLY_SWITCH` (a constant supply: the model's own)."""
+    from scipy.ndimage import maximum_filter1d, median_filter, minimum_filter1d
+
+    if "p_s" not in rec.columns:
+        return None
+    ps = np.asarray(rec.columns["p_s"], dtype=float)
+    ok = np.isfinite(ps)
+    if ok.sum() < 10:
+        return None
+    ps = np.interp(np.arange(len(ps)), np.flatnonzero(ok), ps[ok])  # dropped samples bridged
+    t = np.asarray(rec.columns["t"], dtype=float)
+    rate = 1.0 / float(np.median(np.diff(t)))
+    # The max of raw noise is biased high: a median first (it keeps a switch's edges where they
+    # are, though it shaves the narrow un-sagged tops of fast motions by a fraction of a percent).
+    ps = median_filter(ps, size=max(1, int(round(0.1 * rate)) | 1), mode="nearest")
+    w = max(3, int(round(SUPPLY_WINDOW_S * rate)) | 1)
+    # Padded a window long with the top of each end's last half window: a sag dip at an end is
+    # not taken for a new level (a switch within half a window of an end is not followed).
+    q = max(1, w // 2)
+    padded = np.concatenate([np.full(w, ps[:q].max()), ps, np.full(w, ps[-q:].max())])
+    env = minimum_filter1d(maximum_filter1d(padded, w), w)[w:-w]
+    mid = float(np.median(env))
+    if mid <= 0 or (np.max(env) - np.min(env)) < SUPPLY_SWITCH * mid:
+        return None
+    ref = (rec.meta.get("rig") or {}).get("supply_pressure_pa")
+    ref = float(ref) if isinstance(ref, (int, float)) and ref > 0 else mid
+    return np.clip(env / ref, 0.01, 10.0)
+
+
+def _setup(rec: Record, *, estimate_supply: bool = True) -> dict[str, Any]:
     t = np.asarray(rec.columns["t"], dtype=float)
     if len(t) < 2:
         raise RecordError(f"record `{rec.name}` has {len(t)} samples; at least 2 are needed to simulate")
     dt = float(np.median(np.diff(t)))
     measured = {c: np.ascontiguousarray(rec.columns[c], dtype=float) for c in CHANNELS if c in rec.columns}
     args: dict[str, Any] = {"dt": dt, "u": np.ascontiguousarray(rec.columns["u"], dtype=float), "measured": measured}
+    supply = supply_schedule(rec) if estimate_supply else None
+    if supply is not None:
+        args["supply"] = np.ascontiguousarray(supply)
     ctrl = rec.meta.get("controller")
     if ctrl:
         kind = ctrl.get("type")
@@ -184,20 +228,23 @@ def _setup(rec: Record) -> dict[str, Any]:
 
 
 def predict(params: Params | list[Params], rec: Record, *, horizon_s: float | None = None, threads: int = 0,
-            rtol: float = RTOL) -> dict[str, np.ndarray] | list[dict[str, np.ndarray]]:
+            rtol: float = RTOL, supply: np.ndarray | None | str = "auto") -> dict[str, np.ndarray] | list[dict[str, np.ndarray]]:
     """The record's channels (those of y, v, p_a, p_b, p_s, f it has) as the model's sensors would
     read them, noise-free, SI units.
 
     With a declared controller: a free-run closed-loop simulation from the reference (after a
     `PREROLL_S` hold), the controller fed by the simulated readings. Otherwise the recorded `u`
     played open loop, restarted from the measured state every `horizon_s` s (default
-    `DEFAULT_HORIZON_S`). A list of Params runs in parallel in Rust with the GIL released
+    `DEFAULT_HORIZON_S`). A supply switched between levels (measured `p_s`) is followed
+    (`supply_schedule`) unless `supply` gives the schedule (same form; None = constant). A list of Params runs in parallel in Rust with the GIL released
     (`threads` = 0: all cores) and a failed simulation gives NaN arrays; a single Params raises
     SolverError instead.
     """
     single = isinstance(params, Params)
     plist = [params] if single else list(params)
-    args = _setup(rec)
+    args = _setup(rec, estimate_supply=isinstance(supply, str))
+    if supply is not None and not isinstance(supply, str):
+        args["supply"] = np.ascontiguousarray(supply, dtype=float)
     out = replay(plist, horizon_s=DEFAULT_HORIZON_S if horizon_s is None else float(horizon_s),
                  preroll_s=PREROLL_S, rtol=rtol, threads=threads, **args)
     keep = list(args["measured"])

@@ -52,11 +52,12 @@ fn result_dict<'py>(py: Python<'py>, r: Result<Replayed, crate::Error>, n: usize
 /// recorded columns (start state and open-loop restarts); `controller` (DATA_FORMAT dict) with
 /// `reference` (m or N) selects the closed loop, else the open loop re-started every `horizon_s`.
 /// `noise` (per-channel arrays added to the readings) and `quantum` (per-channel steps) make a
-/// record's realistic sensors. Returns one dict per parameter set: the readings per channel,
+/// record's realistic sensors. `supply` (one factor per sample) scales the supply set-point
+/// `supply_pressure_pa` over time (a power unit switched between pressure levels). Returns one dict per parameter set: the readings per channel,
 /// `u`, `steps`, and `error` (None, or the solver's message with NaN arrays). Bad arguments raise.
 #[pyfunction]
 #[pyo3(signature = (params, dt, u, measured = None, controller = None, reference = None, horizon_s = DEFAULT_HORIZON_S,
-                    preroll_s = DEFAULT_PREROLL_S, rtol = DEFAULT_RTOL, noise = None, quantum = None, threads = 0))]
+                    preroll_s = DEFAULT_PREROLL_S, rtol = DEFAULT_RTOL, noise = None, quantum = None, supply = None, threads = 0))]
 #[allow(clippy::too_many_arguments)]
 fn replay<'py>(
     py: Python<'py>,
@@ -71,6 +72,7 @@ fn replay<'py>(
     rtol: f64,
     noise: Option<&Bound<'py, PyDict>>,
     quantum: Option<&Bound<'py, PyDict>>,
+    supply: Option<PyReadonlyArray1<'py, f64>>,
     threads: usize,
 ) -> PyResult<Bound<'py, PyList>> {
     let meas = channel_arrays(measured)?;
@@ -97,6 +99,9 @@ fn replay<'py>(
         return Err(InputError::new_err("quantum steps must be finite and >= 0"));
     }
     rp.corruption = corr;
+    if let Some(s) = &supply {
+        rp.supply = Some(s.as_slice()?);
+    }
     let r_s;
     match (ctrl, &reference) {
         (Some(c), Some(r)) => {
