@@ -46,9 +46,9 @@ SPECIMEN_STIFFNESS_N_M = 2.0e6
 CENTRE_M = 0.1
 CONTROLLER = {"type": "position_pff", "kp_v_per_m": -150.0, "kff_v_per_m_s": -14.3, "u_max_v": 10.0, "law": POSITION_LAW}
 # The power unit is switched from high to low pressure part-way (at the first hold after this
-# share of the record, to this share of the supply, with this lag [s]): at one supply the chamber pressures of a
-# symmetric actuator always sum to about p_s, so pressure-dependent seal friction would look
-# like Coulomb friction; a second level tells them apart.
+# share of the record, to this share of the supply, with this lag [s]): at one supply the
+# chamber pressures of a symmetric actuator always sum to about p_s, so pressure-dependent seal
+# friction would look like Coulomb friction; a second level tells them apart.
 SUPPLY_SWITCH_AT, SUPPLY_LOW, SUPPLY_LAG_S = 0.55, 0.6, 0.1
 OUTSIDE = {"friction_bump": {"friction_bump_n": 500.0, "friction_bump_width_m": 0.006}}
 

@@ -171,8 +171,8 @@ def closed_loop(rec: Record) -> bool:
 
 
 def supply_schedule(rec: Record) -> np.ndarray | None:
-    """The supply set-point over time, as a factor of the metadata's `supply_pressure_pa` (else of
-    its median), read from the measured `p_s`: its upper envelope, a closing (rolling max, then
+    """The supply read at rest over time (the `supply` of `replay`), as a factor of the metadata's
+    `supply_pressure_pa` (else of its median), from the measured `p_s`: its upper envelope, a closing (rolling max, then
     rolling min over `SUPPLY_WINDOW_S`) that removes the sag dips of motions and keeps level
     switches where they happen. None when there is no `p_s` or its level stays within
     `SUPPLY_SWITCH` (a constant supply: the model's own)."""
