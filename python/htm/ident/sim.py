@@ -172,9 +172,9 @@ def closed_loop(rec: Record) -> bool:
 
 def supply_schedule(rec: Record) -> np.ndarray | None:
     """The supply read at rest over time (the `supply` of `replay`), as a factor of the metadata's
-    `supply_pressure_pa` (else of its median), from the measured `p_s`: its upper envelope, a closing (rolling max, then
-    rolling min over `SUPPLY_WINDOW_S`) that removes the sag dips of motions and keeps level
-    switches where they happen. None when there is no `p_s` or its level stays within
+    `supply_pressure_pa` (else of its median), from the measured `p_s`: its upper envelope, a
+    closing (rolling max, then rolling min over `SUPPLY_WINDOW_S`) that removes the sag dips of
+    motions and keeps level switches where they happen. None when there is no `p_s` or its level stays within
     `SUPPLY_SWITCH` (a constant supply: the model's own)."""
     from scipy.ndimage import maximum_filter1d, median_filter, minimum_filter1d
 
@@ -204,16 +204,13 @@ def supply_schedule(rec: Record) -> np.ndarray | None:
     return np.clip(env / ref, 0.01, 10.0)
 
 
-def _setup(rec: Record, *, estimate_supply: bool = True) -> dict[str, Any]:
+def _setup(rec: Record) -> dict[str, Any]:
     t = np.asarray(rec.columns["t"], dtype=float)
     if len(t) < 2:
         raise RecordError(f"record `{rec.name}` has {len(t)} samples; at least 2 are needed to simulate")
     dt = float(np.median(np.diff(t)))
     measured = {c: np.ascontiguousarray(rec.columns[c], dtype=float) for c in CHANNELS if c in rec.columns}
     args: dict[str, Any] = {"dt": dt, "u": np.ascontiguousarray(rec.columns["u"], dtype=float), "measured": measured}
-    supply = supply_schedule(rec) if estimate_supply else None
-    if supply is not None:
-        args["supply"] = np.ascontiguousarray(supply)
     ctrl = rec.meta.get("controller")
     if ctrl:
         kind = ctrl.get("type")
@@ -242,8 +239,10 @@ def predict(params: Params | list[Params], rec: Record, *, horizon_s: float | No
     """
     single = isinstance(params, Params)
     plist = [params] if single else list(params)
-    args = _setup(rec, estimate_supply=isinstance(supply, str))
-    if supply is not None and not isinstance(supply, str):
+    args = _setup(rec)
+    if isinstance(supply, str):  # "auto"
+        supply = supply_schedule(rec)
+    if supply is not None:
         args["supply"] = np.ascontiguousarray(supply, dtype=float)
     out = replay(plist, horizon_s=DEFAULT_HORIZON_S if horizon_s is None else float(horizon_s),
                  preroll_s=PREROLL_S, rtol=rtol, threads=threads, **args)
