@@ -41,14 +41,8 @@ PAIRS = [
     {"friction_asymmetry": {}, "sensor_gain": {"channel": "p_b", "gain": 1.15}},
 ]
 
-# Cases the current diagnosis still gets wrong (run 1, see the report); a fix shows as XPASS.
-KNOWN = {
-    # open gaps of issue 5 (each still runs; an unexpected pass shows as XPASS)
-    "valve_hysteresis": "with play the P+FF loop hunts inside the play band in slow ramps and holds, a limit "
-                        "cycle whose phase the in-loop sensor noise sets: even the true parameters re-simulate "
-                        "the record at ~5x (0.01-0.05 V) to ~1000x (0.25 V) the position noise; a free-run "
-                        "closed-loop fit cannot follow it (needs re-anchoring to the measured state)",
-}
+# Cases the current diagnosis still gets wrong (with the reason); a fix shows as XPASS.
+KNOWN: dict[str, str] = {}
 
 
 def cases(items, ids):
@@ -62,10 +56,15 @@ _cache: dict[str, tuple] = {}
 
 def run(effects: dict, seed: int, **kw) -> tuple[dict, dict]:
     """Make the record and diagnose it once per case (pytest may ask twice)."""
+    return _run(effects, seed, **kw)[:2]
+
+
+def _run(effects: dict, seed: int, **kw) -> tuple[dict, dict, dict]:
     key = repr((sorted(effects.items()), seed, sorted(kw.items())))
     if key not in _cache:
         rec, truth = proving.make_record(effects, seed=seed, duration_s=kw.pop("duration_s", DURATION_S), **kw)
-        _cache[key] = (diagnose(rec), truth)
+        stats: dict = {}
+        _cache[key] = (diagnose(rec, stats=stats), truth, stats)
     return _cache[key]
 
 
@@ -124,3 +123,18 @@ def test_an_effect_outside_the_table_is_unexplained_and_no_wrong_id_is_claimed()
     assert report["findings"] == [], f"claimed {named(report)} for a friction bump"
     assert report["unexplained"] is True
     assert np.isfinite(report["final"]["rmse"]["y"])
+
+
+def test_a_loop_that_hunts_on_its_noise_is_fitted_on_the_recorded_command():
+    """With valve play the position loop hunts, phased by the in-loop sensor noise: the fitted
+    model's own free runs differ by many noise floors from one noise realisation to the next, so
+    the fit is made on the recorded command while the errors stay those of the free run; a clean
+    loop is not noise-sensitive and keeps the closed-loop fit."""
+    eid, params = ("valve_hysteresis", {})
+    report, truth, stats = _run({eid: params}, seed=100 + SINGLES.index((eid, params)))
+    assert stats["fitted_on"] == "recorded command"
+    assert stats["loop_floor"]["y"] > 5.0, stats["loop_floor"]
+    assert "recorded command" in report["findings"][0]["evidence"]
+    _, _, clean = _run({}, seed=300 + 500, rate_hz=500)
+    assert clean["fitted_on"] == "closed loop"
+    assert max(clean["loop_floor"].values()) < 1.0, clean["loop_floor"]

@@ -200,3 +200,25 @@ def test_a_switched_supply_is_followed_and_its_sag_left_for_the_model():
     const = Record({**rec.columns, "p_s": ps0 + np.random.default_rng(0).normal(0, 3e4, len(t))}, rec.meta, "const")
     assert sim.supply_schedule(const) is None
     assert sim.supply_schedule(Record({k: v for k, v in rec.columns.items() if k != "p_s"}, rec.meta, "no_ps")) is None
+
+
+def test_command_mode_plays_the_recorded_u_of_a_closed_loop_record_and_noise_enters_the_loop():
+    rec, truth = proving.make_record({"valve_hysteresis": {}}, seed=9, duration_s=4)
+    p = truth_params(rec, truth)
+    played = sim.predict(p, rec, command=True, horizon_s=0.2)
+    stripped = Record(dict(rec.columns), {**rec.meta, "controller": None}, "stripped")
+    same = sim.predict(p, stripped, horizon_s=0.2)
+    for c in played:
+        np.testing.assert_array_equal(played[c], same[c])
+    free = sim.predict(p, rec)
+    assert not np.array_equal(free["y"], played["y"])
+    # synthetic noise is added to the readings and the controller acts on it: a channel it does
+    # not read carries exactly the added noise, the fed-back position a different motion
+    n = len(rec.columns["t"])
+    rng = np.random.default_rng(1)
+    z = {c: rng.normal(0.0, proving.NOISE_STD[c], n) for c in ("y", "p_a")}
+    noisy = sim.predict(p, rec, noise=z)
+    assert rmse(noisy["y"] - z["y"], free["y"]) > 0.2 * proving.NOISE_STD["y"]  # the loop moved otherwise
+    quiet = sim.predict(p, rec, noise={"p_a": z["p_a"]})
+    np.testing.assert_allclose(quiet["p_a"] - z["p_a"], free["p_a"], atol=1e-6)
+    np.testing.assert_array_equal(quiet["y"], free["y"])

@@ -44,6 +44,9 @@ NOISE_COST = 1.2
 RADIUS_MAX = 1.0
 # Candidates refitted per round: those whose screened gain is at least this share of the best.
 REFIT_SHARE = 0.3
+# The free run's own spread (`_loop_floor`): synthetic records of the fitted model, their seed,
+# and the margin above the largest spread beyond which structure counts as unexplained.
+LOOP_REALISATIONS, LOOP_SEED, LOOP_MARGIN = 3, 20261121, 3.0
 # Least-squares budgets: Jacobians (one simulation per free parameter each, plus 3 trial steps).
 BASE_ITERS, REFIT_ITERS, POLISH_ITERS = 10, 6, 15
 
@@ -256,6 +259,7 @@ class Problem:
     fit_mask: np.ndarray  # over the working window
     val_mask: np.ndarray  # over the whole record
     horizon_s: float | None = None
+    command: bool = False  # predict from the recorded command even in closed loop (sim.predict)
     simulations: int = 0
     meas: dict[str, np.ndarray] = field(default_factory=dict)
     work: Record | None = None
@@ -281,7 +285,7 @@ class Problem:
         self.simulations += len(plist)
         kw = {} if self.horizon_s is None else {"horizon_s": self.horizon_s}
         supply = self.supply if self.supply is None or whole else self.supply[: self.n_work]
-        out = predict(plist, self.rec if whole else self.work, supply=supply, **kw)
+        out = predict(plist, self.rec if whole else self.work, supply=supply, command=self.command, **kw)
         return [{c: np.asarray(pr[c], dtype=float) for c in self.channels} for pr in out]
 
     def whole(self, model: "Model", work_pred: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -468,7 +472,7 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
     Raises IdentificationError ("cannot identify ...: why") for a record that carries no
     information (too short, no excitation) or that does not belong to its metadata's rig.
     """
-    from htm.ident.sim import params_from_meta
+    from htm.ident.sim import closed_loop, params_from_meta
 
     t_start = time.perf_counter()
     try:
@@ -500,13 +504,72 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
             raise IdentificationError(f"cannot identify: nominal {f.key} is {_get(nominal, f.key)}; need > 0")
     base = Model(nominal, frees, x0)
 
+    pool = candidates(nominal, rec, channels, scales, rate)
+    base, base_pred, model, pred, findings = _search(prob, rec, base, nominal, pool, rate, max_findings, max_refits, log)
+    misfit = _rig_misfit(rec, prob, model, pred, rate)
+    fitted_on = "closed loop" if closed_loop(rec) else "recorded command"
+    floor = {c: 0.0 for c in channels} if misfit else _loop_floor(prob, model, rate)
+    unexplained = _unexplained(prob, pred, floor, rate)
+    if closed_loop(rec) and np.isfinite(rec.columns["u"]).any() and (misfit or unexplained or max(floor.values()) > SYSTEMATIC):
+        # The closed loop hunts on its own sensor noise (or the free-run fit is stuck): a free
+        # run cannot follow the record's particular hunt, so its fit is not to be trusted. Fit
+        # again by the prediction error from the recorded command (well posed however the loop
+        # hunts), then judge that model by its free run as the record's contract asks.
+        log("free run noise floor", {c: round(v, 2) for c, v in floor.items()}, "-> refit on the recorded command")
+        cprob = Problem(rec, prob.channels, prob.sigma, prob.weight, prob.n_work, prob.fit_mask, prob.val_mask,
+                        horizon_s=horizon_s, command=True)
+        cbase, _, cmodel, cpred, cfind = _search(cprob, rec, Model(nominal, frees, x0), nominal, pool, rate,
+                                                 max_findings, max_refits, log)
+        free = _free_run(prob, rec, cbase, cmodel, cfind, rate)
+        cfloor = _loop_floor(prob, cmodel, rate)
+        good = _rig_misfit(rec, cprob, cmodel, cpred, rate) is None and not _unexplained(prob, free[2], cfloor, rate)
+        log("on the recorded command", [f["effect"] for f in free[1]], "explained" if good else "not explained")
+        prob.simulations += cprob.simulations
+        if good:
+            base, base_pred, model, pred, findings = cbase, free[0], cmodel, free[2], free[1]
+            misfit, unexplained, floor, fitted_on = None, False, cfloor, "recorded command"
+    if misfit:
+        raise IdentificationError(misfit)
+    ratios = prob.ratios(pred, rate)
+    report: dict[str, Any] = {
+        "format": FORMAT,
+        "record": rec.name,
+        "baseline": {"params": base.values(), "rmse": _rmse(prob, base_pred)},
+        "findings": [{k: v for k, v in f.items() if not k.startswith("_")} for f in findings],
+        "final": {"params": _final_params(model), "rmse": _rmse(prob, pred)},
+        "unexplained": unexplained,
+        "predictions": "predictions.csv",
+    }
+    if rec.meta.get("controller") is None:
+        from htm.ident import sim
+
+        report["horizon_s"] = horizon_s if horizon_s is not None else getattr(sim, "DEFAULT_HORIZON_S", None)
+    log("done", report["final"]["rmse"], "unexplained" if unexplained else "")
+    info = {"simulations": prob.simulations, "seconds": time.perf_counter() - t_start,
+            "noise_floor": sigma, "systematic_ratio": ratios, "loop_floor": floor,
+            "fitted_on": fitted_on}
+    if out_dir is not None:
+        from htm.ident.diagnose_report import write_diagnosis
+
+        write_diagnosis(Path(out_dir), rec, report, base_pred, pred, findings, info)
+    if stats is not None:
+        stats.update(info, before=base_pred, after=pred, seconds=time.perf_counter() - t_start)
+    return report
+
+
+def _search(prob: Problem, rec: Record, base: Model, nominal: Params, pool: list[Candidate], rate: float,
+            max_findings: int, max_refits: int,
+            log: Callable[..., None]) -> tuple[Model, dict, Model, dict, list[dict[str, Any]]]:
+    """Fit the base model, then add effects from `pool` while one pays off on the held-out data.
+    Returns the baseline (model, whole-record prediction), the final (model, prediction) and
+    the findings."""
+    x0 = base.x.copy()
     base, work_pred, jac = fit(prob, base, iters=BASE_ITERS)
     base_pred = prob.whole(base, work_pred)
     log("baseline", {k: f"{v:.4g}" for k, v in base.values().items()}, _rmse(prob, base_pred))
 
     model, pred = base, base_pred
     findings: list[dict[str, Any]] = []
-    pool = candidates(nominal, rec, channels, scales, rate)
     kept_base = False
     for _round in range(max_findings + 2):
         if len(findings) >= max_findings:
@@ -601,6 +664,7 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
         if not findings:  # the baseline is the base model as fitted just before the first finding
             base, base_pred = model, pred
         findings.append(_finding(prob, rec, cand, model, pred, trial, tpred, verdict, rate))
+        findings[-1].update(_before=model, _verdict=verdict)
         model, pred, work_pred, jac = trial, tpred, twork, tjac
 
     # Backward check: an earlier finding that the later ones make redundant is dropped.
@@ -624,32 +688,65 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
         last["_pred_after"] = pred
         last["rmse_after"] = _rmse(prob, pred)
         last["params"] = last["_cand"].report(model.params())
-    _check_rig(rec, prob, model, pred, rate)
+    return base, base_pred, model, pred, findings
+
+
+def _loop_floor(prob: Problem, model: Model, rate: float) -> dict[str, float]:
+    """Per channel: how far a free run of `model` can be from a record of itself, as a systematic
+    ratio — the largest over `LOOP_REALISATIONS` synthetic records (the model's run with white
+    noise at the record's floors and its sensors' quantization in the loop) against the
+    noise-free run. Near the white-noise level for a well-behaved loop; far above it when the loop
+    hunts on its sensor noise (play), where no free run can follow one particular hunt. Zero for
+    open-loop records (they are restarted from the measurement)."""
+    from htm.ident.sim import closed_loop
+
+    if not closed_loop(prob.rec):
+        return {c: 0.0 for c in prob.channels}
+    n = len(prob.rec.columns["t"])
+    p = model.params()
+    quantum = {c: ft.declared_resolution(prob.rec.meta, c) or 0.0 for c in prob.channels}
+    rng = np.random.default_rng(LOOP_SEED)
+    noises = [{c: rng.normal(0.0, prob.sigma[c], n) for c in prob.channels} for _ in range(LOOP_REALISATIONS)]
+    clean = prob.predict([p], whole=True)[0]
+    out = {c: 0.0 for c in prob.channels}
+    for z in noises:
+        prob.simulations += 1
+        syn = _predict_noisy(p, prob, z, quantum)
+        for c in prob.channels:
+            out[c] = max(out[c], ft.systematic_ratio(clean[c] - syn[c], prob.sigma[c], rate))
+    return out
+
+
+def _predict_noisy(p: Params, prob: Problem, noise: dict[str, np.ndarray], quantum: dict[str, float]) -> dict[str, np.ndarray]:
+    from htm.ident.sim import predict
+
+    out = predict([p], prob.rec, supply=prob.supply, noise=noise, quantum=quantum)[0]
+    return {c: np.asarray(out[c], dtype=float) for c in prob.channels}
+
+
+def _unexplained(prob: Problem, pred: dict[str, np.ndarray], floor: dict[str, float], rate: float) -> bool:
+    """Systematic structure left: some channel's residual above UNEXPLAINED and above what the
+    model's own free run varies by (`LOOP_MARGIN` x its loop floor)."""
     ratios = prob.ratios(pred, rate)
-    unexplained = bool(max(ratios.values()) > UNEXPLAINED)
-    report: dict[str, Any] = {
-        "format": FORMAT,
-        "record": rec.name,
-        "baseline": {"params": base.values(), "rmse": _rmse(prob, base_pred)},
-        "findings": [{k: v for k, v in f.items() if not k.startswith("_")} for f in findings],
-        "final": {"params": _final_params(model), "rmse": _rmse(prob, pred)},
-        "unexplained": unexplained,
-        "predictions": "predictions.csv",
-    }
-    if rec.meta.get("controller") is None:
-        from htm.ident import sim
+    return any(r > max(UNEXPLAINED, LOOP_MARGIN * floor[c]) for c, r in ratios.items())
 
-        report["horizon_s"] = horizon_s if horizon_s is not None else getattr(sim, "DEFAULT_HORIZON_S", None)
-    log("done", report["final"]["rmse"], "unexplained" if unexplained else "")
-    info = {"simulations": prob.simulations, "seconds": time.perf_counter() - t_start,
-            "noise_floor": sigma, "systematic_ratio": ratios}
-    if out_dir is not None:
-        from htm.ident.diagnose_report import write_diagnosis
 
-        write_diagnosis(Path(out_dir), rec, report, base_pred, pred, findings, info)
-    if stats is not None:
-        stats.update(info, before=base_pred, after=pred, seconds=time.perf_counter() - t_start)
-    return report
+def _free_run(prob: Problem, rec: Record, base: Model, model: Model, findings: list[dict[str, Any]],
+              rate: float) -> tuple[dict, list[dict[str, Any]], dict]:
+    """Findings made on the recorded command, restated by free runs of the closed loop (the
+    record's contract): the baseline's and the final prediction, and each finding's error just
+    before and after it (each finding's model before it; the last one's after it is the final)."""
+    models = [f["_before"] for f in findings] + [model]
+    preds = prob.predict([m.params() for m in [base] + models[1:]], whole=True)
+    base_pred, out = preds[0], []
+    for i, f in enumerate(findings):
+        before = base if i == 0 else models[i]
+        g = _finding(prob, rec, f["_cand"], before, preds[i], models[i + 1], preds[i + 1], f["_verdict"], rate)
+        g["params"] = f["params"]
+        g["evidence"] += (" Fitted on the recorded command (the closed loop hunts on its sensor noise, so no free "
+                          "run follows the record's own hunt); errors are of the free-run closed loop.")
+        out.append(g)
+    return base_pred, out, preds[-1]
 
 
 def _final_params(model: Model) -> dict[str, float]:
@@ -788,16 +885,16 @@ def _finding(prob: Problem, rec: Record, cand: Candidate, before: Model, pred0: 
     }
 
 
-def _check_rig(rec: Record, prob: Problem, base: Model, pred: dict, rate: float) -> None:
-    """Refuse a record the base model cannot approach with the metadata's rig: rig parameters
-    pinned at their bounds while the residual stays far above the noise floor."""
+def _rig_misfit(rec: Record, prob: Problem, base: Model, pred: dict, rate: float) -> str | None:
+    """Why the record is not of its metadata's rig, or None: rig parameters pinned at their
+    bounds while the residual stays far above the noise floor."""
     pinned = [f.key for f, x in zip(base.frees, base.x) if f in RIG_FREES and (x <= f.lo + PIN or x >= f.hi - PIN)]
     ratios = prob.ratios(pred, rate)
     worst = max(ratios, key=ratios.get)
-    if pinned and ratios[worst] > RIG_MISS:
-        vals = base.values()
-        raise IdentificationError(
-            f"cannot identify `{rec.name}`: the record does not match its metadata's rig — the model fit pins "
+    if not (pinned and ratios[worst] > RIG_MISS):
+        return None
+    vals = base.values()
+    return (f"cannot identify `{rec.name}`: the record does not match its metadata's rig — the model fit pins "
             + ", ".join(f"{k} = {vals[k]:.4g} (nominal {_get(base.nominal, k):.4g})" for k in pinned)
             + f" at its bound and still misses {worst} by {ratios[worst]:.0f}x its noise floor, and no EFFECTS.md effect "
             "closes the gap; check the `rig` metadata (or the record holds an effect outside the table)")

@@ -55,9 +55,13 @@ def _write_markdown(out: Path, rec: Record, report: dict[str, Any], before: dict
         f"open loop on the recorded command, restarted from the measurement every {report.get('horizon_s')} s"
     lines = [f"# Diagnosis of `{rec.name}`", "",
              f"{len(rec.columns['t'])} samples at {rec.meta.get('sample_rate_hz')} Hz; predictions are {loop}. "
-             f"{info['simulations']} simulations in {info['seconds']:.1f} s.", "",
-             "## Error per channel", "",
-             "| channel | noise floor | baseline RMSE | final RMSE | final systematic / noise |", "|---|---|---|---|---|"]
+             f"{info['simulations']} simulations in {info['seconds']:.1f} s.", ""]
+    if rec.meta.get("controller") and info.get("fitted_on") == "recorded command":
+        lines += ["The model was fitted on the recorded command (open loop, restarted from the measurement): the fitted "
+                  "closed loop hunts on its own sensor noise, so no free run can follow the record's particular hunt. "
+                  "The errors below are nonetheless those of the free-run closed loop.", ""]
+    lines += ["## Error per channel", "",
+              "| channel | noise floor | baseline RMSE | final RMSE | final systematic / noise |", "|---|---|---|---|---|"]
     for c in channels:
         lines.append(f"| {c} | {_fmt(c, sigma[c])} | {_fmt(c, report['baseline']['rmse'][c])} | "
                      f"{_fmt(c, report['final']['rmse'][c])} | {info['systematic_ratio'][c]:.2f} |")
@@ -81,7 +85,13 @@ def _write_markdown(out: Path, rec: Record, report: dict[str, Any], before: dict
         lines.append(f"**Yes.** Systematic residual remains that no candidate accounts for: the low-passed {worst} residual is "
                      f"{info['systematic_ratio'][worst]:.1f}x its noise floor. Do not read the findings above as the whole story.")
     else:
-        lines.append("No: on every channel what remains is within 1.5x the noise floor (low-passed, and beyond the noise variance).")
+        lines.append("No: on every channel what remains is within 1.5x the noise floor (low-passed, and beyond the noise variance), "
+                     "or within 3x of what the model's own free run varies by from one noise realisation to another.")
+    loop_floor = info.get("loop_floor") or {}
+    if any(v > 1.0 for v in loop_floor.values()):
+        lines.append("")
+        lines.append("The fitted closed loop is noise-sensitive: free runs of the model with fresh sensor noise differ from its "
+                     "noise-free run by " + ", ".join(f"{c} {v:.1f}x" for c, v in loop_floor.items()) + " the noise floor.")
     _plot_residuals(out / "residuals.png", rec, before, after, sigma)
     (out / "report.md").write_text("\n".join(lines) + "\n")
 

@@ -204,14 +204,14 @@ def supply_schedule(rec: Record) -> np.ndarray | None:
     return np.clip(env / ref, 0.01, 10.0)
 
 
-def _setup(rec: Record) -> dict[str, Any]:
+def _setup(rec: Record, command: bool = False) -> dict[str, Any]:
     t = np.asarray(rec.columns["t"], dtype=float)
     if len(t) < 2:
         raise RecordError(f"record `{rec.name}` has {len(t)} samples; at least 2 are needed to simulate")
     dt = float(np.median(np.diff(t)))
     measured = {c: np.ascontiguousarray(rec.columns[c], dtype=float) for c in CHANNELS if c in rec.columns}
     args: dict[str, Any] = {"dt": dt, "u": np.ascontiguousarray(rec.columns["u"], dtype=float), "measured": measured}
-    ctrl = rec.meta.get("controller")
+    ctrl = None if command else rec.meta.get("controller")
     if ctrl:
         kind = ctrl.get("type")
         col = {"position_pff": "y_ref", "force_p": "f_ref"}.get(kind)
@@ -225,21 +225,32 @@ def _setup(rec: Record) -> dict[str, Any]:
 
 
 def predict(params: Params | list[Params], rec: Record, *, horizon_s: float | None = None, threads: int = 0,
-            rtol: float = RTOL, supply: np.ndarray | None | str = "auto") -> dict[str, np.ndarray] | list[dict[str, np.ndarray]]:
+            rtol: float = RTOL, supply: np.ndarray | None | str = "auto", command: bool = False,
+            noise: Mapping[str, np.ndarray] | None = None,
+            quantum: Mapping[str, float] | None = None) -> dict[str, np.ndarray] | list[dict[str, np.ndarray]]:
     """The record's channels (those of y, v, p_a, p_b, p_s, f it has) as the model's sensors would
-    read them, noise-free, SI units.
+    read them, noise-free (unless `noise` is given), SI units.
 
     With a declared controller: a free-run closed-loop simulation from the reference (after a
     `PREROLL_S` hold), the controller fed by the simulated readings. Otherwise the recorded `u`
     played open loop, restarted from the measured state every `horizon_s` s (default
     `DEFAULT_HORIZON_S`). A supply switched between levels (measured `p_s`) is followed
-    (`supply_schedule`) unless `supply` gives the schedule (same form; None = constant). A list of Params runs in parallel in Rust with the GIL released
-    (`threads` = 0: all cores) and a failed simulation gives NaN arrays; a single Params raises
-    SolverError instead.
+    (`supply_schedule`) unless `supply` gives the schedule (same form; None = constant).
+
+    `command`: play the recorded `u` open loop (with restarts) even when a controller is declared
+    (a prediction error that stays well posed when the closed loop hunts on its sensor noise).
+    `noise`/`quantum` per channel: added to the readings inside the loop (a synthetic record of
+    the model; the returned readings include them).
+
+    A list of Params runs in parallel in Rust with the GIL released (`threads` = 0: all cores)
+    and a failed simulation gives NaN arrays; a single Params raises SolverError instead.
     """
     single = isinstance(params, Params)
     plist = [params] if single else list(params)
-    args = _setup(rec)
+    args = _setup(rec, command)
+    if noise is not None:
+        args["noise"] = {c: np.ascontiguousarray(z, dtype=float) for c, z in noise.items()}
+        args["quantum"] = dict(quantum or {})
     if isinstance(supply, str):  # "auto"
         supply = supply_schedule(rec)
     if supply is not None:
