@@ -132,7 +132,7 @@ def test_a_loop_that_hunts_on_its_noise_is_fitted_on_the_recorded_command():
     loop is not noise-sensitive and keeps the closed-loop fit."""
     eid, params = ("valve_hysteresis", {})
     report, truth, stats = _run({eid: params}, seed=100 + SINGLES.index((eid, params)))
-    assert stats["fitted_on"] == "recorded command"
+    assert stats["fitted_on"].startswith("recorded command: the fitted closed loop hunts"), stats["fitted_on"]
     assert stats["loop_floor"]["y"] > 5.0, stats["loop_floor"]
     assert "recorded command" in report["findings"][0]["evidence"]
     _, _, clean = _run({}, seed=300 + 500, rate_hz=500)

@@ -520,14 +520,16 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
                         horizon_s=horizon_s, command=True)
         cbase, _, cmodel, cpred, cfind = _search(cprob, rec, Model(nominal, frees, x0), nominal, pool, rate,
                                                  max_findings, max_refits, log)
-        free = _free_run(prob, rec, cbase, cmodel, cfind, rate)
         cfloor = _loop_floor(prob, cmodel, rate)
+        why = ("the fitted closed loop hunts on its sensor noise, so no free run follows the record's own hunt"
+               if max(cfloor.values()) > SYSTEMATIC else "the free-run fit of the closed loop did not reach the record")
+        free = _free_run(prob, rec, cbase, cmodel, cfind, rate, why)
         good = _rig_misfit(rec, cprob, cmodel, cpred, rate) is None and not _unexplained(prob, free[2], cfloor, rate)
         log("on the recorded command", [f["effect"] for f in free[1]], "explained" if good else "not explained")
         prob.simulations += cprob.simulations
         if good:
             base, base_pred, model, pred, findings = cbase, free[0], cmodel, free[2], free[1]
-            misfit, unexplained, floor, fitted_on = None, False, cfloor, "recorded command"
+            misfit, unexplained, floor, fitted_on = None, False, cfloor, f"recorded command: {why}"
     if misfit:
         raise IdentificationError(misfit)
     ratios = prob.ratios(pred, rate)
@@ -732,7 +734,7 @@ def _unexplained(prob: Problem, pred: dict[str, np.ndarray], floor: dict[str, fl
 
 
 def _free_run(prob: Problem, rec: Record, base: Model, model: Model, findings: list[dict[str, Any]],
-              rate: float) -> tuple[dict, list[dict[str, Any]], dict]:
+              rate: float, why: str) -> tuple[dict, list[dict[str, Any]], dict]:
     """Findings made on the recorded command, restated by free runs of the closed loop (the
     record's contract): the baseline's and the final prediction, and each finding's error just
     before and after it (each finding's model before it; the last one's after it is the final)."""
@@ -743,8 +745,7 @@ def _free_run(prob: Problem, rec: Record, base: Model, model: Model, findings: l
         before = base if i == 0 else models[i]
         g = _finding(prob, rec, f["_cand"], before, preds[i], models[i + 1], preds[i + 1], f["_verdict"], rate)
         g["params"] = f["params"]
-        g["evidence"] += (" Fitted on the recorded command (the closed loop hunts on its sensor noise, so no free "
-                          "run follows the record's own hunt); errors are of the free-run closed loop.")
+        g["evidence"] += f" Fitted on the recorded command ({why}); the errors are of the free-run closed loop."
         out.append(g)
     return base_pred, out, preds[-1]
 

@@ -56,10 +56,10 @@ def _write_markdown(out: Path, rec: Record, report: dict[str, Any], before: dict
     lines = [f"# Diagnosis of `{rec.name}`", "",
              f"{len(rec.columns['t'])} samples at {rec.meta.get('sample_rate_hz')} Hz; predictions are {loop}. "
              f"{info['simulations']} simulations in {info['seconds']:.1f} s.", ""]
-    if rec.meta.get("controller") and info.get("fitted_on") == "recorded command":
-        lines += ["The model was fitted on the recorded command (open loop, restarted from the measurement): the fitted "
-                  "closed loop hunts on its own sensor noise, so no free run can follow the record's particular hunt. "
-                  "The errors below are nonetheless those of the free-run closed loop.", ""]
+    fitted_on = str(info.get("fitted_on", ""))
+    if rec.meta.get("controller") and fitted_on.startswith("recorded command: "):
+        lines += [f"The model was fitted on the recorded command (open loop, restarted from the measurement): "
+                  f"{fitted_on.split(': ', 1)[1]}. The errors below are nonetheless those of the free-run closed loop.", ""]
     lines += ["## Error per channel", "",
               "| channel | noise floor | baseline RMSE | final RMSE | final systematic / noise |", "|---|---|---|---|---|"]
     for c in channels:
