@@ -508,7 +508,7 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
     base, base_pred, model, pred, findings = _search(prob, rec, base, nominal, pool, rate, max_findings, max_refits, log)
     misfit = _rig_misfit(rec, prob, model, pred, rate)
     fitted_on = "closed loop" if closed_loop(rec) else "recorded command"
-    floor = {c: 0.0 for c in channels} if misfit else _loop_floor(prob, model, rate)
+    floor = {c: 0.0 for c in channels} if misfit else _loop_floor(prob, model, pred, rate)
     unexplained = _unexplained(prob, pred, floor, rate)
     if closed_loop(rec) and np.isfinite(rec.columns["u"]).any() and (misfit or unexplained or max(floor.values()) > SYSTEMATIC):
         # The closed loop hunts on its own sensor noise (or the free-run fit is stuck): a free
@@ -520,10 +520,12 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
                         horizon_s=horizon_s, command=True)
         cbase, _, cmodel, cpred, cfind = _search(cprob, rec, Model(nominal, frees, x0), nominal, pool, rate,
                                                  max_findings, max_refits, log)
-        cfloor = _loop_floor(prob, cmodel, rate)
+        free = _free_run(prob, rec, cbase, cmodel, cfind, rate)
+        cfloor = _loop_floor(prob, cmodel, free[2], rate)
         why = ("the fitted closed loop hunts on its sensor noise, so no free run follows the record's own hunt"
                if max(cfloor.values()) > SYSTEMATIC else "the free-run fit of the closed loop did not reach the record")
-        free = _free_run(prob, rec, cbase, cmodel, cfind, rate, why)
+        for f in free[1]:
+            f["evidence"] += f" Fitted on the recorded command ({why}); the errors are of the free-run closed loop."
         good = _rig_misfit(rec, cprob, cmodel, cpred, rate) is None and not _unexplained(prob, free[2], cfloor, rate)
         log("on the recorded command", [f["effect"] for f in free[1]], "explained" if good else "not explained")
         prob.simulations += cprob.simulations
@@ -693,14 +695,15 @@ def _search(prob: Problem, rec: Record, base: Model, nominal: Params, pool: list
     return base, base_pred, model, pred, findings
 
 
-def _loop_floor(prob: Problem, model: Model, rate: float) -> dict[str, float]:
-    """Per channel: how far a free run of `model` can be from a record of itself, as a systematic
+def _loop_floor(prob: Problem, model: Model, clean: dict[str, np.ndarray], rate: float) -> dict[str, float]:
+    """Per channel: how far a free run of `model` (`clean`: its whole-record prediction) can be
+    from a record of itself, as a systematic
     ratio — the largest over `LOOP_REALISATIONS` synthetic records (the model's run with white
     noise at the record's floors and its sensors' quantization in the loop) against the
     noise-free run. Near the white-noise level for a well-behaved loop; far above it when the loop
     hunts on its sensor noise (play), where no free run can follow one particular hunt. Zero for
     open-loop records (they are restarted from the measurement)."""
-    from htm.ident.sim import closed_loop
+    from htm.ident.sim import closed_loop, predict
 
     if not closed_loop(prob.rec):
         return {c: 0.0 for c in prob.channels}
@@ -708,22 +711,14 @@ def _loop_floor(prob: Problem, model: Model, rate: float) -> dict[str, float]:
     p = model.params()
     quantum = {c: ft.declared_resolution(prob.rec.meta, c) or 0.0 for c in prob.channels}
     rng = np.random.default_rng(LOOP_SEED)
-    noises = [{c: rng.normal(0.0, prob.sigma[c], n) for c in prob.channels} for _ in range(LOOP_REALISATIONS)]
-    clean = prob.predict([p], whole=True)[0]
     out = {c: 0.0 for c in prob.channels}
-    for z in noises:
+    for _ in range(LOOP_REALISATIONS):
+        noise = {c: rng.normal(0.0, prob.sigma[c], n) for c in prob.channels}
+        syn = predict([p], prob.rec, supply=prob.supply, noise=noise, quantum=quantum)[0]
         prob.simulations += 1
-        syn = _predict_noisy(p, prob, z, quantum)
         for c in prob.channels:
-            out[c] = max(out[c], ft.systematic_ratio(clean[c] - syn[c], prob.sigma[c], rate))
+            out[c] = max(out[c], ft.systematic_ratio(clean[c] - np.asarray(syn[c], dtype=float), prob.sigma[c], rate))
     return out
-
-
-def _predict_noisy(p: Params, prob: Problem, noise: dict[str, np.ndarray], quantum: dict[str, float]) -> dict[str, np.ndarray]:
-    from htm.ident.sim import predict
-
-    out = predict([p], prob.rec, supply=prob.supply, noise=noise, quantum=quantum)[0]
-    return {c: np.asarray(out[c], dtype=float) for c in prob.channels}
 
 
 def _unexplained(prob: Problem, pred: dict[str, np.ndarray], floor: dict[str, float], rate: float) -> bool:
@@ -734,20 +729,19 @@ def _unexplained(prob: Problem, pred: dict[str, np.ndarray], floor: dict[str, fl
 
 
 def _free_run(prob: Problem, rec: Record, base: Model, model: Model, findings: list[dict[str, Any]],
-              rate: float, why: str) -> tuple[dict, list[dict[str, Any]], dict]:
+              rate: float) -> tuple[dict, list[dict[str, Any]], dict]:
     """Findings made on the recorded command, restated by free runs of the closed loop (the
-    record's contract): the baseline's and the final prediction, and each finding's error just
-    before and after it (each finding's model before it; the last one's after it is the final)."""
-    models = [f["_before"] for f in findings] + [model]
-    preds = prob.predict([m.params() for m in [base] + models[1:]], whole=True)
-    base_pred, out = preds[0], []
+    record's contract): the baseline's prediction, the findings with the errors just before and
+    after each (the model before the next finding, the final model after the last) and the final
+    prediction."""
+    chain = [base] + [f["_before"] for f in findings[1:]] + [model]
+    preds = prob.predict([m.params() for m in chain], whole=True)
+    out = []
     for i, f in enumerate(findings):
-        before = base if i == 0 else models[i]
-        g = _finding(prob, rec, f["_cand"], before, preds[i], models[i + 1], preds[i + 1], f["_verdict"], rate)
+        g = _finding(prob, rec, f["_cand"], chain[i], preds[i], chain[i + 1], preds[i + 1], f["_verdict"], rate)
         g["params"] = f["params"]
-        g["evidence"] += f" Fitted on the recorded command ({why}); the errors are of the free-run closed loop."
         out.append(g)
-    return base_pred, out, preds[-1]
+    return preds[0], out, preds[-1]
 
 
 def _final_params(model: Model) -> dict[str, float]:
