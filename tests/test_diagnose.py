@@ -11,7 +11,7 @@ import pytest
 from htm.cli import main
 from htm.ident import proving
 from htm.ident.diagnose import IdentificationError, diagnose
-from htm.ident.diagnose_report import read_predictions
+from htm.ident.report import read_predictions
 from htm.ident.records import Record, write_record
 
 REPORT_KEYS = {"format", "record", "baseline", "findings", "final", "unexplained", "predictions"}

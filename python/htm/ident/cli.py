@@ -1,9 +1,11 @@
-"""`htm identify RECORD --out DIR`: the thesis's chapter-3 identification with a report."""
+"""The identification commands: `htm identify` (the thesis's chapter-3 identification) and
+`htm diagnose` (the model fit and effect search)."""
 from __future__ import annotations
 
 import argparse
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -68,7 +70,28 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--meta", help="metadata JSON (default: NAME.json beside the table)")
     p.add_argument("--out", required=True, help="output directory")
     p.set_defaults(func=cmd_identify)
-    from htm.ident.diagnose_report import register as register_diagnose
+    _register_diagnose(sub)
 
-    register_diagnose(sub)
 
+def cmd_diagnose(args: argparse.Namespace) -> int:
+    from htm.ident.diagnose import diagnose
+
+    rec = read_record(args.record, args.meta)
+    run: dict[str, Any] = {}
+    report = diagnose(rec, out_dir=args.out, verbose=args.verbose, stats=run)
+    found = ", ".join(f["effect"] + (f"({f['channel']})" if f["channel"] else "") for f in report["findings"]) or "none"
+    print(f"diagnosed {rec.name}: findings: {found}; unexplained: {str(report['unexplained']).lower()}; "
+          f"{run['simulations']} simulations in {run['seconds']:.1f} s; wrote {Path(args.out) / 'report.json'}")
+    return 0
+
+
+def _register_diagnose(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("diagnose", help="fit the model to a record and find the effects it lacks",
+                       description="Fit the EFFECTS.md base model to a DATA_FORMAT.md record by simulation error, trace "
+                                   "the residual to effects (kept only if they pay off on held-out segments) and write "
+                                   "report.json, predictions.csv and report.md with plots.")
+    p.add_argument("record", help="record table (NAME.csv, NAME.csv.gz or NAME.parquet)")
+    p.add_argument("--meta", help="metadata JSON (default: NAME.json beside the table)")
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--verbose", action="store_true", help="print the search as it goes")
+    p.set_defaults(func=cmd_diagnose)

@@ -1,7 +1,6 @@
-"""`htm diagnose RECORD --out DIR`: report.json, predictions.csv, report.md and its plots."""
+"""The diagnosis files: report.json, predictions.csv, report.md and its plots (DATA_FORMAT.md)."""
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 from typing import Any
@@ -9,19 +8,19 @@ from typing import Any
 import numpy as np
 
 from htm.ident import features as ft
-from htm.ident.records import Record, read_record
+from htm.ident.records import Record
+from htm.ident.search import Finding, Result
 
 # Engineering units for a person reading report.md: (scale from SI, unit).
 _ENG = {"y": (1e3, "mm"), "v": (1e3, "mm/s"), "p_a": (1e-5, "bar"), "p_b": (1e-5, "bar"), "p_s": (1e-5, "bar"), "f": (1e-3, "kN")}
 
 
-def write_diagnosis(out: Path, rec: Record, report: dict[str, Any], before: dict[str, np.ndarray],
-                    after: dict[str, np.ndarray], findings: list[dict[str, Any]], info: dict[str, Any]) -> None:
+def write_diagnosis(out: Path, rec: Record, report: dict[str, Any], res: Result, info: dict[str, Any]) -> None:
     """Write DATA_FORMAT.md's diagnosis files into `out` (created if needed)."""
     out.mkdir(parents=True, exist_ok=True)
     (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
-    write_predictions(out / report["predictions"], rec, before, after)
-    _write_markdown(out, rec, report, before, after, findings, info)
+    write_predictions(out / report["predictions"], rec, res.base_pred, res.pred)
+    _write_markdown(out, rec, report, res.base_pred, res.pred, res.findings, info)
 
 
 def write_predictions(path: Path, rec: Record, before: dict[str, np.ndarray], after: dict[str, np.ndarray]) -> None:
@@ -48,7 +47,7 @@ def _fmt(c: str, x: float) -> str:
 
 
 def _write_markdown(out: Path, rec: Record, report: dict[str, Any], before: dict, after: dict,
-                    findings: list[dict[str, Any]], info: dict[str, Any]) -> None:
+                    findings: list[Finding], info: dict[str, Any]) -> None:
     channels = ft.measured_channels(rec.columns)
     sigma = info["noise_floor"]
     loop = "closed-loop free run from the reference" if rec.meta.get("controller") else \
@@ -72,13 +71,13 @@ def _write_markdown(out: Path, rec: Record, report: dict[str, Any], before: dict
     if not findings:
         lines.append("None: no effect of EFFECTS.md pays off on the held-out segments.")
     for i, f in enumerate(findings, 1):
-        ps = ", ".join(f"{k} = {v:.4g}" for k, v in f["params"].items()) or "no parameters"
-        lines += [f"### {i}. `{f['effect']}`" + (f" on `{f['channel']}`" if f["channel"] else "") + f" ({ps})", "",
-                  f["evidence"], "", "| channel | RMSE before | RMSE after |", "|---|---|---|"]
-        lines += [f"| {c} | {_fmt(c, f['rmse_before'][c])} | {_fmt(c, f['rmse_after'][c])} |" for c in channels]
-        png = f"finding_{i}_{f['effect']}.png"
+        ps = ", ".join(f"{k} = {v:.4g}" for k, v in f.params.items()) or "no parameters"
+        lines += [f"### {i}. `{f.effect}`" + (f" on `{f.channel}`" if f.channel else "") + f" ({ps})", "",
+                  f.evidence, "", "| channel | RMSE before | RMSE after |", "|---|---|---|"]
+        lines += [f"| {c} | {_fmt(c, f.rmse_before[c])} | {_fmt(c, f.rmse_after[c])} |" for c in channels]
+        png = f"finding_{i}_{f.effect}.png"
         _plot_finding(out / png, rec, f)
-        lines += ["", f"![{f['effect']}]({png})", ""]
+        lines += ["", f"![{f.effect}]({png})", ""]
     lines += ["", "## Unexplained", ""]
     if report["unexplained"]:
         worst = max(info["systematic_ratio"], key=info["systematic_ratio"].get)
@@ -125,14 +124,14 @@ def _plot_residuals(path: Path, rec: Record, before: dict, after: dict, sigma: d
     plt.close(fig)
 
 
-def _plot_finding(path: Path, rec: Record, f: dict[str, Any]) -> None:
+def _plot_finding(path: Path, rec: Record, f: Finding) -> None:
     plt = _plt()
-    c = f["_focus"]
+    c = f.focus
     k, unit = _ENG[c]
     t = np.asarray(rec.columns["t"], dtype=float)
     meas = np.asarray(rec.columns[c], dtype=float)
-    rb, ra = (f["_pred_before"][c] - meas) * k, (f["_pred_after"][c] - meas) * k
-    name, x = f["_feature"]
+    rb, ra = (f.pred_before[c] - meas) * k, (f.pred_after[c] - meas) * k
+    name, x = f.feature
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 3.4), gridspec_kw={"width_ratios": [2, 1]})
     a1.plot(t, rb, lw=0.6, label="before")
     a1.plot(t, ra, lw=0.6, label="after")
@@ -144,31 +143,7 @@ def _plot_finding(path: Path, rec: Record, f: dict[str, Any]) -> None:
     a2.plot(np.asarray(x)[::step], ra[::step], ".", ms=2, label="after")
     a2.set_xlabel(name)
     a2.set_ylabel(f"{c} residual [{unit}]")
-    fig.suptitle(f"{f['effect']}" + (f" on {f['channel']}" if f["channel"] else "") + ": residual before/after and its signature")
+    fig.suptitle(f"{f.cand.label}: residual before/after and its signature")
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
-
-
-def cmd_diagnose(args: argparse.Namespace) -> int:
-    from htm.ident.diagnose import diagnose
-
-    rec = read_record(args.record, args.meta)
-    run: dict[str, Any] = {}
-    report = diagnose(rec, out_dir=args.out, verbose=args.verbose, stats=run)
-    found = ", ".join(f["effect"] + (f"({f['channel']})" if f["channel"] else "") for f in report["findings"]) or "none"
-    print(f"diagnosed {rec.name}: findings: {found}; unexplained: {str(report['unexplained']).lower()}; "
-          f"{run['simulations']} simulations in {run['seconds']:.1f} s; wrote {Path(args.out) / 'report.json'}")
-    return 0
-
-
-def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("diagnose", help="fit the model to a record and find the effects it lacks",
-                       description="Fit the EFFECTS.md base model to a DATA_FORMAT.md record by simulation error, trace "
-                                   "the residual to effects (kept only if they pay off on held-out segments) and write "
-                                   "report.json, predictions.csv and report.md with plots.")
-    p.add_argument("record", help="record table (NAME.csv, NAME.csv.gz or NAME.parquet)")
-    p.add_argument("--meta", help="metadata JSON (default: NAME.json beside the table)")
-    p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--verbose", action="store_true", help="print the search as it goes")
-    p.set_defaults(func=cmd_diagnose)

@@ -1,0 +1,227 @@
+"""Fitting a model to a record by simulation error: the problem (record, channels, noise floors,
+interleaved fit/validation blocks, the family's simulator) and a bounded Levenberg-Marquardt fit
+whose Jacobians and trial steps are batches of simulations (run in parallel by the core)."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from htm.ident import features as ft
+from htm.ident.model import Model, get_value
+from htm.ident.records import Record
+
+# Length of the interleaved fit/validation blocks (s): short blocks put every phase of the
+# experiment (holds, ramps, sines, steps) on both sides.
+BLOCK_S = 0.3
+# A fit whose noise-scaled cost per residual falls below this on every channel is at the noise.
+NOISE_COST = 1.2
+# Largest LM step of any normalised coordinate (a factor e for a log parameter): far jumps land in
+# wrong basins (friction trading against compressibility).
+RADIUS_MAX = 1.0
+# Weak prior on parameters that have one, as a share of the noise-level cost that a change of
+# `prior` (normalised coordinates) costs: it gives the flat valleys (bulk modulus vs dead volumes)
+# curvature without moving what the data determine.
+PRIOR_SHARE = 0.003
+
+Predictor = Callable[..., list[dict[str, np.ndarray]]]
+
+
+@dataclass
+class Problem:
+    """A record, its channels and noise floors, the fit/validation split and the simulator.
+
+    Fits run on a working window (the record's first `n_work` samples, the whole of a short
+    record), on its interleaved fit blocks; everything else is held out for validation.
+    `simulate(plist, rec, **opts)` returns each parameter set's sensor readings; per-sample arrays
+    in `opts` are cut to the working window with the record."""
+
+    rec: Record
+    simulate: Predictor
+    channels: list[str]
+    sigma: dict[str, float]
+    n_work: int
+    fit_mask: np.ndarray  # over the working window
+    val_mask: np.ndarray  # over the whole record
+    opts: dict[str, Any] = field(default_factory=dict)
+    simulations: int = 0
+    meas: dict[str, np.ndarray] = field(default_factory=dict)
+    work: Record | None = None
+
+    def __post_init__(self) -> None:
+        self.meas = {c: np.asarray(self.rec.columns[c], dtype=float) for c in self.channels}
+        n = len(self.rec.columns["t"])
+        self.work = self.rec if self.n_work >= n else Record(
+            {k: np.asarray(v)[: self.n_work] for k, v in self.rec.columns.items()}, self.rec.meta, self.rec.name)
+
+    def variant(self, **opts: Any) -> "Problem":
+        """The same problem simulated with other options (e.g. on the recorded command)."""
+        return Problem(self.rec, self.simulate, self.channels, self.sigma, self.n_work, self.fit_mask, self.val_mask,
+                       {**self.opts, **opts})
+
+    @property
+    def truncated(self) -> bool:
+        return self.work is not self.rec
+
+    def predict(self, plist: list[Any], *, whole: bool = False, **extra: Any) -> list[dict[str, np.ndarray]]:
+        """Sensor readings predicted for each parameter set over the working window (or the whole record)."""
+        self.simulations += len(plist)
+        n = len(self.rec.columns["t"])
+        opts = {**self.opts, **extra}
+        if not whole and self.truncated:
+            opts = {k: v[: self.n_work] if isinstance(v, np.ndarray) and len(v) == n else v for k, v in opts.items()}
+        out = self.simulate(plist, self.rec if whole else self.work, **opts)
+        return [{c: np.asarray(pr[c], dtype=float) for c in self.channels} for pr in out]
+
+    def whole(self, model: Model, work_pred: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """The whole-record prediction of a model whose working-window prediction is known."""
+        return self.predict([model.params()], whole=True)[0] if self.truncated else work_pred
+
+    def residual(self, pred: dict[str, np.ndarray], mask: np.ndarray) -> np.ndarray:
+        """Weighted residual (prediction - measurement)/noise over `mask`, channels stacked;
+        dropped samples count zero, a failed simulation counts as a huge error."""
+        parts = []
+        for c in self.channels:
+            m = self.meas[c][: len(mask)]
+            r = (pred[c] - m)[mask] / self.sigma[c]
+            bad = ~np.isfinite(r)
+            if bad.any():
+                r = np.where(np.isfinite(m[mask]), np.where(bad, 1e4, r), 0.0)
+            parts.append(r)
+        return np.concatenate(parts)
+
+    def channel_ssr(self, pred: dict[str, np.ndarray], mask: np.ndarray) -> dict[str, tuple[float, int]]:
+        """Per channel: weighted sum of squared residuals over `mask` and its sample count."""
+        out = {}
+        for c in self.channels:
+            m = self.meas[c][: len(mask)]
+            r = (pred[c] - m)[mask] / self.sigma[c]
+            ok = np.isfinite(m[mask])
+            r = np.where(np.isfinite(r), r, 1e4)[ok]
+            out[c] = (float(np.dot(r, r)), int(ok.sum()))
+        return out
+
+    def fit_cost(self, pred: dict[str, np.ndarray]) -> float:
+        """Weighted cost over the fit blocks of a working-window prediction."""
+        r = self.residual(pred, self.fit_mask)
+        return float(r @ r)
+
+    def ratios(self, pred: dict[str, np.ndarray], rate: float) -> dict[str, float]:
+        """Per channel: low-passed residual RMS over the noise floor (whole-record prediction)."""
+        return {c: ft.systematic_ratio(pred[c] - self.meas[c], self.sigma[c], rate) for c in self.channels}
+
+    def rmse(self, pred: dict[str, np.ndarray]) -> dict[str, float]:
+        """Per channel RMS of prediction - measurement over the measured samples (SI)."""
+        out = {}
+        for c in self.channels:
+            r = np.asarray(pred[c], dtype=float) - self.meas[c]
+            r = r[np.isfinite(self.meas[c])]
+            out[c] = float(np.sqrt(np.mean(r**2))) if np.all(np.isfinite(r)) else float("nan")
+        return out
+
+    def bic_delta(self, before: dict, after: dict, extra: int) -> tuple[float, float]:
+        """ΔBIC of adding `extra` parameters on the validation samples (per-channel Gaussian
+        likelihoods with unknown variance) and the relative change of the weighted validation cost."""
+        s0 = self.channel_ssr(before, self.val_mask)
+        s1 = self.channel_ssr(after, self.val_mask)
+        n_all = sum(n for _, n in s0.values())
+        d = sum(n * math.log(max(s1[c][0], 1e-300) / max(s0[c][0], 1e-300)) for c, (_, n) in s0.items())
+        tot0 = sum(v for v, _ in s0.values())
+        tot1 = sum(v for v, _ in s1.values())
+        return d + extra * math.log(max(n_all, 2)), (tot1 - tot0) / max(tot0, 1e-300)
+
+
+def blocks(n_work: int, n: int, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """Fit mask over the working window (the even ones of interleaved `BLOCK_S` blocks) and
+    validation mask over the whole record (the odd blocks and all beyond the window)."""
+    nblk = int(max(2, n_work / (BLOCK_S * rate_hz)))
+    fit_mask = (np.arange(n_work) * nblk // n_work) % 2 == 0
+    val_mask = np.ones(n, bool)
+    val_mask[:n_work] = ~fit_mask
+    return fit_mask, val_mask
+
+
+def at_noise(r_data: np.ndarray, n_channels: int) -> bool:
+    """Is the noise-scaled residual at the noise on every channel? (Judged per channel: one
+    channel's systematic misfit must not hide among channels that are at their floor.)"""
+    per = r_data.reshape(n_channels, -1)
+    return bool(np.max(np.mean(per * per, axis=1)) < NOISE_COST)
+
+
+def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None,
+        ftol: float = 2e-3, log: Callable[..., None] | None = None) -> tuple[Model, dict, np.ndarray]:
+    """Bounded Levenberg-Marquardt on the weighted fit-block residual over the model's free
+    parameters: forward-difference Jacobians (one batch of simulations), then three damping
+    levels tried at once (one more batch). At most `iters` Jacobians; stops when an iteration
+    gains less than `ftol` of the cost twice. `pred0`: the model's working-window prediction, if
+    known. Returns the fitted model, its working-window prediction and the Jacobian there."""
+    lo = np.array([f.lo for f in model.frees])
+    hi = np.array([f.hi for f in model.frees])
+    steps = np.array([f.step for f in model.frees])
+    x = np.clip(model.x, lo, hi)
+    pred = pred0 if pred0 is not None and np.array_equal(x, model.x) else prob.predict([model.at(x).params()])[0]
+    r_data = prob.residual(pred, prob.fit_mask)
+    n_data = len(r_data)
+    # Prior rows: sqrt(W) (x - x_nominal) / width, W a small share of the noise-level cost.
+    has = np.array([f.prior > 0 for f in model.frees])
+    width = np.array([f.prior if f.prior > 0 else 1.0 for f in model.frees])
+    x_nom = np.array([0.0 if f.log else f.coord(get_value(model.nominal, f.key), 0.0) for f in model.frees])
+    wp = math.sqrt(PRIOR_SHARE * n_data) * has / width
+
+    def full(rd: np.ndarray, xx: np.ndarray) -> np.ndarray:
+        return np.concatenate([rd, wp * (xx - x_nom)])
+
+    r = full(r_data, x)
+    cost = float(r @ r)
+    lam, radius = 1e-2, 0.5  # damping; largest step of any normalised coordinate
+    small = 0  # iterations in a row that gained less than ftol
+    jac = np.zeros((n_data, len(x)))
+    for _ in range(iters):
+        hs = np.where(x + steps <= hi, steps, -steps)  # step inwards at an upper bound
+        preds = prob.predict([model.at(x + h * e).params() for h, e in zip(hs, np.eye(len(x)))])
+        jac = np.column_stack([(prob.residual(pr, prob.fit_mask) - r[:n_data]) / h for pr, h in zip(preds, hs)])
+        jfull = np.vstack([jac, np.diag(wp)])
+        g = jfull.T @ r
+        # Parameters at a bound that the gradient pushes outward stay put.
+        free = ~(((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0)))
+        jtj = jfull.T @ jfull
+        # A linear parameter far from its origin may move in proportion to its size (air at 50
+        # units would otherwise crawl one unit per iteration); a log parameter moves by `radius`.
+        reach = np.array([1.0 if f.log else max(1.0, 0.5 * abs(xi)) for f, xi in zip(model.frees, x)])
+        d = np.maximum(np.diag(jtj), 1e-12 * max(1.0, float(np.max(np.diag(jtj)))))
+        improved, gain = False, 0.0
+        for _retry in range(3):
+            lams = [lam * 0.1, lam, lam * 10]
+            trials = []
+            for lm in lams:
+                step = np.zeros_like(x)
+                a = jtj[np.ix_(free, free)] + lm * np.diag(d[free])
+                try:
+                    step[free] = np.linalg.solve(a, -g[free])
+                except np.linalg.LinAlgError:
+                    step[free] = -g[free] / (lm * d[free])
+                big = float(np.max(np.abs(step) / reach))
+                if big > radius:
+                    step *= radius / big
+                trials.append(np.clip(x + step, lo, hi))
+            tpreds = prob.predict([model.at(xt).params() for xt in trials])
+            tres = [full(prob.residual(tp, prob.fit_mask), xt) for tp, xt in zip(tpreds, trials)]
+            tcost = [float(tr @ tr) for tr in tres]
+            k = int(np.argmin(tcost))
+            if tcost[k] < cost:
+                gain = (cost - tcost[k]) / cost
+                if np.max(np.abs(trials[k] - x) / reach) >= 0.99 * radius:
+                    radius = min(RADIUS_MAX, 2.0 * radius)  # the step was capped and still good: widen
+                x, pred, r, cost, lam = trials[k], tpreds[k], tres[k], tcost[k], max(lams[k] * (0.3 if k == 0 else 1.0), 1e-7)
+                improved = True
+                break
+            lam *= 100.0
+            radius *= 0.25
+        if log is not None:
+            log(f"    LM cost {cost:.6g} lam {lam:.3g} radius {radius:.3g} free {int(free.sum())}/{len(x)}")
+        small = 0 if improved and gain >= ftol else small + 1
+        if not improved or small >= 2 or at_noise(r[:n_data], len(prob.channels)):
+            break  # stalled, or down to the noise on every channel
+    return model.at(x), pred, jac

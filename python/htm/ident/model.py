@@ -1,0 +1,186 @@
+"""Models the identification engine fits: free parameters in normalised coordinates, a model
+(a nominal parameter set plus the free parameters' coordinates) and candidate effects.
+
+Family-neutral: a parameter set is anything with `copy()`, `p[key]` and `p[key] = value` (the
+core's `Params` for the valve-level plant, `LoopParams` for a machine's closed displacement loop).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+# Distance (in normalised coordinates) from a bound at which a parameter counts as pinned.
+PIN = 0.02
+
+
+@dataclass(frozen=True)
+class Free:
+    """One free parameter in normalised coordinates x: value = ref*exp(x) (log) or origin + unit*x."""
+
+    key: str
+    lo: float
+    hi: float
+    log: bool = False
+    unit: float = 1.0
+    step: float = 0.02  # finite-difference / screening step in x
+    origin: float = 0.0  # the "effect off" value of a linear parameter (x = 0)
+    prior: float = 0.0  # prior width in x around the nominal (0 = no prior)
+
+    def value(self, x: float, ref: float) -> float:
+        return ref * math.exp(x) if self.log else self.origin + self.unit * x
+
+    def coord(self, value: float, ref: float) -> float:
+        return math.log(value / ref) if self.log else (value - self.origin) / self.unit
+
+    def pinned(self, x: float) -> bool:
+        return x <= self.lo + PIN or x >= self.hi - PIN
+
+
+def lin(key: str, unit: float, lo: float, hi: float, step: float = 1.0, origin: float = 0.0, prior: float = 0.0) -> Free:
+    """A linear free parameter: value = origin + unit*x, x in [lo, hi]."""
+    return Free(key, lo, hi, unit=unit, step=step, origin=origin, prior=prior)
+
+
+def logf(key: str, lo: float, hi: float, step: float = 0.02, prior: float = 0.0) -> Free:
+    """A free parameter scaled around its nominal value: value = nominal*exp(x), lo <= value/nominal <= hi."""
+    return Free(key, math.log(lo), math.log(hi), log=True, step=step, prior=prior)
+
+
+# Keys that are not single fields of the parameter set: the base model's Coulomb friction is
+# symmetric (one level for both directions); friction_asymmetry splits it (pos = C + d, neg = C - d).
+def set_value(p: Any, key: str, value: float) -> None:
+    if key == "friction_coulomb_n":
+        p["friction_coulomb_pos_n"] = value
+        p["friction_coulomb_neg_n"] = value
+    elif key == "friction_coulomb_diff_n":
+        c = p["friction_coulomb_pos_n"]
+        p["friction_coulomb_pos_n"] = max(0.0, c + value)
+        p["friction_coulomb_neg_n"] = max(0.0, c - value)
+    else:
+        p[key] = value
+
+
+def get_value(p: Any, key: str) -> float:
+    if key == "friction_coulomb_n":
+        return 0.5 * (p["friction_coulomb_pos_n"] + p["friction_coulomb_neg_n"])
+    if key == "friction_coulomb_diff_n":
+        return 0.5 * (p["friction_coulomb_pos_n"] - p["friction_coulomb_neg_n"])
+    return p[key]
+
+
+def has_key(p: Any, key: str) -> bool:
+    if key in ("friction_coulomb_n", "friction_coulomb_diff_n"):
+        return "friction_coulomb_pos_n" in p
+    return key in p
+
+
+@dataclass
+class Model:
+    """A parameter set: the nominal one, the free parameters and their coordinates."""
+
+    nominal: Any
+    frees: list[Free]
+    x: np.ndarray
+
+    def params(self, x: np.ndarray | None = None) -> Any:
+        x = self.x if x is None else x
+        p = self.nominal.copy()
+        for f, xi in zip(self.frees, x):
+            set_value(p, f.key, f.value(float(xi), get_value(self.nominal, f.key) if f.log else 0.0))
+        return p
+
+    def at(self, x: np.ndarray) -> "Model":
+        return Model(self.nominal, self.frees, np.asarray(x, dtype=float))
+
+    def start(self) -> np.ndarray:
+        """Coordinates of the nominal values (0 for a log parameter)."""
+        return np.array([0.0 if f.log else f.coord(get_value(self.nominal, f.key), 0.0) for f in self.frees])
+
+    def pinned(self, n: int | None = None) -> list[str]:
+        """Keys of the (first `n`) free parameters that sit at a bound."""
+        return [f.key for f, x in zip(self.frees[:n], self.x[:n]) if f.pinned(x)]
+
+    def unpinned(self, start: np.ndarray) -> "Model":
+        """This model with parameters that sit at a bound moved back to `start`: a base parameter
+        pinned at its bound was standing in for an effect the model lacked."""
+        x = self.x.copy()
+        for i, f in enumerate(self.frees[: len(start)]):
+            if f.pinned(x[i]):
+                x[i] = start[i]
+        return self.at(x)
+
+    def with_candidate(self, cand: "Candidate", x0: float | None = None) -> "Model":
+        """This model with a candidate effect added (its first parameter at x0, default its step)."""
+        nominal = self.nominal
+        if cand.switch:
+            nominal = nominal.copy()
+            for k, v in cand.switch:
+                nominal[k] = v
+        xs = [cand.frees[0].step if x0 is None else x0, *cand.starts] if cand.frees else []
+        return Model(nominal, [*self.frees, *cand.frees], np.append(self.x, xs))
+
+    def without(self, cand: "Candidate", nominal: Any) -> "Model":
+        """This model with an accepted effect taken out (its parameters removed, its switch undone
+        back to `nominal`)."""
+        nom = self.nominal
+        if cand.switch:
+            nom = nom.copy()
+            for k, _ in cand.switch:
+                nom[k] = nominal[k]
+        if not cand.frees:
+            return Model(nom, self.frees, self.x)
+        i = self.frees.index(cand.frees[0])
+        j = i + len(cand.frees)
+        return Model(nom, self.frees[:i] + self.frees[j:], np.concatenate([self.x[:i], self.x[j:]]))
+
+    def ablated(self, before: "Model", cand: "Candidate") -> "Model":
+        """This model (= `before` plus `cand`) with the candidate switched off, other parameters kept."""
+        x = self.x.copy()
+        x[len(before.x):] = 0.0
+        return Model(before.nominal if cand.switch else self.nominal, self.frees, x)
+
+    def truncated(self, n: int) -> "Model":
+        """The model with only its first `n` free parameters (the nominal kept)."""
+        return Model(self.nominal, self.frees[:n], self.x[:n])
+
+    def values(self) -> dict[str, float]:
+        """The free parameters' values (the Coulomb pair for the virtual friction keys)."""
+        p = self.params()
+        out: dict[str, float] = {}
+        for f in self.frees:
+            if f.key in ("friction_coulomb_n", "friction_coulomb_diff_n"):
+                out["friction_coulomb_pos_n"] = p["friction_coulomb_pos_n"]
+                out["friction_coulomb_neg_n"] = p["friction_coulomb_neg_n"]
+            else:
+                out[f.key] = p[f.key]
+        return out
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """An effect the model can take on: free parameters (the first is screened, the others start
+    at `starts`) and/or a switch applied to the nominal parameters. `signature` names the signal
+    the effect's residual follows (report and plots); `report` maps the model's parameters to the
+    effect's own (EFFECTS.md names)."""
+
+    effect: str
+    channel: str | None
+    frees: tuple[Free, ...]
+    signature: str
+    starts: tuple[float, ...] = ()
+    switch: tuple[tuple[str, float], ...] = ()
+    fields: tuple[tuple[str, str], ...] = ()  # (effect parameter name, parameter-set key)
+
+    def report(self, p: Any) -> dict[str, float]:
+        return {name: float(p[key]) for name, key in self.fields}
+
+    @property
+    def label(self) -> str:
+        return self.effect + (f" on {self.channel}" if self.channel else "")
+
+    @property
+    def key(self) -> tuple[str, str | None]:
+        return (self.effect, self.channel)

@@ -1,0 +1,305 @@
+"""The effect search: fit the base model, then add candidate effects one at a time while one
+pays off on held-out data (greedy forward selection with a backward check). Family-neutral: the
+problem's simulator and the candidates say what the model is."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from htm.ident import features as ft
+from htm.ident.fit import Problem, at_noise, fit
+from htm.ident.model import Candidate, Model
+
+# Non-noise residual over the noise floor (features.systematic_ratio): the search stops at or below.
+SYSTEMATIC = 1.0
+# A refit must cut the held-out weighted cost by this fraction (and win by BIC) to count.
+MIN_GAIN = 0.05
+# Evidence a candidate's signature must carry before it is refitted (chi^2 units, fraction).
+SCREEN_CHI2 = 25.0
+SCREEN_FRACTION = 0.01
+# Candidates refitted per round: those whose screened gain is at least this share of the best.
+REFIT_SHARE = 0.3
+# Least-squares budgets: Jacobians (one simulation per free parameter each, plus 3 trial steps).
+BASE_ITERS, REFIT_ITERS, POLISH_ITERS = 10, 6, 15
+# Which of two effects that explain a record equally well is named (the more common first).
+PREFERENCE = ("sensor_offset", "valve_null_bias", "sensor_gain", "sensor_delay", "valve_dynamics", "internal_leakage",
+              "friction_asymmetry", "valve_deadband", "valve_hysteresis", "supply_pressure_sag",
+              "pressure_dependent_friction", "entrained_air", "load_pressure_feedback", "specimen_nonlinearity")
+
+Log = Callable[..., None]
+
+
+@dataclass
+class Finding:
+    """An effect added to the model, with the errors just before and after it (DATA_FORMAT
+    `findings` entry) and what the report needs to show its evidence."""
+
+    cand: Candidate
+    params: dict[str, float]
+    rmse_before: dict[str, float]
+    rmse_after: dict[str, float]
+    evidence: str
+    before: Model  # the model just before this finding
+    pred_before: dict[str, np.ndarray]
+    pred_after: dict[str, np.ndarray]
+    focus: str  # the channel the effect shows in most
+    feature: tuple[str, np.ndarray]  # (name, signal) the residual is plotted against
+    verdict: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def effect(self) -> str:
+        return self.cand.effect
+
+    @property
+    def channel(self) -> str | None:
+        return self.cand.channel
+
+    def to_json(self) -> dict[str, Any]:
+        return {"effect": self.effect, "channel": self.channel, "params": self.params, "rmse_before": self.rmse_before,
+                "rmse_after": self.rmse_after, "evidence": self.evidence}
+
+
+@dataclass
+class Result:
+    """What a search found: the baseline and final models with their whole-record predictions."""
+
+    base: Model
+    base_pred: dict[str, np.ndarray]
+    model: Model
+    pred: dict[str, np.ndarray]
+    findings: list[Finding]
+
+
+def search(prob: Problem, base: Model, nominal: Any, pool: list[Candidate], rate: float, *, max_findings: int = 3,
+           max_refits: int = 2, log: Log = lambda *a: None) -> Result:
+    """Fit the base model, then add effects from `pool` while one pays off on the held-out data."""
+    x0 = base.x.copy()
+    base, work_pred, jac = fit(prob, base, iters=BASE_ITERS)
+    base_pred = prob.whole(base, work_pred)
+    log("baseline", {k: f"{v:.4g}" for k, v in base.values().items()}, prob.rmse(base_pred))
+
+    model, pred = base, base_pred
+    findings: list[Finding] = []
+    kept_base = False
+    for _round in range(max_findings + 2):
+        if len(findings) >= max_findings:
+            break
+        ratios = prob.ratios(pred, rate)
+        log("systematic ratios", {c: round(v, 2) for c, v in ratios.items()})
+        if max(ratios.values()) <= SYSTEMATIC:
+            break  # at the noise floor: nothing left to explain
+        # The same budget without a new effect: a candidate must beat a model merely fitted longer.
+        model, work_pred, jac = fit(prob, model, iters=REFIT_ITERS, pred0=work_pred)
+        pred = prob.whole(model, work_pred)
+        ratios = prob.ratios(pred, rate)
+        log("refit without effect", {c: round(v, 2) for c, v in ratios.items()})
+        if max(ratios.values()) <= SYSTEMATIC:
+            break
+        ranked = screen(prob, model, work_pred, jac, pool)
+        q = np.linalg.qr(jac)[0]  # what the base parameters can absorb, to first order
+        log("screen", [(c.effect, c.channel, round(g, 3)) for c, g, _ in ranked[:6]])
+        good: list[tuple[Candidate, dict, Model, dict, tuple]] = []
+        better_base: tuple[float, Model] | None = None
+        for cand, gain, step in ranked[:max_refits]:
+            if gain < REFIT_SHARE * ranked[0][1]:
+                break
+            # Refit from the current fit and from the nominal base parameters (the current fit may
+            # have bent them to stand in for this very effect), each at the best size of the
+            # candidate's parameter; keep the better fit.
+            restart = model.x.copy()
+            restart[: len(x0)] = x0
+            fits = [fit(prob, _scan(prob, [start.with_candidate(cand, step)], cand, q), iters=REFIT_ITERS)
+                    for start in (model.unpinned(x0), model.at(restart))]
+            fits.sort(key=lambda f: prob.fit_cost(f[1]))
+            trial, twork, tjac = fits[0]
+            tpred = prob.whole(trial, twork)
+            verdict = pays_off(prob, pred, trial, tpred, model, cand)
+            log("refit", cand.label, cand.report(trial.params()), verdict)
+            if verdict["ok"]:
+                good.append((cand, verdict, trial, twork, fits[1]))
+            elif verdict["dcost"] < -MIN_GAIN:
+                # Not the effect but a better fit of the base parameters: remember those.
+                cost = prob.fit_cost(twork)
+                if better_base is None or cost < better_base[0]:
+                    better_base = (cost, trial.truncated(len(model.x)))
+        if not good:
+            if better_base is None or kept_base:
+                break  # no candidate pays off on the held-out data
+            kept_base = True  # once: a second time the search would only go round in circles
+            model = better_base[1]
+            work_pred = prob.predict([model.params()])[0]
+            pred = prob.whole(model, work_pred)
+            log("kept better base parameters")
+            continue
+        good.sort(key=lambda g: g[1]["dbic"])
+        # Close contenders (e.g. an offset and a gain of the same sensor) are told apart polished.
+        contenders = [g for g in good[:2] if g[1]["dbic"] <= 0.5 * good[0][1]["dbic"]]
+        polished = []
+        for cand, _, trial, twork, other in contenders:
+            trial, twork, tjac = fit(prob, trial, iters=POLISH_ITERS, pred0=twork)
+            again = trial.unpinned(x0)
+            if not np.array_equal(again.x, trial.x):
+                # Stuck with base parameters at a bound: polish once more from their nominal values.
+                retry = fit(prob, again, iters=POLISH_ITERS)
+                if prob.fit_cost(retry[1]) < prob.fit_cost(twork):
+                    trial, twork, tjac = retry
+            if not at_noise(prob.residual(twork, prob.fit_mask), len(prob.channels)):
+                # Still off the noise: the refit from the other start may be in the better basin
+                # (the current fit's base parameters were bent by the missing effect).
+                retry = fit(prob, other[0], iters=POLISH_ITERS, pred0=other[1])
+                if prob.fit_cost(retry[1]) < prob.fit_cost(twork):
+                    trial, twork, tjac = retry
+            tpred = prob.whole(trial, twork)
+            polished.append((cand, pays_off(prob, pred, trial, tpred, model, cand), trial, twork, tjac, tpred))
+        # Both at the noise floor: the record cannot tell them apart; name the more common effect
+        # (PREFERENCE: an offset before a gain before a delay...) and say so.
+        at_floor = [g for g in polished if max(prob.ratios(g[5], rate).values()) <= SYSTEMATIC]
+        if len(at_floor) == 2:
+            at_floor.sort(key=lambda g: PREFERENCE.index(g[0].effect) if g[0].effect in PREFERENCE else len(PREFERENCE))
+            cand, verdict, trial, twork, tjac, tpred = at_floor[0]
+            other = at_floor[1]
+            verdict["alternative"] = (f" {other[0].label} ({', '.join(f'{k} = {v:.4g}' for k, v in other[0].report(other[2].params()).items())}) "
+                                      "explains the record as well; this record cannot tell the two apart.")
+        else:
+            cand, verdict, trial, twork, tjac, tpred = min(polished, key=lambda g: g[1]["dbic"])
+        pool = [c for c in pool if c.key != cand.key]
+        if not verdict["ok"]:
+            # Polished, the effect no longer matters: keep the better-fitted model without it.
+            model = trial.truncated(len(model.x))
+            work_pred = prob.predict([model.params()])[0]
+            pred, jac = prob.whole(model, work_pred), tjac[:, : len(model.x)]
+            log("polished away", cand.label, verdict)
+            continue
+        if not findings:  # the baseline is the base model as fitted just before the first finding
+            base, base_pred = model, pred
+        findings.append(finding(prob, cand, model, pred, trial, tpred, verdict, rate))
+        model, pred, work_pred, jac = trial, tpred, twork, tjac
+
+    # Backward check: an earlier finding that the later ones make redundant is dropped.
+    for f in list(findings[:-1]) if len(findings) > 1 else []:
+        wmodel, wwork, wjac = fit(prob, model.without(f.cand, nominal), iters=REFIT_ITERS)
+        wpred = prob.whole(wmodel, wwork)
+        dbic, dcost = prob.bic_delta(wpred, pred, max(1, len(f.cand.frees)))
+        log("backward check", f.cand.label, f"dBIC {dbic:.0f} dcost {dcost:+.3f}")
+        if not (dbic < 0 and dcost < -MIN_GAIN):
+            findings.remove(f)
+            model, pred, work_pred, jac = wmodel, wpred, wwork, wjac
+    if findings and findings[0].pred_before is not base_pred:
+        first = findings[0]  # after a drop, the first remaining finding starts from the baseline
+        first.pred_before = base_pred
+        first.rmse_before = prob.rmse(base_pred)
+    if not findings:
+        base, base_pred = model, pred
+    else:  # refits after the last finding belong to it: its "after" is the final model
+        last = findings[-1]
+        last.pred_after = pred
+        last.rmse_after = prob.rmse(pred)
+        last.params = last.cand.report(model.params())
+    return Result(base, base_pred, model, pred, findings)
+
+
+def _scan(prob: Problem, starts: list[Model], cand: Candidate, q: np.ndarray) -> Model:
+    """The best start for a refit among `starts` and a few sizes of the candidate's first
+    parameter (its cost is not convex for a delay, a dead band or play): one batch of simulations,
+    each judged by the cost left once the base parameters absorb what they can (columns `q`)."""
+    models = list(starts)
+    if cand.frees:
+        f = cand.frees[0]
+        i = len(starts[0].x) - len(cand.frees)
+        x_lin = starts[0].x[i]
+        sign = -1.0 if x_lin < 0 else 1.0
+        values = sorted({float(np.clip(v, f.lo, f.hi)) for v in (sign * f.step * 2.0**k for k in range(-1, 7))} - {x_lin})
+        for start in starts:
+            for v in values:
+                x = start.x.copy()
+                x[i] = v
+                models.append(start.at(x))
+    preds = prob.predict([m.params() for m in models])
+    costs = []
+    for p in preds:
+        r = prob.residual(p, prob.fit_mask)
+        r = r - q @ (q.T @ r)
+        costs.append(float(r @ r))
+    return models[int(np.argmin(costs))]
+
+
+def pays_off(prob: Problem, pred0: dict, trial: Model, tpred: dict, before: Model, cand: Candidate) -> dict[str, Any]:
+    """Does the effect pay off on the held-out data? It must beat the model without it by the
+    information criterion and by MIN_GAIN of the cost, and so must it against its own refit
+    with the effect switched off (else it only helped the base parameters converge)."""
+    k = max(1, len(cand.frees))
+    dbic, dcost = prob.bic_delta(pred0, tpred, k)
+    abl = prob.predict([trial.ablated(before, cand).params()], whole=True)[0]
+    abic, acost = prob.bic_delta(abl, tpred, k)
+    ok = dbic < 0 and dcost < -MIN_GAIN and abic < 0 and acost < -MIN_GAIN
+    return {"ok": bool(ok), "dbic": dbic, "dcost": dcost, "ablation_dcost": acost}
+
+
+def screen(prob: Problem, model: Model, work_pred: dict, jac: np.ndarray,
+           pool: list[Candidate]) -> list[tuple[Candidate, float, float | None]]:
+    """Rank candidates by how much of the fit residual their simulated signature explains beyond
+    what the current free parameters absorb (a linearised score test, one simulation each).
+    Returns (candidate, explained fraction of the cost, starting value of its first parameter),
+    best first, one entry per effect and channel."""
+    r0 = prob.residual(work_pred, prob.fit_mask)
+    cost = float(r0 @ r0)
+    trials = [model.with_candidate(c) for c in pool]
+    preds = prob.predict([t.params() for t in trials])
+    q = np.linalg.qr(jac)[0] if jac.size else np.zeros((len(r0), 0))
+    pr = r0 - q @ (q.T @ r0)
+    best: dict[tuple[str, str | None], tuple[Candidate, float, float | None]] = {}
+    for c, p in zip(pool, preds):
+        s = prob.residual(p, prob.fit_mask) - r0
+        if not np.all(np.isfinite(s)) or not np.any(s):
+            continue
+        # Two readings of the signature: beyond what the base parameters absorb (projected), and
+        # on its own (the current fit may have bent the base parameters to mimic the effect).
+        for sig, res in ((s - q @ (q.T @ s), pr), (s, r0)):
+            ss = float(sig @ sig)
+            if ss <= 0:
+                continue
+            if c.frees:  # best linear step along the signature, within the bounds
+                h = c.frees[0].step
+                step = float(np.clip(-float(sig @ res) / ss * h, c.frees[0].lo, c.frees[0].hi))
+                e = res + sig * (step / h)
+            else:  # a switch: all or nothing
+                step, e = None, res + sig
+            gain = float(res @ res - e @ e)
+            if gain > SCREEN_CHI2 and gain > SCREEN_FRACTION * cost and (c.key not in best or gain / cost > best[c.key][1]):
+                best[c.key] = (c, gain / cost, step)
+    return sorted(best.values(), key=lambda g: -g[1])
+
+
+def finding(prob: Problem, cand: Candidate, before: Model, pred0: dict, after: Model, pred1: dict,
+            verdict: dict[str, Any], rate: float) -> Finding:
+    """The finding of `cand` between two models, with its evidence in words."""
+    rb, ra = prob.rmse(pred0), prob.rmse(pred1)
+    # The channel the effect shows in: its own for a sensor effect, else the one it improves most.
+    ch = cand.channel if cand.channel in prob.channels else min(prob.channels, key=lambda c: ra[c] / rb[c] if rb[c] > 0 else 1.0)
+    resid = np.asarray(pred0[ch]) - prob.meas[ch]
+    name, signal = signature(prob, cand, pred0, ch, rate)
+    corr = ft.correlations(resid, {name: signal}).get(name, float("nan"))
+    unit = ft.UNITS[ch]
+    what = "mean/RMS" if cand.signature == "constant" else f"correlation with {name}"
+    params = cand.report(after.params())
+    ptxt = ", ".join(f"{k} = {v:.4g}" for k, v in params.items())
+    evidence = (f"Before: the {ch} residual (RMS {rb[ch]:.3g} {unit}, noise floor {prob.sigma[ch]:.2g} {unit}) has "
+                f"{what} {corr:+.2f}. Adding {cand.label} ({ptxt or 'no parameters'}) brings it to "
+                f"{ra[ch]:.3g} {unit} and cuts the held-out cost by {-verdict['dcost']:.0%} (ΔBIC {verdict['dbic']:.0f}); "
+                f"switched off again, other parameters kept, the held-out cost would be "
+                f"{1 / max(1 + verdict['ablation_dcost'], 1e-9):.3g}x higher." + verdict.get("alternative", ""))
+    # An offset shows best against the reading itself (a shift; a gain would be a slope).
+    feature = (f"measured {ch}", prob.meas[ch]) if cand.signature == "constant" else (name, signal)
+    return Finding(cand, params, rb, ra, evidence, before, pred0, pred1, ch, feature, verdict)
+
+
+def signature(prob: Problem, cand: Candidate, pred0: dict, ch: str, rate: float) -> tuple[str, np.ndarray]:
+    """The signal named by a candidate's signature, over the whole record."""
+    if cand.signature.startswith("d(predicted"):
+        return cand.signature, np.gradient(np.asarray(pred0[ch], dtype=float))
+    if cand.signature.startswith("predicted"):
+        return cand.signature, np.asarray(pred0[ch], dtype=float)
+    regs = ft.regressors(prob.rec.columns, rate)
+    return (cand.signature, regs[cand.signature]) if cand.signature in regs else ("constant", regs["constant"])

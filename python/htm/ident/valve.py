@@ -1,0 +1,114 @@
+"""The valve-level model family: records with a valve command `u`, modelled by the core's plant
+(servo-valve, chambers, cylinder, friction, specimen) behind the record's sensors. Its base model
+(EFFECTS.md) with the free parameters a real rig needs, and its candidate effects."""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from htm._core import Params
+from htm.ident import sim
+from htm.ident.model import Candidate, Free, has_key, lin, logf
+from htm.ident.records import Record
+
+# Base-model parameters stated by the metadata (nominal; bounds say how far a rig may be off).
+RIG_FREES = [
+    logf("moving_mass_kg", 0.4, 2.5, prior=0.3),
+    logf("valve_rated_flow_m3_s", 0.4, 2.5, prior=0.3),
+    logf("bulk_modulus_pa", 0.4, 2.5, prior=0.3),
+    logf("dead_volume_a_m3", 0.5, 2.0, step=0.05, prior=0.3),
+    logf("dead_volume_b_m3", 0.5, 2.0, step=0.05, prior=0.3),
+    logf("supply_pressure_pa", 0.5, 1.5, step=0.01, prior=0.1),
+]
+# Friction and underlap are not in the metadata: wide bounds, wide priors.
+OTHER_FREES = [
+    logf("friction_viscous_n_s_m", 0.02, 20.0, step=0.05, prior=1.0),
+    logf("friction_coulomb_n", 0.02, 20.0, step=0.05, prior=1.0),
+    logf("friction_static_n", 0.2, 4.0, step=0.1, prior=0.5),
+    lin("valve_underlap_v", 0.1, 0.0, 5.0, step=0.1, prior=1.0),
+]
+
+
+class ValveFamily:
+    """The valve-level plant for one record: nominal parameters, free parameters, candidates and
+    the simulator options (a switched supply, the open-loop horizon)."""
+
+    name = "valve"
+
+    def __init__(self, rec: Record, channels: list[str], horizon_s: float | None = None) -> None:
+        self.rec = rec
+        self.channels = channels
+        nominal = sim.params_from_meta(rec.meta)
+        if "p_s" in channels:  # a measured supply starts the fit at what the gauge reads at rest
+            nominal["supply_pressure_pa"] = float(np.nanpercentile(rec.columns["p_s"], 90))
+        self.nominal = nominal
+        self.base_frees: list[Free] = [f for f in RIG_FREES + OTHER_FREES if has_key(nominal, f.key)]
+        self.rig_keys = {f.key for f in RIG_FREES}
+        self.opts: dict[str, Any] = {"supply": sim.supply_schedule(rec)}  # once: a switched supply the model follows
+        if horizon_s is not None:
+            self.opts["horizon_s"] = horizon_s
+
+    @property
+    def closed_loop(self) -> bool:
+        """Sensor noise acts inside the loop (a declared controller the model re-simulates)."""
+        return sim.closed_loop(self.rec)
+
+    @property
+    def has_command(self) -> bool:
+        return "u" in self.rec.columns and bool(np.isfinite(self.rec.columns["u"]).any())
+
+    @staticmethod
+    def simulate(plist: list[Params], rec: Record, **opts: Any) -> list[dict[str, np.ndarray]]:
+        return sim.predict(plist, rec, **opts)
+
+    def candidates(self, scales: dict[str, float], rate_hz: float) -> list[Candidate]:
+        """Every effect the core can switch on for this record (sensor effects on its channels)."""
+        p, rec, channels = self.nominal, self.rec, self.channels
+        out: list[Candidate] = []
+        dt = 1.0 / rate_hz
+        ctrl = (rec.meta.get("controller") or {}).get("type")
+
+        def cand(effect: str, channel: str | None, frees: tuple[Free, ...], signature: str, **kw: Any) -> Candidate:
+            fields = tuple(sim.effect_fields(effect, channel).items())
+            return Candidate(effect, channel, frees, signature, fields=fields, **kw)
+
+        for c in channels:
+            delay = cand("sensor_delay", c, (lin(f"sensor_delay_{c}_s", dt, 0.0, 100.0),), f"d(predicted {c})/dt")
+            # The loop regulates what its own sensor reads: an offset or gain of that sensor only moves
+            # the true position, which nothing measures unless a specimen's force does.
+            if (c, ctrl) in (("y", "position_pff"), ("f", "force_p")) and not (c == "y" and "f" in channels):
+                out.append(delay)
+                continue
+            out += [
+                cand("sensor_offset", c, (lin(f"sensor_offset_{c}", scales[c], -1e3, 1e3),), "constant"),
+                cand("sensor_gain", c, (lin(f"sensor_gain_{c}", 0.01, -50.0, 50.0, origin=1.0),), f"predicted {c}"),
+                delay,
+            ]
+        out += [
+            cand("valve_null_bias", None, (lin("valve_null_bias_v", 0.02, -50.0, 50.0),), "small |u|"),
+            cand("valve_dynamics", None, (lin("valve_tau_s", 1e-3, 0.0, 100.0, step=2.0),), "du/dt"),
+            cand("valve_deadband", None, (lin("valve_deadband_half_width_v", 0.05, 0.0, 40.0),), "small |u|"),
+            cand("valve_hysteresis", None, (lin("valve_hysteresis_half_width_v", 0.05, 0.0, 40.0),), "sign(du/dt)"),
+            cand("supply_pressure_sag", None, (lin("supply_resistance_pa_s_per_m3", 1e9, 0.0, 1e3),), "v"),
+            cand("internal_leakage", None, (lin("leakage_coeff_m3_per_s_pa", 1e-12, 0.0, 1e3),), "load pressure"),
+            Candidate("friction_asymmetry", None, (lin("friction_coulomb_diff_n", 50.0, -100.0, 100.0),), "sign(v)",
+                      fields=tuple(sim.effect_fields("friction_asymmetry").items())),
+            cand("pressure_dependent_friction", None, (lin("friction_pressure_coeff_n_per_pa", 1e-6, 0.0, 1e3, step=2.0),),
+                 "(p_a + p_b) sign(v)"),
+            cand("entrained_air", None, (lin("air_fraction", 1e-3, 0.0, 100.0, step=5.0),), "p_a + p_b"),
+        ]
+        if p["valve_linear_flow"] > 0.5:  # a declared linear valve may in truth feel the load pressure
+            out.append(cand("load_pressure_feedback", None, (), "load pressure", switch=(("valve_linear_flow", 0.0),)))
+        if p["specimen_stiffness_n_m"] > 0 and "f" in channels:
+            # The closure position is not smooth to find: screen a few along the travel.
+            k = p["specimen_stiffness_n_m"]
+            y = np.asarray(rec.columns["y"], dtype=float)
+            y0 = p["specimen_zero_force_position_m"]
+            unit_off = max(1e-5, float(np.nanstd(y)) * 0.1)
+            for q in (10, 30, 50, 70, 90):
+                off = float(np.nanpercentile(y, q)) - y0
+                out.append(cand("specimen_nonlinearity", "f",
+                                (lin("specimen_closure_stiffness_n_m", 0.1 * k, 0.0, 1e3),
+                                 lin("specimen_closure_offset_m", unit_off, -1e4, 1e4)), "y", starts=(off / unit_off,)))
+        return [c for c in out if all(has_key(p, f.key) for f in c.frees)]
