@@ -151,7 +151,7 @@ def test_nan_command_or_reference_is_refused_before_anything_moves():
     with pytest.raises(htm.InputError, match="reference"):
         m.track(np.array([0.1, np.inf]), 1e-3, {"type": "position_pff", "kp_v_per_m": -150, "kff_v_per_m_s": -14})
     with pytest.raises(htm.InputError):
-        m.state = np.array([1e7, 1e7, np.nan, 0.0, 0.0])
+        m.state = np.array([1e7, 1e7, np.nan, 0.0, 0.0, 0.0, 0.0])
     with pytest.raises(htm.InputError, match="dt"):
         m.step(0.0, 0.0)
     np.testing.assert_array_equal(m.state, before)

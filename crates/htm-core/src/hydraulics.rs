@@ -30,13 +30,15 @@ pub fn orifice_flow_ddp(k: f64, a: f64, dp: f64, dp_t: f64) -> f64 {
 }
 
 /// Effective bulk modulus [Pa] at gauge pressure `p`.
-/// Constant `beta`, or Eggerth (eq. 2.2) when `k1 > 0`; lowered by entrained air (isothermal
+/// `beta` rising by `slope` per pascal of gauge pressure (the tangent modulus of real oil), or
+/// Eggerth (eq. 2.2) when `k1 > 0`; lowered by entrained air (isothermal
 /// free air fraction `air` at atmospheric pressure); collapsing to 0 at absolute zero so that a
 /// chamber pressure never goes below it.
 #[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
 #[derive(Debug, Clone, Copy)]
 pub struct BulkModulus {
     pub beta: f64,
+    pub slope: f64,
     pub k1: f64,
     pub k2: f64,
     pub lambda: f64,
@@ -55,7 +57,8 @@ impl BulkModulus {
         let mut b = if self.k1 > 0.0 {
             1.0 / (self.k1 + self.k2 * (p_abs / 1.0e5).powf(-self.lambda))
         } else {
-            self.beta
+            // never below half its zero-pressure value (in vacuum the collapse below takes over)
+            (self.beta + self.slope * p).max(0.5 * self.beta)
         };
         if self.air > 0.0 {
             b /= 1.0 + b * self.air * self.p_atm / (p_abs * p_abs);
@@ -166,12 +169,14 @@ mod tests {
 
     #[test]
     fn bulk_modulus_vanishes_at_absolute_zero_and_is_nominal_at_working_pressure() {
-        let b = BulkModulus { beta: 1.2e9, k1: 0.0, k2: 0.0, lambda: 0.0, air: 0.0, p_atm: 101325.0, p_cav: 2e4 };
+        let b = BulkModulus { beta: 1.2e9, slope: 0.0, k1: 0.0, k2: 0.0, lambda: 0.0, air: 0.0, p_atm: 101325.0, p_cav: 2e4 };
         assert_eq!(b.at(-101325.0), 0.0);
         assert!((b.at(1e7) / 1.2e9 - 1.0).abs() < 1e-9);
         assert!(b.at(-95000.0) < 0.1 * 1.2e9);
         let air = BulkModulus { air: 0.01, ..b };
         assert!(air.at(1e5) < 0.5 * b.at(1e5) && air.at(2e7) > 0.95 * b.at(2e7));
+        let stiffening = BulkModulus { slope: 8.0, ..b };
+        assert!((stiffening.at(2e7) / (1.2e9 + 8.0 * 2e7) - 1.0).abs() < 1e-9 && (stiffening.at(0.0) / b.at(0.0) - 1.0).abs() < 1e-12);
     }
 
     #[test]

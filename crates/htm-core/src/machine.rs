@@ -14,7 +14,11 @@ pub const PB: usize = 1;
 pub const Y: usize = 2;
 pub const V: usize = 3;
 pub const SPOOL: usize = 4;
-pub const NX: usize = 5;
+/// spool velocity [V/s] (second-order spool only)
+pub const SPOOL_V: usize = 5;
+/// command after the first-order lag that precedes a second-order spool [V]
+pub const LAG: usize = 6;
+pub const NX: usize = 7;
 
 /// Width over which the specimen's closure corner is rounded [m] (keeps the force smooth for
 /// the integrator; far from the corner the error is k_c*w^2/(4|dy|)).
@@ -59,6 +63,7 @@ impl Plant {
         p.validate()?;
         let bulk = BulkModulus {
             beta: p.bulk_modulus_pa,
+            slope: p.bulk_modulus_slope,
             k1: p.eggerth_k1_per_pa,
             k2: p.eggerth_k2_per_pa,
             lambda: p.eggerth_lambda,
@@ -201,7 +206,31 @@ impl Plant {
         let half = 0.5 * load / a;
         let lo = p.tank_pressure_pa;
         let hi = p.supply_pressure_pa;
-        [(mid + half).clamp(lo, hi), (mid - half).clamp(lo, hi), y, 0.0, 0.0]
+        [(mid + half).clamp(lo, hi), (mid - half).clamp(lo, hi), y, 0.0, 0.0, 0.0, 0.0]
+    }
+
+    /// Rates of the spool states (SPOOL, SPOOL_V, LAG) under spool target `target`: a first-order
+    /// lag (`valve_tau_s`) and/or a second-order spool (`valve_natural_hz`, `valve_damping`) in
+    /// series; with neither the spool follows the target at once (set by `Machine::step`).
+    #[inline]
+    fn spool_rates(&self, x: &[f64; NX], target: f64) -> (f64, f64, f64) {
+        let p = &self.p;
+        let tau = p.valve_tau_s;
+        let wn = 2.0 * std::f64::consts::PI * p.valve_natural_hz;
+        if wn > 0.0 {
+            let (drive, dlag) = if tau > 0.0 { (x[LAG], (target - x[LAG]) / tau) } else { (target, 0.0) };
+            (x[SPOOL_V], wn * wn * (drive - x[SPOOL]) - 2.0 * p.valve_damping * wn * x[SPOOL_V], dlag)
+        } else if tau > 0.0 {
+            ((target - x[SPOOL]) / tau, 0.0, 0.0)
+        } else {
+            (0.0, 0.0, 0.0)
+        }
+    }
+
+    /// True when the spool is a state (a lag or a second-order spool), not the target itself.
+    #[inline]
+    pub fn spool_has_dynamics(&self) -> bool {
+        self.p.valve_tau_s > 0.0 || self.p.valve_natural_hz > 0.0
     }
 }
 
@@ -236,7 +265,7 @@ impl Plant {
         }
         dx[Y] = v;
         dx[V] = (f_h - f_f - f_g - self.specimen_force(y) + f_stop) / p.moving_mass_kg;
-        dx[SPOOL] = if p.valve_tau_s > 0.0 { (target - xs) / p.valve_tau_s } else { 0.0 };
+        (dx[SPOOL], dx[SPOOL_V], dx[LAG]) = self.spool_rates(x, target);
     }
 }
 
@@ -280,9 +309,9 @@ impl OdeSystem<NX> for Plant {
         let (ba, bb) = (self.bulk.at(pa), self.bulk.at(pb));
         let na = qa - p.area_a_m2 * v - ql;
         let nb = qb + p.area_b_m2 * v + ql;
-        jac[PA] = [dbeta(pa) / va * na + ba / va * (dqa_dpa - c), ba / va * c, -ba * na / (va * va) * dva, -ba * p.area_a_m2 / va, ba / va * dqa_dxs];
-        jac[PB] = [bb / vb * c, dbeta(pb) / vb * nb + bb / vb * (dqb_dpb - c), -bb * nb / (vb * vb) * dvb, bb * p.area_b_m2 / vb, bb / vb * dqb_dxs];
-        jac[Y] = [0.0, 0.0, 0.0, 1.0, 0.0];
+        jac[PA] = [dbeta(pa) / va * na + ba / va * (dqa_dpa - c), ba / va * c, -ba * na / (va * va) * dva, -ba * p.area_a_m2 / va, ba / va * dqa_dxs, 0.0, 0.0];
+        jac[PB] = [bb / vb * c, dbeta(pb) / vb * nb + bb / vb * (dqb_dpb - c), -bb * nb / (vb * vb) * dvb, bb * p.area_b_m2 / vb, bb / vb * dqb_dxs, 0.0, 0.0];
+        jac[Y] = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0];
         // friction derivatives
         let fr = &self.friction;
         let eps = fr.smoothing_m_s;
@@ -311,15 +340,31 @@ impl OdeSystem<NX> for Plant {
             (-self.specimen_stiffness(y) - dff_dy + dstop_dy) / m,
             (-dff_dv + dstop_dv) / m,
             0.0,
+            0.0,
+            0.0,
         ];
-        jac[SPOOL] = [0.0, 0.0, 0.0, 0.0, if p.valve_tau_s > 0.0 { -1.0 / p.valve_tau_s } else { 0.0 }];
+        jac[SPOOL] = [0.0; NX];
+        jac[SPOOL_V] = [0.0; NX];
+        jac[LAG] = [0.0; NX];
+        let (tau, wn) = (p.valve_tau_s, 2.0 * std::f64::consts::PI * p.valve_natural_hz);
+        if wn > 0.0 {
+            jac[SPOOL][SPOOL_V] = 1.0;
+            jac[SPOOL_V][SPOOL] = -wn * wn;
+            jac[SPOOL_V][SPOOL_V] = -2.0 * p.valve_damping * wn;
+            if tau > 0.0 {
+                jac[SPOOL_V][LAG] = wn * wn;
+                jac[LAG][LAG] = -1.0 / tau;
+            }
+        } else if tau > 0.0 {
+            jac[SPOOL][SPOOL] = -1.0 / tau;
+        }
         let _ = f0;
         0
     }
 
     fn error_weights(&self) -> ([f64; NX], [f64; NX]) {
         // Positions are judged absolutely (the offset of y says nothing about force accuracy).
-        ([1.0, 1.0, 0.0, 1.0, 1.0], [1.0e5, 1.0e5, 1.0e-3, 1.0e-2, 1.0])
+        ([1.0, 1.0, 0.0, 1.0, 1.0, 1.0, 1.0], [1.0e5, 1.0e5, 1.0e-3, 1.0e-2, 1.0, 1.0e3, 1.0])
     }
 }
 
@@ -353,7 +398,7 @@ impl Machine {
 
     /// Replace the state; rejects non-finite values and negative absolute pressures.
     pub fn set_state(&mut self, x: [f64; NX]) -> Result<()> {
-        let names = ["p_a", "p_b", "y", "v", "spool"];
+        let names = ["p_a", "p_b", "y", "v", "spool", "spool velocity", "lagged command"];
         for (i, v) in x.iter().enumerate() {
             if !v.is_finite() {
                 return Err(Error::Input(format!("state `{}` is {v}", names[i])));
@@ -377,7 +422,7 @@ impl Machine {
             return Err(Error::Input(format!("time step dt = {dt} s must be > 0")));
         }
         self.plant.target = self.plant.spool_target(u, &mut self.backlash);
-        if self.plant.p.valve_tau_s == 0.0 {
+        if !self.plant.spool_has_dynamics() {
             self.x[SPOOL] = self.plant.target;
         }
         self.solver.advance(&self.plant, &mut self.x, dt)?;
@@ -408,7 +453,6 @@ mod tests {
         let sagged = plant.outputs(&x).p_s;
         assert!(sagged < p.supply_pressure_pa - 1e4, "the underlap's leakage sags the supply: {sagged}");
         plant.p.supply_pressure_pa = plant.setpoint_for_rest(p.supply_pressure_pa);
-        let x = [x[PA], x[PB], x[Y], x[V], x[SPOOL]];
         assert!((plant.outputs(&x).p_s - p.supply_pressure_pa).abs() < 1e3, "{}", plant.outputs(&x).p_s);
         p.supply_resistance_pa_s_per_m3 = 0.0;
         assert_eq!(Plant::new(p.clone()).unwrap().setpoint_for_rest(1.5e7), 1.5e7);
@@ -424,7 +468,7 @@ mod tests {
             plant.jacobian(x, &f0, &mut ja);
             // central differences as the yardstick
             for j in 0..NX {
-                let h = 1e-6 * x[j].abs().max([1e3, 1e3, 1e-6, 1e-6, 1e-6][j]);
+                let h = 1e-6 * x[j].abs().max([1e3, 1e3, 1e-6, 1e-6, 1e-6, 1e-3, 1e-6][j]);
                 let (mut xp, mut xm) = (*x, *x);
                 xp[j] += h;
                 xm[j] -= h;
@@ -448,10 +492,10 @@ mod tests {
     #[test]
     fn analytic_jacobian_matches_differences_with_every_effect() {
         let states = [
-            [1.35e7, 5.5e6, 0.1002, 3e-3, 0.02],
-            [9.5e6, 9.4e6, 0.05, -0.2, -1.3],
-            [1.8e7, 2e5, 0.19, 0.45, 4.0],
-            [5e4, 1.85e7, 0.01, -2e-4, -0.01],
+            [1.35e7, 5.5e6, 0.1002, 3e-3, 0.02, 30.0, 0.05],
+            [9.5e6, 9.4e6, 0.05, -0.2, -1.3, -200.0, -1.1],
+            [1.8e7, 2e5, 0.19, 0.45, 4.0, 0.0, 3.0],
+            [5e4, 1.85e7, 0.01, -2e-4, -0.01, 5.0, 0.0],
         ];
         let mut p = Params::default();
         p.specimen_stiffness_n_m = 1.04e8;
@@ -467,6 +511,12 @@ mod tests {
         p.friction_bump_n = 300.0;
         p.friction_bump_position_m = 0.052;
         check(p.clone(), &states, -0.7);
+        p.valve_natural_hz = 120.0;
+        p.valve_damping = 0.6;
+        p.bulk_modulus_slope = 7.0;
+        check(p.clone(), &states, 0.4);
+        p.valve_tau_s = 0.0;
+        check(p.clone(), &states, -0.2);
         p.valve_linear_flow = 1.0;
         p.eggerth_k1_per_pa = 1.0 / 1.6e9;
         p.eggerth_k2_per_pa = 1e-10;

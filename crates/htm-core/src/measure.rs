@@ -1,6 +1,7 @@
 //! The measurement model: what each sensor reads of the true plant outputs — per channel an
-//! offset, a gain and a transport delay (EFFECTS `sensor_offset`, `sensor_gain`, `sensor_delay`),
-//! plus optional additive noise and quantization (a record generator's option, not a parameter).
+//! offset, a gain and a transport delay (EFFECTS `sensor_offset`, `sensor_gain`, `sensor_delay`)
+//! and a declared first-order anti-alias filter (DATA_FORMAT `sensors.<ch>.lowpass_hz`), plus
+//! optional additive noise and quantization (a record generator's option, not a parameter).
 //! In a closed loop the controller sees these readings, not the true signals.
 use crate::machine::Outputs;
 use crate::params::Params;
@@ -9,16 +10,18 @@ use crate::params::Params;
 pub const CHANNELS: [&str; 6] = ["y", "v", "p_a", "p_b", "p_s", "f"];
 pub const NC: usize = 6;
 
-/// One sensor: reads `offset + gain * true(t - delay_s)`.
+/// One sensor: reads `offset + gain * F(true)(t - delay_s)`, F a first-order low-pass of cut-off
+/// `lowpass_hz` (none when 0).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Sensor {
     pub offset: f64,
     pub gain: f64,
     pub delay_s: f64,
+    pub lowpass_hz: f64,
 }
 
 impl Sensor {
-    pub const IDEAL: Sensor = Sensor { offset: 0.0, gain: 1.0, delay_s: 0.0 };
+    pub const IDEAL: Sensor = Sensor { offset: 0.0, gain: 1.0, delay_s: 0.0, lowpass_hz: 0.0 };
 
     /// The reading of a true value (delay applied by the caller).
     #[inline]
@@ -39,14 +42,14 @@ pub struct Sensors(pub [Sensor; NC]);
 
 impl Sensors {
     pub fn from_params(p: &Params) -> Self {
-        let s = |offset, gain, delay_s| Sensor { offset, gain, delay_s };
+        let s = |offset, gain, delay_s, lowpass_hz| Sensor { offset, gain, delay_s, lowpass_hz };
         Sensors([
-            s(p.sensor_offset_y, p.sensor_gain_y, p.sensor_delay_y_s),
-            s(p.sensor_offset_v, p.sensor_gain_v, p.sensor_delay_v_s),
-            s(p.sensor_offset_p_a, p.sensor_gain_p_a, p.sensor_delay_p_a_s),
-            s(p.sensor_offset_p_b, p.sensor_gain_p_b, p.sensor_delay_p_b_s),
-            s(p.sensor_offset_p_s, p.sensor_gain_p_s, p.sensor_delay_p_s_s),
-            s(p.sensor_offset_f, p.sensor_gain_f, p.sensor_delay_f_s),
+            s(p.sensor_offset_y, p.sensor_gain_y, p.sensor_delay_y_s, p.sensor_lowpass_y_hz),
+            s(p.sensor_offset_v, p.sensor_gain_v, p.sensor_delay_v_s, p.sensor_lowpass_v_hz),
+            s(p.sensor_offset_p_a, p.sensor_gain_p_a, p.sensor_delay_p_a_s, p.sensor_lowpass_p_a_hz),
+            s(p.sensor_offset_p_b, p.sensor_gain_p_b, p.sensor_delay_p_b_s, p.sensor_lowpass_p_b_hz),
+            s(p.sensor_offset_p_s, p.sensor_gain_p_s, p.sensor_delay_p_s_s, p.sensor_lowpass_p_s_hz),
+            s(p.sensor_offset_f, p.sensor_gain_f, p.sensor_delay_f_s, p.sensor_lowpass_f_hz),
         ])
     }
 }
@@ -72,24 +75,41 @@ pub struct Corruption<'a> {
     pub quantum: [f64; NC],
 }
 
-/// The history of true outputs at the sample instants, read back through the sensors.
+/// The history of (filtered) true outputs at the sample instants, read back through the sensors.
 #[derive(Debug, Clone)]
 pub struct Probe {
     sensors: Sensors,
     dt: f64,
     history: [Vec<f64>; NC],
+    /// last true value per channel (the filters' input), None before the first sample or after
+    /// a restart (the filter then starts settled on its input)
+    last: Option<[f64; NC]>,
 }
 
 impl Probe {
     pub fn new(sensors: Sensors, dt: f64, capacity: usize) -> Self {
-        Probe { sensors, dt, history: std::array::from_fn(|_| Vec::with_capacity(capacity)) }
+        Probe { sensors, dt, history: std::array::from_fn(|_| Vec::with_capacity(capacity)), last: None }
     }
 
-    /// Append the true outputs of the newest sample.
+    /// Append the true outputs of the newest sample (through each channel's filter).
     pub fn push(&mut self, o: &Outputs) {
-        for (h, x) in self.history.iter_mut().zip(channels(o)) {
-            h.push(x);
+        let x = channels(o);
+        for c in 0..NC {
+            let fc = self.sensors.0[c].lowpass_hz;
+            let h = &mut self.history[c];
+            let v = match (self.last, h.last()) {
+                (Some(prev), Some(&y0)) if fc > 0.0 => lowpass_step(y0, prev[c], x[c], 2.0 * std::f64::consts::PI * fc * self.dt),
+                _ => x[c],
+            };
+            h.push(v);
         }
+        self.last = Some(x);
+    }
+
+    /// The plant state was re-set (an open-loop restart): the filters start again settled on
+    /// the next sample instead of filtering the jump.
+    pub fn restart(&mut self) {
+        self.last = None;
     }
 
     pub fn len(&self) -> usize {
@@ -122,6 +142,14 @@ impl Probe {
             s.read(x)
         })
     }
+}
+
+/// One sample of a first-order low-pass `dy/dt = a (x - y)` whose input moves linearly from `x0`
+/// to `x1` over the sample (exact for that input); `ah` = a * dt.
+#[inline]
+pub fn lowpass_step(y0: f64, x0: f64, x1: f64, ah: f64) -> f64 {
+    let e = (-ah).exp();
+    e * y0 + x1 - e * x0 - (x1 - x0) * (1.0 - e) / ah
 }
 
 /// Apply noise sample `k` and quantization to noise-free readings.
@@ -157,6 +185,30 @@ mod tests {
         assert_eq!(r[3], 0.0);
         let s = Sensors::from_params(&p).0[0];
         assert!((s.unread(s.read(0.123)) - 0.123).abs() < 1e-15);
+    }
+
+    #[test]
+    fn a_declared_lowpass_lags_a_ramp_by_its_time_constant_and_settles_on_a_step() {
+        let mut p = Params::base();
+        p.sensor_lowpass_p_a_hz = 50.0;
+        let dt = 1e-3;
+        let mut probe = Probe::new(Sensors::from_params(&p), dt, 400);
+        for k in 0..400 {
+            probe.push(&Outputs { p_a: 1e6 * k as f64 * dt, y: 1.0, ..Default::default() });
+        }
+        // a ramp through a first-order filter lags by its time constant 1/(2 pi fc)
+        let tau = 1.0 / (2.0 * std::f64::consts::PI * 50.0);
+        let r = probe.read_latest();
+        assert!((r[2] - 1e6 * (399.0 * dt - tau)).abs() < 1.0, "{}", r[2]);
+        assert_eq!(r[0], 1.0);
+        // a step settles to the input
+        for _ in 0..400 {
+            probe.push(&Outputs { p_a: 5.0, ..Default::default() });
+        }
+        assert!((probe.read_latest()[2] - 5.0).abs() < 1e-6);
+        probe.restart();
+        probe.push(&Outputs { p_a: 9.0, ..Default::default() });
+        assert_eq!(probe.read_latest()[2], 9.0, "a restart starts the filter settled");
     }
 
     #[test]

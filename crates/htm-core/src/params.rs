@@ -87,8 +87,10 @@ define_params! {
     tank_pressure_pa ["Pa"] = 0.0, closed 0.0, 1.0e7;
     /// Atmospheric pressure: absolute = gauge + this; no pressure falls below absolute zero
     atmospheric_pressure_pa ["Pa"] = 101_325.0, open 0.0, 2.0e5;
-    /// Oil bulk modulus beta_e (section 2.1: 1200 MPa)
+    /// Oil bulk modulus beta_e (section 2.1: 1200 MPa), at zero gauge pressure
     bulk_modulus_pa ["Pa"] = 1.2e9, open 1.0e6, 1.0e11;
+    /// Rise of the bulk modulus with gauge pressure, d(beta)/dp (oil: about 5-12); 0 = constant
+    bulk_modulus_slope ["-"] = 0.0, closed 0.0, 50.0;
     /// Eggerth bulk modulus (eq. 2.2) kappa_1; 0 keeps the constant bulk modulus
     eggerth_k1_per_pa ["1/Pa"] = 0.0, closed 0.0, 1.0e-3;
     /// Eggerth kappa_2
@@ -122,8 +124,13 @@ define_params! {
     valve_transition_dp_pa ["Pa"] = 1.0e5, open 0.0, 1.0e7;
     /// Valve null bias: the spool sees u + bias (Table 3.3 centres on -0.115 V, NOTES item 3)
     valve_null_bias_v ["V"] = 0.115, closed -10.0, 10.0;
-    /// Spool time constant tau_v (eq. 2.8); 0 = static valve (eq. 2.10, the thesis's choice)
+    /// Spool time constant tau_v (eq. 2.8); 0 = static valve (eq. 2.10, the thesis's choice).
+    /// With a second-order spool this lag acts in series before it (EFFECTS valve_dynamics)
     valve_tau_s ["s"] = 0.0, closed 0.0, 1.0;
+    /// Natural frequency of a second-order spool (eq. 2.3-2.7); 0 = no second-order spool
+    valve_natural_hz ["Hz"] = 0.0, closed 0.0, 1.0e4;
+    /// Damping ratio of the second-order spool
+    valve_damping ["-"] = 0.7, open 0.0, 10.0;
     /// Overlap dead band half width (EFFECTS valve_deadband); 0 = off
     valve_deadband_half_width_v ["V"] = 0.0, closed 0.0, 5.0;
     /// Backlash between command and spool (EFFECTS valve_hysteresis); 0 = off
@@ -177,36 +184,54 @@ define_params! {
     sensor_gain_y ["-"] = 1.0, open 0.0, 10.0;
     /// Transport delay of the `y` measurement (EFFECTS sensor_delay); 0 = none
     sensor_delay_y_s ["s"] = 0.0, closed 0.0, 1.0;
+    /// Cut-off of a first-order anti-alias filter in the `y` signal path (a declared sensor
+    /// property, DATA_FORMAT `sensors.y.lowpass_hz`); 0 = none
+    sensor_lowpass_y_hz ["Hz"] = 0.0, closed 0.0, 1.0e6;
     /// Sensor offset of `v` (velocity): the sensor reads offset + gain * true (EFFECTS sensor_offset)
     sensor_offset_v ["m/s"] = 0.0, closed -10.0, 10.0;
     /// Sensor gain of `v` (EFFECTS sensor_gain); 1 = ideal
     sensor_gain_v ["-"] = 1.0, open 0.0, 10.0;
     /// Transport delay of the `v` measurement (EFFECTS sensor_delay); 0 = none
     sensor_delay_v_s ["s"] = 0.0, closed 0.0, 1.0;
+    /// Cut-off of a first-order anti-alias filter in the `v` signal path (a declared sensor
+    /// property, DATA_FORMAT `sensors.v.lowpass_hz`); 0 = none
+    sensor_lowpass_v_hz ["Hz"] = 0.0, closed 0.0, 1.0e6;
     /// Sensor offset of `p_a` (chamber A pressure): the sensor reads offset + gain * true (EFFECTS sensor_offset)
     sensor_offset_p_a ["Pa"] = 0.0, closed -1.0e8, 1.0e8;
     /// Sensor gain of `p_a` (EFFECTS sensor_gain); 1 = ideal
     sensor_gain_p_a ["-"] = 1.0, open 0.0, 10.0;
     /// Transport delay of the `p_a` measurement (EFFECTS sensor_delay); 0 = none
     sensor_delay_p_a_s ["s"] = 0.0, closed 0.0, 1.0;
+    /// Cut-off of a first-order anti-alias filter in the `p_a` signal path (a declared sensor
+    /// property, DATA_FORMAT `sensors.p_a.lowpass_hz`); 0 = none
+    sensor_lowpass_p_a_hz ["Hz"] = 0.0, closed 0.0, 1.0e6;
     /// Sensor offset of `p_b` (chamber B pressure): the sensor reads offset + gain * true (EFFECTS sensor_offset)
     sensor_offset_p_b ["Pa"] = 0.0, closed -1.0e8, 1.0e8;
     /// Sensor gain of `p_b` (EFFECTS sensor_gain); 1 = ideal
     sensor_gain_p_b ["-"] = 1.0, open 0.0, 10.0;
     /// Transport delay of the `p_b` measurement (EFFECTS sensor_delay); 0 = none
     sensor_delay_p_b_s ["s"] = 0.0, closed 0.0, 1.0;
+    /// Cut-off of a first-order anti-alias filter in the `p_b` signal path (a declared sensor
+    /// property, DATA_FORMAT `sensors.p_b.lowpass_hz`); 0 = none
+    sensor_lowpass_p_b_hz ["Hz"] = 0.0, closed 0.0, 1.0e6;
     /// Sensor offset of `p_s` (supply pressure): the sensor reads offset + gain * true (EFFECTS sensor_offset)
     sensor_offset_p_s ["Pa"] = 0.0, closed -1.0e8, 1.0e8;
     /// Sensor gain of `p_s` (EFFECTS sensor_gain); 1 = ideal
     sensor_gain_p_s ["-"] = 1.0, open 0.0, 10.0;
     /// Transport delay of the `p_s` measurement (EFFECTS sensor_delay); 0 = none
     sensor_delay_p_s_s ["s"] = 0.0, closed 0.0, 1.0;
+    /// Cut-off of a first-order anti-alias filter in the `p_s` signal path (a declared sensor
+    /// property, DATA_FORMAT `sensors.p_s.lowpass_hz`); 0 = none
+    sensor_lowpass_p_s_hz ["Hz"] = 0.0, closed 0.0, 1.0e6;
     /// Sensor offset of `f` (load cell force): the sensor reads offset + gain * true (EFFECTS sensor_offset)
     sensor_offset_f ["N"] = 0.0, closed -1.0e8, 1.0e8;
     /// Sensor gain of `f` (EFFECTS sensor_gain); 1 = ideal
     sensor_gain_f ["-"] = 1.0, open 0.0, 10.0;
     /// Transport delay of the `f` measurement (EFFECTS sensor_delay); 0 = none
     sensor_delay_f_s ["s"] = 0.0, closed 0.0, 1.0;
+    /// Cut-off of a first-order anti-alias filter in the `f` signal path (a declared sensor
+    /// property, DATA_FORMAT `sensors.f.lowpass_hz`); 0 = none
+    sensor_lowpass_f_hz ["Hz"] = 0.0, closed 0.0, 1.0e6;
 }
 
 impl Default for Params {

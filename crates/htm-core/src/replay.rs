@@ -173,6 +173,7 @@ impl<'a> Replay<'a> {
                     m.plant.p.supply_pressure_pa = supply_at(k);
                     if k % every == 0 {
                         self.restart(&mut m, &sensors, k);
+                        probe.restart();
                     }
                     probe.push(&m.outputs());
                     let mut rd = probe.read_latest();

@@ -61,11 +61,21 @@ def declared_noise(meta: Mapping, channel: str) -> float | None:
 
 
 def declared_resolution(meta: Mapping, channel: str) -> float | None:
-    """The `sensors.<channel>.resolution_*` value of the metadata, if any."""
+    """The quantum of a channel's reading from the metadata: `sensors.<channel>.resolution_*`,
+    else `bits` over the declared `range_*` ([min, max]), if any."""
     s = (meta.get("sensors") or {}).get(channel) or {}
     for k in _RESOLUTION_KEYS:
         if isinstance(s.get(k), (int, float)) and s[k] > 0:
             return float(s[k])
+    bits = s.get("bits")
+    rng = s.get("range_pa", s.get("range_n", s.get("range")))
+    if isinstance(bits, (int, float)) and 1 <= bits <= 64 and isinstance(rng, (list, tuple)) and len(rng) == 2:
+        try:
+            span = float(rng[1]) - float(rng[0])
+        except (TypeError, ValueError):
+            return None
+        if np.isfinite(span) and span > 0:
+            return span / 2.0 ** float(bits)
     return None
 
 

@@ -114,9 +114,11 @@ def params_from_meta(meta: Mapping[str, Any]) -> Params:
            "valve_hysteresis_half_width_v": 0.0, "supply_resistance_pa_s_per_m3": 0.0,
            "leakage_coeff_m3_per_s_pa": 0.0, "friction_pressure_coeff_n_per_pa": 0.0, "air_fraction": 0.0,
            "eggerth_k1_per_pa": 0.0, "eggerth_k2_per_pa": 0.0, "eggerth_lambda": 0.0, "friction_bump_n": 0.0,
-           "specimen_closure_stiffness_n_m": 0.0, "specimen_closure_offset_m": 0.0, "valve_linear_flow": 0.0}
+           "specimen_closure_stiffness_n_m": 0.0, "specimen_closure_offset_m": 0.0, "valve_linear_flow": 0.0,
+           "valve_natural_hz": 0.0, "bulk_modulus_slope": 0.0}
     for c in CHANNELS:
-        off |= {f"sensor_offset_{c}": 0.0, f"sensor_gain_{c}": 1.0, f"sensor_delay_{c}_s": 0.0}
+        off |= {f"sensor_offset_{c}": 0.0, f"sensor_gain_{c}": 1.0, f"sensor_delay_{c}_s": 0.0,
+                f"sensor_lowpass_{c}_hz": declared_lowpass(meta, c)}
     for k, v in off.items():
         p[k] = v
     p.valve_map = ([], [])
@@ -157,6 +159,15 @@ def params_from_meta(meta: Mapping[str, Any]) -> Params:
     except Exception as e:
         raise RecordError(f"metadata gives an invalid rig: {e}") from None
     return p
+
+
+def declared_lowpass(meta: Mapping[str, Any], channel: str) -> float:
+    """The cut-off [Hz] of a channel's declared anti-alias filter (`sensors.<ch>.lowpass_hz`), 0 if none."""
+    s = (meta.get("sensors") or {}).get(channel) or {}
+    v = s.get("lowpass_hz") if isinstance(s, Mapping) else None
+    if v is None:
+        return 0.0
+    return _number(v, f"sensors.{channel}.lowpass_hz") if v else 0.0
 
 
 def _number(x: Any, name: str) -> float:

@@ -208,7 +208,7 @@ impl PyMachine {
         outputs_dict(py, &self.inner.outputs())
     }
 
-    /// State [p_a Pa, p_b Pa, y m, v m/s, spool V].
+    /// State [p_a Pa, p_b Pa, y m, v m/s, spool V, spool velocity V/s, lagged command V].
     #[getter]
     fn get_state<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
         PyArray1::from_slice(py, &self.inner.x)
@@ -242,7 +242,7 @@ impl PyMachine {
         let mut arr: [f64; NX] = s.try_into().map_err(|_| InputError::new_err(format!("state needs {NX} values")))?;
         let plant = &self.inner.plant;
         let target = plant.spool_target(u, &mut 0.0);
-        if plant.p.valve_tau_s == 0.0 {
+        if !plant.spool_has_dynamics() {
             arr[crate::machine::SPOOL] = target;
         }
         let mut dx = [0.0; NX];
