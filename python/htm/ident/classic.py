@@ -16,7 +16,7 @@ from scipy.optimize import least_squares
 
 from htm._core import Params, friction_force
 from htm.errors import RecordError
-from htm.ident.records import Record, validate_record
+from htm.ident.records import Record, clean_record, validate_record
 
 G = 9.80665
 SMOOTHING_M_S = 1e-3  # eps of the smoothed sign, as the thesis fitted it (section 3.4.4)
@@ -214,7 +214,8 @@ def fit_mass(rec: Record, friction: dict) -> dict:
 
 def identify(rec: Record) -> dict:
     """Run the thesis's chapter-3 identification on `rec`; returns a JSON-ready dict."""
-    warnings = validate_record(rec)
+    rec, warnings = clean_record(rec)
+    warnings += validate_record(rec)
     segs = segments(rec)
     out: dict = {"record": rec.name, "warnings": warnings, "segments": len(segs)}
     out["velocity_gain"] = fit_velocity_gain(segs)

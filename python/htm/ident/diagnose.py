@@ -10,12 +10,13 @@ import numpy as np
 
 from htm.errors import RecordError
 from htm.ident import features as ft
+from htm.ident.family import Family, for_record
 from htm.ident.fit import Problem, blocks
 from htm.ident.floor import loop_floor, unexplained
 from htm.ident.model import Model, get_value
-from htm.ident.records import Record, validate_record
+from htm.ident.records import Record, clean_record, validate_record
 from htm.ident.search import SYSTEMATIC, Finding, Result, search
-from htm.ident.valve import ValveFamily
+from htm.ident.sim import DEFAULT_HORIZON_S
 
 FORMAT = "htm-diagnosis/1"
 MIN_SAMPLES = 200
@@ -44,8 +45,9 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
     information (too short, no excitation) or that does not belong to its metadata's rig.
     """
     t_start = time.perf_counter()
+    rec, warnings = clean_record(rec)
     try:
-        validate_record(rec, min_samples=MIN_SAMPLES)
+        warnings += validate_record(rec, min_samples=MIN_SAMPLES)
     except RecordError as e:
         raise IdentificationError(f"cannot identify: {e}") from None
     rate = float(rec.meta.get("sample_rate_hz") or 1.0 / float(np.median(np.diff(rec.columns["t"]))))
@@ -58,7 +60,7 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
     n = len(rec.columns["t"])
     n_work = min(n, int(round(work_s * rate)))
     fit_mask, val_mask = blocks(n_work, n, rate)
-    family = ValveFamily(rec, channels, horizon_s)
+    family = for_record(rec, channels, horizon_s)
     prob = Problem(rec, family.simulate, channels, sigma, n_work, fit_mask, val_mask, dict(family.opts))
     log: Callable[..., None] = (lambda *a: print(f"[{time.perf_counter() - t_start:6.1f}s {prob.simulations:4d} sims]", *a)) if verbose else (lambda *a: None)
 
@@ -108,10 +110,10 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
         "unexplained": left,
         "predictions": "predictions.csv",
     }
-    if not closed:
-        from htm.ident import sim
-
-        report["horizon_s"] = horizon_s if horizon_s is not None else sim.DEFAULT_HORIZON_S
+    if warnings:  # samples dropped or tolerated: a reader of the report must know
+        report["warnings"] = warnings
+    if not closed and family.has_command:  # open loop on the recorded command, restarted every horizon
+        report["horizon_s"] = family.opts.get("horizon_s", DEFAULT_HORIZON_S)
     log("done", report["final"]["rmse"], "unexplained" if left else "")
     info = {"simulations": prob.simulations, "seconds": time.perf_counter() - t_start,
             "noise_floor": sigma, "systematic_ratio": ratios, "loop_floor": floor, "fitted_on": fitted_on}
@@ -154,7 +156,7 @@ def _check_excitation(rec: Record, sigma: dict[str, float]) -> None:
             "(ramps, sines, steps)")
 
 
-def _rig_misfit(rec: Record, prob: Problem, family: ValveFamily, res: Result, rate: float) -> str | None:
+def _rig_misfit(rec: Record, prob: Problem, family: Family, res: Result, rate: float) -> str | None:
     """Why the record is not of its metadata's rig, or None: rig parameters pinned at their
     bounds while the residual stays far above the noise floor."""
     base = res.model

@@ -133,7 +133,6 @@ def lag_samples(measured: np.ndarray, predicted: np.ndarray, max_lag: int) -> fl
 def regressors(columns: Mapping[str, np.ndarray], rate_hz: float) -> dict[str, np.ndarray]:
     """Signals a residual is tested against (DATA_FORMAT columns in, SI arrays out)."""
     y = np.asarray(columns["y"], dtype=float)
-    u = np.asarray(columns["u"], dtype=float)
     dt = 1.0 / rate_hz
     v = np.asarray(columns["v"], dtype=float) if "v" in columns else np.gradient(smooth(y, 5), dt)
     out = {
@@ -141,11 +140,17 @@ def regressors(columns: Mapping[str, np.ndarray], rate_hz: float) -> dict[str, n
         "y": y - np.nanmean(y),
         "v": v,
         "sign(v)": np.tanh(v / max(1e-3, 0.05 * float(np.nanstd(v)))),
-        "du/dt": np.gradient(u, dt),
-        "sign(du/dt)": np.sign(smooth(np.gradient(u, dt), 3)),
-        "small |u|": (np.abs(u) < 0.1 * max(1e-6, float(np.nanmax(np.abs(u))))).astype(float),
-        "u": u,
     }
+    # the command: the valve's `u`, else the position reference of a machine that closes its own loop
+    cmd = columns.get("u", columns.get("y_ref"))
+    if cmd is not None:
+        u = np.asarray(cmd, dtype=float)
+        out |= {
+            "du/dt": np.gradient(u, dt),
+            "sign(du/dt)": np.sign(smooth(np.gradient(u, dt), 3)),
+            "small |u|": (np.abs(u) < 0.1 * max(1e-6, float(np.nanmax(np.abs(u))))).astype(float),
+            "u": u,
+        }
     if "p_a" in columns and "p_b" in columns:
         pa, pb = np.asarray(columns["p_a"], dtype=float), np.asarray(columns["p_b"], dtype=float)
         out["p_a + p_b"] = pa + pb - np.nanmean(pa + pb)

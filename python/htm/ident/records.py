@@ -14,7 +14,8 @@ import numpy as np
 from htm.errors import RecordError
 
 FORMAT = "htm-record/1"
-REQUIRED = ("t", "u", "y")
+REQUIRED = ("t", "y")  # and `u`, unless the machine closes its own loop (`machine_position`)
+MACHINE_POSITION = "machine_position"
 KNOWN = ("t", "u", "y", "v", "p_a", "p_b", "p_s", "f", "y_ref", "f_ref")
 
 
@@ -143,6 +144,69 @@ _UNIT_HINTS = {
 }
 
 
+# Channels whose samples are checked for plausibility (SI), and the largest share of a column that
+# may be dropped as bad samples (more than that is a wrong unit or a broken sensor: refused).
+_PHYSICAL = ("y", "y_ref", "v", "p_a", "p_b", "p_s", "f", "f_ref", "u")
+MAX_BAD_FRACTION = 0.01
+
+
+def clean_record(rec: Record) -> tuple[Record, list[str]]:
+    """A copy of `rec` with bad samples dropped (set to NaN, a dropped sample in DATA_FORMAT.md),
+    and a warning per column that had any: non-finite values, readings outside a sensor's declared
+    range (`sensors.<ch>.range_*`), and isolated samples no rig can produce (a position beyond the
+    stroke by more than a stroke, a pressure below vacuum or above five times the supply, a velocity
+    above 20 m/s, a command beyond ten times the valve's rating). A column with more than
+    `MAX_BAD_FRACTION` implausible samples is left as it is for `validate_record` to judge (a wrong
+    unit, not a few bad samples)."""
+    rig = rec.meta.get("rig") if isinstance(rec.meta.get("rig"), dict) else {}
+    sensors = rec.meta.get("sensors") if isinstance(rec.meta.get("sensors"), dict) else {}
+
+    def num(key: str) -> float | None:
+        v = rig.get(key)
+        return float(v) if isinstance(v, (int, float)) and np.isfinite(v) and v > 0 else None
+
+    stroke, supply, umax = num("stroke_m"), num("supply_pressure_pa"), num("valve_max_command_v")
+    area = max(num("area_a_m2") or 0.0, num("area_b_m2") or 0.0)
+    limits: dict[str, tuple[float, float]] = {"v": (-20.0, 20.0)}
+    if stroke:
+        limits["y"] = limits["y_ref"] = (-stroke, 2.0 * stroke)
+    if supply:
+        for c in ("p_a", "p_b", "p_s"):
+            limits[c] = (-1.5e5, 5.0 * supply)
+        if area:
+            limits["f"] = limits["f_ref"] = (-10.0 * area * supply, 10.0 * area * supply)
+    if umax:
+        limits["u"] = (-10.0 * umax, 10.0 * umax)
+    cols = dict(rec.columns)
+    warnings: list[str] = []
+    for c in _PHYSICAL:
+        if c not in cols:
+            continue
+        x = np.array(cols[c], dtype=float)
+        why = []
+        bad = ~np.isfinite(x) & ~np.isnan(x)
+        if bad.any():
+            why.append(f"{int(bad.sum())} non-finite")
+        x[bad] = np.nan
+        rng = (sensors.get(c) or {}).get("range_pa", (sensors.get(c) or {}).get("range_n")) if isinstance(sensors.get(c), dict) else None
+        if isinstance(rng, (list, tuple)) and len(rng) == 2 and all(isinstance(r, (int, float)) for r in rng):
+            out = (x < rng[0]) | (x > rng[1])
+            if out.any():
+                why.append(f"{int(out.sum())} outside the declared range [{rng[0]:g}, {rng[1]:g}]")
+                x[out] = np.nan
+        if c in limits:
+            lo, hi = limits[c]
+            with np.errstate(invalid="ignore"):
+                out = (x < lo) | (x > hi)
+            if out.any() and out.mean() <= MAX_BAD_FRACTION:
+                why.append(f"{int(out.sum())} implausible (outside [{lo:.4g}, {hi:.4g}] SI)")
+                x[out] = np.nan
+        if why:
+            warnings.append(f"column `{c}`: dropped {' and '.join(why)} samples")
+            cols[c] = x
+    return (Record(cols, rec.meta, rec.name) if warnings else rec), warnings
+
+
 def validate_record(rec: Record, *, max_nan_run_s: float = 0.5, max_nan_fraction: float = 0.2,
                     min_samples: int = 50) -> list[str]:
     """Check a record against DATA_FORMAT.md before anything is fitted to it.
@@ -157,6 +221,14 @@ def validate_record(rec: Record, *, max_nan_run_s: float = 0.5, max_nan_fraction
     for c in REQUIRED:
         if c not in cols:
             raise RecordError(f"record `{name}`: required column `{c}` is missing (DATA_FORMAT.md)")
+    if machine_position(rec):
+        if "y_ref" not in cols:
+            raise RecordError(f"record `{name}` declares a machine that closes its own loop (controller type "
+                              f"`{MACHINE_POSITION}`) but has no position reference column `y_ref` (DATA_FORMAT.md)")
+    elif "u" not in cols:
+        raise RecordError(f"record `{name}`: required column `u` (the valve command) is missing; a record of a machine "
+                          f"that closes its own loop has no `u` but must declare \"controller\": {{\"type\": \"{MACHINE_POSITION}\"}} "
+                          "and hold `y_ref` (DATA_FORMAT.md)")
     t = np.asarray(cols["t"], dtype=float)
     if len(t) < min_samples:
         raise RecordError(f"record `{name}`: only {len(t)} samples; at least {min_samples} are needed to identify anything")
@@ -197,7 +269,8 @@ def validate_record(rec: Record, *, max_nan_run_s: float = 0.5, max_nan_fraction
         if c not in _UNIT_HINTS:
             continue
         what, si, other = _UNIT_HINTS[c]
-        peak = float(np.nanmax(np.abs(x)))
+        # the bulk of the column, not one stray sample, tells its unit
+        peak = float(np.nanpercentile(np.abs(x), 99.5))
         if c in ("y", "y_ref") and stroke and peak > 5 * stroke:
             raise RecordError(f"record `{name}`: {what} `{c}` reaches {peak:g}, beyond 5x the stroke {stroke} m: "
                               f"the column looks like {other}; convert it to {si}")
@@ -207,6 +280,12 @@ def validate_record(rec: Record, *, max_nan_run_s: float = 0.5, max_nan_fraction
             raise RecordError(f"record `{name}`: pressure `{c}` peaks at {peak:g} Pa against a {supply:g} Pa supply: "
                               f"the column looks like {other}; convert it to {si}")
     return warnings
+
+
+def machine_position(rec: Record) -> bool:
+    """Does the record declare a machine that closes its own displacement loop (no `u`)?"""
+    ctrl = rec.meta.get("controller")
+    return isinstance(ctrl, dict) and ctrl.get("type") == MACHINE_POSITION
 
 
 def _longest_run(mask: np.ndarray) -> int:

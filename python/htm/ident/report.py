@@ -59,6 +59,8 @@ def _write_markdown(out: Path, rec: Record, report: dict[str, Any], before: dict
     if rec.meta.get("controller") and fitted_on.startswith("recorded command: "):
         lines += [f"The model was fitted on the recorded command (open loop, restarted from the measurement): "
                   f"{fitted_on.split(': ', 1)[1]}. The errors below are nonetheless those of the free-run closed loop.", ""]
+    if report.get("warnings"):
+        lines += ["**Warnings** (samples dropped before the fit):", "", *[f"- {w}" for w in report["warnings"]], ""]
     lines += ["## Error per channel", "",
               "| channel | noise floor | baseline RMSE | final RMSE | final systematic / noise |", "|---|---|---|---|---|"]
     for c in channels:

@@ -9,7 +9,7 @@ import numpy as np
 
 from htm._core import Params
 from htm.ident import sim
-from htm.ident.model import Candidate, Free, has_key, lin, logf
+from htm.ident.model import Candidate, Free, get_value, has_key, lin, logf
 from htm.ident.records import Record
 
 # Base-model parameters stated by the metadata (nominal; bounds say how far a rig may be off).
@@ -17,17 +17,31 @@ RIG_FREES = [
     logf("moving_mass_kg", 0.4, 2.5, prior=0.3),
     logf("valve_rated_flow_m3_s", 0.4, 2.5, prior=0.3),
     logf("bulk_modulus_pa", 0.4, 2.5, prior=0.3),
-    logf("dead_volume_a_m3", 0.5, 2.0, step=0.05, prior=0.3),
-    logf("dead_volume_b_m3", 0.5, 2.0, step=0.05, prior=0.3),
+    logf("dead_volume_a_m3", 0.3, 3.0, step=0.05, prior=0.5),
+    logf("dead_volume_b_m3", 0.3, 3.0, step=0.05, prior=0.5),
     logf("supply_pressure_pa", 0.5, 1.5, step=0.01, prior=0.1),
+    logf("specimen_stiffness_n_m", 0.33, 3.0, step=0.02, prior=0.3),
 ]
-# Friction and underlap are not in the metadata: wide bounds, wide priors.
+# What the metadata does not state, with bounds from the physics of real rigs: friction, the
+# valve's underlap, laminar transition and spool (a second-order system of 60 Hz and up: far above the
+# sample rate it is a static valve), the return
+# line's back-pressure and the oil's stiffening with pressure. Wide priors keep the parameters
+# the record cannot tell near their typical values.
 OTHER_FREES = [
     logf("friction_viscous_n_s_m", 0.02, 20.0, step=0.05, prior=1.0),
     logf("friction_coulomb_n", 0.02, 20.0, step=0.05, prior=1.0),
     logf("friction_static_n", 0.2, 4.0, step=0.1, prior=0.5),
+    logf("friction_stribeck_m_s", 0.2, 5.0, step=0.1, prior=1.0),
+    logf("friction_smoothing_m_s", 0.05, 10.0, step=0.1, prior=1.0),
     lin("valve_underlap_v", 0.1, 0.0, 5.0, step=0.1, prior=1.0),
+    logf("valve_transition_dp_pa", 0.03, 10.0, step=0.1, prior=1.0),
+    logf("valve_natural_hz", 0.4, 60.0, step=0.05, prior=1.0),
+    logf("valve_damping", 0.5, 1.6, step=0.05, prior=0.3),
+    lin("tank_pressure_pa", 1e5, 0.0, 10.0, step=0.1),
+    lin("bulk_modulus_slope", 1.0, 0.0, 20.0, step=0.5, prior=10.0),
 ]
+# Typical values of what the metadata leaves out (a servo-valve's spool).
+SPOOL_HZ, SPOOL_DAMPING = 150.0, 0.7
 
 
 class ValveFamily:
@@ -42,8 +56,12 @@ class ValveFamily:
         nominal = sim.params_from_meta(rec.meta)
         if "p_s" in channels:  # a measured supply starts the fit at what the gauge reads at rest
             nominal["supply_pressure_pa"] = float(np.nanpercentile(rec.columns["p_s"], 90))
+        rig = rec.meta.get("rig") or {}
+        nominal["valve_natural_hz"] = float(rig.get("valve_natural_hz") or SPOOL_HZ)
+        nominal["valve_damping"] = float(rig.get("valve_damping") or SPOOL_DAMPING)
         self.nominal = nominal
-        self.base_frees: list[Free] = [f for f in RIG_FREES + OTHER_FREES if has_key(nominal, f.key)]
+        self.base_frees: list[Free] = [f for f in RIG_FREES + OTHER_FREES if has_key(nominal, f.key) and
+                                       (not f.log or get_value(nominal, f.key) > 0)]
         self.rig_keys = {f.key for f in RIG_FREES}
         self.opts: dict[str, Any] = {"supply": sim.supply_schedule(rec)}  # once: a switched supply the model follows
         if horizon_s is not None:
