@@ -227,6 +227,68 @@ impl Plant {
         }
     }
 
+    /// The spool states' exact transition over `dt` under a held target: x(t + dt) = phi x(t) +
+    /// gamma target, states (SPOOL, SPOOL_V, LAG) — the exponential of the linear system,
+    /// augmented with the held input, by scaling and squaring a Taylor series.
+    pub fn spool_transition(&self, dt: f64) -> ([[f64; 3]; 3], [f64; 3]) {
+        // columns of the augmented generator: d/dt of (spool, spool_v, lag, target)
+        let mut a = [[0.0f64; 4]; 4];
+        let unit = |i: usize| {
+            let mut x = [0.0; NX];
+            match i {
+                0 => x[SPOOL] = 1.0,
+                1 => x[SPOOL_V] = 1.0,
+                2 => x[LAG] = 1.0,
+                _ => {}
+            }
+            x
+        };
+        for c in 0..4 {
+            let (d0, d1, d2) = self.spool_rates(&unit(c), if c == 3 { 1.0 } else { 0.0 });
+            a[0][c] = d0 * dt;
+            a[1][c] = d1 * dt;
+            a[2][c] = d2 * dt;
+        }
+        let norm = a.iter().map(|r| r.iter().map(|v| v.abs()).sum::<f64>()).fold(0.0, f64::max);
+        let squarings = if norm > 0.5 { (norm / 0.5).log2().ceil() as u32 } else { 0 };
+        let scale = 0.5f64.powi(squarings as i32);
+        let mul = |x: &[[f64; 4]; 4], y: &[[f64; 4]; 4]| {
+            let mut z = [[0.0; 4]; 4];
+            for i in 0..4 {
+                for j in 0..4 {
+                    z[i][j] = (0..4).map(|k| x[i][k] * y[k][j]).sum();
+                }
+            }
+            z
+        };
+        let mut m = [[0.0; 4]; 4];
+        for (i, row) in a.iter().enumerate() {
+            for (j, v) in row.iter().enumerate() {
+                m[i][j] = v * scale;
+            }
+        }
+        // exp(m) = sum m^k / k!, k <= 12 (|m| <= 0.5: error below 1e-13)
+        let mut e = [[0.0; 4]; 4];
+        let mut term = [[0.0; 4]; 4];
+        for i in 0..4 {
+            e[i][i] = 1.0;
+            term[i][i] = 1.0;
+        }
+        for k in 1..=12 {
+            term = mul(&term, &m);
+            for i in 0..4 {
+                for j in 0..4 {
+                    term[i][j] /= k as f64;
+                    e[i][j] += term[i][j];
+                }
+            }
+        }
+        for _ in 0..squarings {
+            e = mul(&e, &e);
+        }
+        ([[e[0][0], e[0][1], e[0][2]], [e[1][0], e[1][1], e[1][2]], [e[2][0], e[2][1], e[2][2]]], [e[0][3], e[1][3], e[2][3]])
+    }
+
     /// True when the spool is a state (a lag or a second-order spool), not the target itself.
     #[inline]
     pub fn spool_has_dynamics(&self) -> bool {
@@ -366,6 +428,13 @@ impl OdeSystem<NX> for Plant {
         // Positions are judged absolutely (the offset of y says nothing about force accuracy).
         ([1.0, 1.0, 0.0, 1.0, 1.0, 1.0, 1.0], [1.0e5, 1.0e5, 1.0e-3, 1.0e-2, 1.0, 1.0e3, 1.0])
     }
+
+    /// The spool drives the flows and is linear: its own transient (up to kHz for a fast valve,
+    /// restarted by every command sample) is judged through the pressures it drives.
+    fn error_checked(&self) -> [bool; NX] {
+        let spool = !self.spool_has_dynamics();
+        [true, true, true, true, spool, false, false]
+    }
 }
 
 /// A plant with its state, integrator and valve memory: the object a control loop steps.
@@ -377,6 +446,9 @@ pub struct Machine {
     pub t: f64,
     pub solver: Rodas4,
     backlash: f64,
+    /// the spool's exact transition for the last `step_valve` period (dt, phi, gamma)
+    #[serde(skip)]
+    valve_step: Option<(f64, [[f64; 3]; 3], [f64; 3])>,
 }
 
 impl Machine {
@@ -385,7 +457,7 @@ impl Machine {
         let plant = Plant::new(p)?;
         let y0 = if plant.p.specimen_stiffness_n_m > 0.0 { plant.p.specimen_zero_force_position_m } else { 0.5 * plant.p.stroke_m };
         let x = plant.rest_state(y0);
-        Ok(Machine { plant, x, t: 0.0, solver: Rodas4::new(DEFAULT_RTOL), backlash: 0.0 })
+        Ok(Machine { plant, x, t: 0.0, solver: Rodas4::new(DEFAULT_RTOL), backlash: 0.0, valve_step: None })
     }
 
     pub fn with_rtol(mut self, rtol: f64) -> Result<Self> {
@@ -434,6 +506,32 @@ impl Machine {
         self.plant.outputs(&self.x)
     }
 
+    /// Advance only the valve (its play memory and spool states) under command `u` [V] held for
+    /// `dt` [s]; the hydraulic and mechanical states stay (the caller sets them). The spool is
+    /// linear and not acted on by the hydraulics, so this is the spool of a whole simulation,
+    /// stepped exactly (zero-order hold).
+    pub fn step_valve(&mut self, u: f64, dt: f64) {
+        let target = self.plant.spool_target(if u.is_finite() { u } else { 0.0 }, &mut self.backlash);
+        self.plant.target = target;
+        if !self.plant.spool_has_dynamics() {
+            self.x[SPOOL] = target;
+        } else {
+            let (phi, gamma) = match self.valve_step {
+                Some((h, phi, gamma)) if h == dt => (phi, gamma),
+                _ => {
+                    let (phi, gamma) = self.plant.spool_transition(dt);
+                    self.valve_step = Some((dt, phi, gamma));
+                    (phi, gamma)
+                }
+            };
+            let x0 = [self.x[SPOOL], self.x[SPOOL_V], self.x[LAG]];
+            for (i, j) in [SPOOL, SPOOL_V, LAG].into_iter().enumerate() {
+                self.x[j] = (0..3).map(|c| phi[i][c] * x0[c]).sum::<f64>() + gamma[i] * target;
+            }
+        }
+        self.t += dt;
+    }
+
     pub fn stats(&self) -> Stats {
         self.solver.stats
     }
@@ -456,6 +554,41 @@ mod tests {
         assert!((plant.outputs(&x).p_s - p.supply_pressure_pa).abs() < 1e3, "{}", plant.outputs(&x).p_s);
         p.supply_resistance_pa_s_per_m3 = 0.0;
         assert_eq!(Plant::new(p.clone()).unwrap().setpoint_for_rest(1.5e7), 1.5e7);
+    }
+
+    #[test]
+    fn the_spool_transition_is_the_exact_step_of_a_lag_and_a_second_order_spool() {
+        let mut p = Params::base();
+        p.valve_tau_s = 0.004;
+        p.valve_natural_hz = 150.0;
+        p.valve_damping = 0.6;
+        let plant = Plant::new(p).unwrap();
+        let dt = 2e-3;
+        let (phi, gamma) = plant.spool_transition(dt);
+        // reference: many tiny RK4 steps of the same linear rates
+        let mut x = [0.0; NX];
+        (x[SPOOL], x[SPOOL_V], x[LAG]) = (0.2, -30.0, 0.5);
+        let x0 = [x[SPOOL], x[SPOOL_V], x[LAG]];
+        let n = 20000;
+        let h = dt / n as f64;
+        for _ in 0..n {
+            let f = |x: &[f64; NX]| plant.spool_rates(x, 1.3);
+            let k1 = f(&x);
+            let mut y = x;
+            (y[SPOOL], y[SPOOL_V], y[LAG]) = (x[SPOOL] + 0.5 * h * k1.0, x[SPOOL_V] + 0.5 * h * k1.1, x[LAG] + 0.5 * h * k1.2);
+            let k2 = f(&y);
+            (y[SPOOL], y[SPOOL_V], y[LAG]) = (x[SPOOL] + 0.5 * h * k2.0, x[SPOOL_V] + 0.5 * h * k2.1, x[LAG] + 0.5 * h * k2.2);
+            let k3 = f(&y);
+            (y[SPOOL], y[SPOOL_V], y[LAG]) = (x[SPOOL] + h * k3.0, x[SPOOL_V] + h * k3.1, x[LAG] + h * k3.2);
+            let k4 = f(&y);
+            x[SPOOL] += h / 6.0 * (k1.0 + 2.0 * k2.0 + 2.0 * k3.0 + k4.0);
+            x[SPOOL_V] += h / 6.0 * (k1.1 + 2.0 * k2.1 + 2.0 * k3.1 + k4.1);
+            x[LAG] += h / 6.0 * (k1.2 + 2.0 * k2.2 + 2.0 * k3.2 + k4.2);
+        }
+        for (i, j) in [SPOOL, SPOOL_V, LAG].into_iter().enumerate() {
+            let exact = (0..3).map(|c| phi[i][c] * x0[c]).sum::<f64>() + gamma[i] * 1.3;
+            assert!((exact - x[j]).abs() < 1e-9 * x[j].abs().max(1.0), "state {j}: {exact} vs {}", x[j]);
+        }
     }
 
     fn check(p: Params, states: &[[f64; NX]], target: f64) {

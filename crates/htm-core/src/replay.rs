@@ -35,6 +35,11 @@ pub struct Replay<'a> {
     /// unit switched between pressure levels; with sag the set-point is higher by the standing
     /// leakage's drop); None = the constant set-point `supply_pressure_pa`
     pub supply: Option<&'a [f64]>,
+    /// open loop: simulate only these samples (None = all); the others read NaN and cost no
+    /// integration — the plant is re-started from the measurement where a simulated run begins,
+    /// and the valve (its play and spool, which the hydraulics do not act on) follows the
+    /// recorded command throughout, so a simulated sample reads the same as in a whole run
+    pub active: Option<&'a [bool]>,
 }
 
 /// A re-simulated record: per channel what the sensors read, and the command applied.
@@ -65,6 +70,7 @@ impl<'a> Replay<'a> {
             rtol: DEFAULT_RTOL,
             corruption: Corruption::default(),
             supply: None,
+            active: None,
         }
     }
 
@@ -80,6 +86,11 @@ impl<'a> Replay<'a> {
         }
         if !(self.dt.is_finite() && self.dt > 0.0) {
             return Err(Error::Input(format!("sample period dt = {} s must be > 0", self.dt)));
+        }
+        if let Some(a) = self.active {
+            if a.len() != n {
+                return Err(Error::Input(format!("active mask has {} samples but `u` has {n}", a.len())));
+            }
         }
         if let Some(s) = self.supply {
             if s.len() != n {
@@ -169,9 +180,18 @@ impl<'a> Replay<'a> {
             None => {
                 let u = held(self.u);
                 let every = ((self.horizon_s / self.dt).round() as usize).max(1);
+                let active = |k: usize| self.active.map(|a| a[k]).unwrap_or(true);
                 for k in 0..n {
                     m.plant.p.supply_pressure_pa = supply_at(k);
-                    if k % every == 0 {
+                    if !active(k) {
+                        // not simulated: the state follows the measurement, the valve the command
+                        self.restart(&mut m, &sensors, k);
+                        probe.push(&m.outputs());
+                        push(&mut out, &[f64::NAN; NC], u[k]);
+                        m.step_valve(u[k], self.dt);
+                        continue;
+                    }
+                    if k % every == 0 || (k > 0 && !active(k - 1)) {
                         self.restart(&mut m, &sensors, k);
                         probe.restart();
                     }
@@ -299,6 +319,40 @@ mod tests {
         for k in 0..r.len() {
             assert!((a.readings[0][k] - tr.y[k]).abs() < 1e-12 && (a.u[k] - tr.u[k]).abs() < 1e-9, "sample {k}");
         }
+    }
+
+    #[test]
+    fn open_loop_on_active_samples_only_reads_as_the_whole_run_there() {
+        let mut p = Params::base();
+        p.valve_natural_hz = 120.0;
+        p.valve_tau_s = 0.01;
+        p.valve_hysteresis_half_width_v = 0.05;
+        let r = ramp(1500);
+        let u0 = vec![0.0; r.len()];
+        let mut rp = Replay::new(2e-3, &u0);
+        rp.closed_loop = Some((PFF, &r));
+        let truth = rp.run(&p).unwrap();
+        let mut ol = Replay::new(2e-3, &truth.u);
+        for c in 0..4 {
+            ol.measured[c] = Some(&truth.readings[c]);
+        }
+        ol.horizon_s = 0.1;
+        let whole = ol.run(&p).unwrap();
+        // every other 0.1 s block simulated
+        let mask: Vec<bool> = (0..r.len()).map(|k| (k / 50) % 2 == 1).collect();
+        ol.active = Some(&mask);
+        let part = ol.run(&p).unwrap();
+        for k in 0..r.len() {
+            if mask[k] {
+                for c in 0..4 {
+                    let (a, b) = (part.readings[c][k], whole.readings[c][k]);
+                    assert!((a - b).abs() <= 1e-3 * b.abs().max(1e-3), "channel {c} sample {k}: {a} vs {b}");
+                }
+            } else {
+                assert!(part.readings[0][k].is_nan());
+            }
+        }
+        assert!(part.stats.accepted < whole.stats.accepted);
     }
 
     #[test]

@@ -10,6 +10,12 @@ pub trait OdeSystem<const N: usize> {
     /// Error weight of each component: error_i is measured against
     /// rtol * (|x_i| * relative_i + scale_i).
     fn error_weights(&self) -> ([f64; N], [f64; N]);
+    /// Components whose local error the step-size control judges (default all). A fast input
+    /// state (a servo-valve's spool) may be left to the components it drives: an L-stable step
+    /// across its transient gives its quasi-static effect, which those components then check.
+    fn error_checked(&self) -> [bool; N] {
+        [true; N]
+    }
     /// Jacobian d(rhs)/dx at `x` (where rhs = `f0`); returns the number of rhs evaluations
     /// it spent. Forward differences unless the system overrides it with an analytic one.
     fn jacobian(&self, x: &[f64; N], f0: &[f64; N], jac: &mut [[f64; N]; N]) -> u64 {
@@ -83,6 +89,8 @@ impl Rodas4 {
     /// Integrate `x` forward by `dt` with the input held; ends exactly at dt.
     pub fn advance<const N: usize, S: OdeSystem<N>>(&mut self, sys: &S, x: &mut [f64; N], dt: f64) -> Result<()> {
         let (rel, scale) = sys.error_weights();
+        let checked = sys.error_checked();
+        let n_checked = checked.iter().filter(|c| **c).count().max(1) as f64;
         let mut t = 0.0;
         let mut f0 = [0.0; N];
         let mut jac = [[0.0; N]; N];
@@ -100,12 +108,12 @@ impl Rodas4 {
             let (xn, err) = self.step(sys, x, &f0, &jac, h);
             let err_norm = {
                 let mut s = 0.0;
-                for i in 0..N {
+                for i in (0..N).filter(|i| checked[*i]) {
                     let w = self.rtol * (x[i].abs().max(xn[i].abs()) * rel[i] + scale[i]);
                     let e = err[i] / w;
                     s += e * e;
                 }
-                (s / N as f64).sqrt()
+                (s / n_checked).sqrt()
             };
             let finite = err_norm.is_finite() && xn.iter().all(|v| v.is_finite());
             if self.fixed_step.is_some() {

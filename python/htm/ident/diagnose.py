@@ -11,11 +11,11 @@ import numpy as np
 from htm.errors import RecordError
 from htm.ident import features as ft
 from htm.ident.family import Family, for_record
-from htm.ident.fit import Problem, blocks
+from htm.ident.fit import Problem, blocks, spread_blocks
 from htm.ident.floor import loop_floor, unexplained
 from htm.ident.model import Model, get_value
 from htm.ident.records import Record, clean_record, validate_record
-from htm.ident.search import SYSTEMATIC, Finding, Result, search
+from htm.ident.search import Finding, Result, search
 from htm.ident.sim import DEFAULT_HORIZON_S
 
 FORMAT = "htm-diagnosis/1"
@@ -58,11 +58,24 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
     _check_excitation(rec, sigma)
     scales = {c: max(sigma[c] * 10, 1e-6 * float(np.nanmax(np.abs(rec.columns[c])) or 1.0)) for c in channels}
     n = len(rec.columns["t"])
-    n_work = min(n, int(round(work_s * rate)))
-    fit_mask, val_mask = blocks(n_work, n, rate)
     family = for_record(rec, channels, horizon_s)
-    prob = Problem(rec, family.simulate, channels, sigma, n_work, fit_mask, val_mask, dict(family.opts))
-    log: Callable[..., None] = (lambda *a: print(f"[{time.perf_counter() - t_start:6.1f}s {prob.simulations:4d} sims]", *a)) if verbose else (lambda *a: None)
+    closed = family.closed_loop
+    if family.has_command:
+        # Fitted by the prediction error from the recorded command (open loop, restarted from the
+        # measurement every horizon): well posed whatever a closed loop does with its sensor
+        # noise (a free run cannot follow the record's own hunt around a hold), and the restarts
+        # make horizons independent, so a fit simulates only its horizons, spread over the record.
+        horizon = float(family.opts.get("horizon_s", DEFAULT_HORIZON_S))
+        fit_mask, val_mask = spread_blocks(n, rate, horizon, work_s)
+        prob = Problem(rec, family.simulate, channels, sigma, n, fit_mask, val_mask, {**family.opts, "command": closed},
+                       sparse=True)
+    else:
+        n_work = min(n, int(round(work_s * rate)))
+        fit_mask, val_mask = blocks(n_work, n, rate)
+        prob = Problem(rec, family.simulate, channels, sigma, n_work, fit_mask, val_mask, dict(family.opts))
+    # A closed loop's predictions are free runs from the reference (DATA_FORMAT.md).
+    free = prob.variant(command=False) if closed and family.has_command else prob
+    log: Callable[..., None] = (lambda *a: print(f"[{time.perf_counter() - t_start:6.1f}s {prob.simulations + free.simulations:4d} sims]", *a)) if verbose else (lambda *a: None)
 
     nominal = family.nominal
     for f in family.base_frees:
@@ -73,33 +86,16 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
     pool = family.candidates(scales, rate)
     quantum = {c: ft.declared_resolution(rec.meta, c) or 0.0 for c in channels}
 
-    res = search(prob, base, nominal, pool, rate, max_findings=max_findings, max_refits=max_refits, log=log)
-    misfit = _rig_misfit(rec, prob, family, res, rate)
-    fitted_on = "closed loop" if family.closed_loop else "recorded command"
-    closed = family.closed_loop
-    floor = {c: 0.0 for c in channels} if misfit or not closed else loop_floor(prob, res.model, res.pred, rate, quantum)
-    left = unexplained(prob, res.pred, floor, rate)
-    if closed and family.has_command and (misfit or left or max(floor.values()) > SYSTEMATIC):
-        # The closed loop hunts on its own sensor noise (or the free-run fit is stuck): a free
-        # run cannot follow the record's particular hunt, so its fit is not to be trusted. Fit
-        # again by the prediction error from the recorded command (well posed however the loop
-        # hunts), then judge that model by its free run as the record's contract asks.
-        log("free run noise floor", {c: round(v, 2) for c, v in floor.items()}, "-> refit on the recorded command")
-        cprob = prob.variant(command=True)
-        cres = search(cprob, base, nominal, pool, rate, max_findings=max_findings, max_refits=max_refits, log=log)
-        free = _restate_free_run(prob, cres, rate)
-        cfloor = loop_floor(prob, free.model, free.pred, rate, quantum)
-        why = ("the fitted closed loop hunts on its sensor noise, so no free run follows the record's own hunt"
-               if max(cfloor.values()) > SYSTEMATIC else "the free-run fit of the closed loop did not reach the record")
-        for f in free.findings:
-            f.evidence += f" Fitted on the recorded command ({why}); the errors are of the free-run closed loop."
-        good = _rig_misfit(rec, cprob, family, cres, rate) is None and not unexplained(prob, free.pred, cfloor, rate)
-        log("on the recorded command", [f.effect for f in free.findings], "explained" if good else "not explained")
-        prob.simulations += cprob.simulations
-        if good:
-            res, misfit, left, floor, fitted_on = free, None, False, cfloor, f"recorded command: {why}"
+    fitted = search(prob, base, nominal, pool, rate, max_findings=max_findings, max_refits=max_refits, log=log)
+    misfit = _rig_misfit(rec, prob, family, fitted, rate)
+    res = _restate_free_run(free, fitted, rate) if free is not prob else fitted
+    fitted_on = "recorded command" if family.has_command else "free run"
+    floor = {c: 0.0 for c in channels} if misfit or not closed else loop_floor(free, res.model, res.pred, rate, quantum)
+    left = unexplained(free, res.pred, floor, rate)
     if misfit:
         raise IdentificationError(misfit)
+    simulations = prob.simulations + (free.simulations if free is not prob else 0)
+    prob = free
     ratios = prob.ratios(res.pred, rate)
     report: dict[str, Any] = {
         "format": FORMAT,
@@ -113,9 +109,9 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
     if warnings:  # samples dropped or tolerated: a reader of the report must know
         report["warnings"] = warnings
     if not closed and family.has_command:  # open loop on the recorded command, restarted every horizon
-        report["horizon_s"] = family.opts.get("horizon_s", DEFAULT_HORIZON_S)
+        report["horizon_s"] = horizon
     log("done", report["final"]["rmse"], "unexplained" if left else "")
-    info = {"simulations": prob.simulations, "seconds": time.perf_counter() - t_start,
+    info = {"simulations": simulations, "seconds": time.perf_counter() - t_start,
             "noise_floor": sigma, "systematic_ratio": ratios, "loop_floor": floor, "fitted_on": fitted_on}
     if out_dir is not None:
         from htm.ident.report import write_diagnosis

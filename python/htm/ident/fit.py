@@ -21,6 +21,8 @@ NOISE_COST = 1.2
 # Largest LM step of any normalised coordinate (a factor e for a log parameter): far jumps land in
 # wrong basins (friction trading against compressibility).
 RADIUS_MAX = 1.0
+# The Jacobian is differenced afresh every this many iterations (Broyden updates in between).
+JACOBIAN_EVERY = 2
 # Weak prior on parameters that have one, as a share of the noise-level cost that a change of
 # `prior` (normalised coordinates) costs: it gives the flat valleys (bulk modulus vs dead volumes)
 # curvature without moving what the data determine.
@@ -46,6 +48,7 @@ class Problem:
     fit_mask: np.ndarray  # over the working window
     val_mask: np.ndarray  # over the whole record
     opts: dict[str, Any] = field(default_factory=dict)
+    sparse: bool = False  # fits simulate only the fit samples (open loop / command: restarts make them independent)
     simulations: int = 0
     meas: dict[str, np.ndarray] = field(default_factory=dict)
     work: Record | None = None
@@ -59,7 +62,7 @@ class Problem:
     def variant(self, **opts: Any) -> "Problem":
         """The same problem simulated with other options (e.g. on the recorded command)."""
         return Problem(self.rec, self.simulate, self.channels, self.sigma, self.n_work, self.fit_mask, self.val_mask,
-                       {**self.opts, **opts})
+                       {**self.opts, **opts}, self.sparse)
 
     @property
     def truncated(self) -> bool:
@@ -72,12 +75,14 @@ class Problem:
         opts = {**self.opts, **extra}
         if not whole and self.truncated:
             opts = {k: v[: self.n_work] if isinstance(v, np.ndarray) and len(v) == n else v for k, v in opts.items()}
+        if not whole and self.sparse:
+            opts["active"] = self.fit_mask
         out = self.simulate(plist, self.rec if whole else self.work, **opts)
         return [{c: np.asarray(pr[c], dtype=float) for c in self.channels} for pr in out]
 
     def whole(self, model: Model, work_pred: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         """The whole-record prediction of a model whose working-window prediction is known."""
-        return self.predict([model.params()], whole=True)[0] if self.truncated else work_pred
+        return self.predict([model.params()], whole=True)[0] if self.truncated or self.sparse else work_pred
 
     def residual(self, pred: dict[str, np.ndarray], mask: np.ndarray) -> np.ndarray:
         """Weighted residual (prediction - measurement)/noise over `mask`, channels stacked;
@@ -104,9 +109,9 @@ class Problem:
         return out
 
     def fit_cost(self, pred: dict[str, np.ndarray]) -> float:
-        """Weighted cost over the fit blocks of a working-window prediction."""
-        r = self.residual(pred, self.fit_mask)
-        return float(r @ r)
+        """Cost over the fit blocks of a working-window prediction: `likelihood_cost` of its
+        noise-scaled residual."""
+        return likelihood_cost(self.residual(pred, self.fit_mask), len(self.channels))
 
     def ratios(self, pred: dict[str, np.ndarray], rate: float) -> dict[str, float]:
         """Per channel: low-passed residual RMS over the noise floor (whole-record prediction)."""
@@ -128,9 +133,10 @@ class Problem:
         s1 = self.channel_ssr(after, self.val_mask)
         n_all = sum(n for _, n in s0.values())
         d = sum(n * math.log(max(s1[c][0], 1e-300) / max(s0[c][0], 1e-300)) for c, (_, n) in s0.items())
-        tot0 = sum(v for v, _ in s0.values())
-        tot1 = sum(v for v, _ in s1.values())
-        return d + extra * math.log(max(n_all, 2)), (tot1 - tot0) / max(tot0, 1e-300)
+        # The relative change as the likelihood sees it: per channel the mean square over the
+        # noise (floored at the noise: no gain below it), averaged in logarithm over the samples.
+        floor = sum(n * math.log(max(s1[c][0] / max(n, 1), 1.0) / max(s0[c][0] / max(n, 1), 1.0)) for c, (_, n) in s0.items())
+        return d + extra * math.log(max(n_all, 2)), math.exp(floor / max(n_all, 1)) - 1.0
 
 
 def blocks(n_work: int, n: int, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
@@ -141,6 +147,37 @@ def blocks(n_work: int, n: int, rate_hz: float) -> tuple[np.ndarray, np.ndarray]
     val_mask = np.ones(n, bool)
     val_mask[:n_work] = ~fit_mask
     return fit_mask, val_mask
+
+
+def spread_blocks(n: int, rate_hz: float, horizon_s: float, fit_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Fit and validation masks over the whole record for fits that restart from the
+    measurement every `horizon_s`: whole horizons, every k-th of them fitted (at most `fit_s`
+    seconds in all, and never more than every other one), spread over the record so that every
+    phase of the experiment is fitted and validated; the others validate."""
+    every = max(1, int(round(horizon_s * rate_hz)))
+    block = np.arange(n) // every
+    nblk = int(block[-1]) + 1
+    k = max(2, int(np.ceil(nblk / max(1.0, fit_s / horizon_s))))
+    fit_mask = block % k == k // 2
+    return fit_mask, ~fit_mask
+
+
+def channel_scales(r_data: np.ndarray, n_channels: int) -> np.ndarray:
+    """Per channel, the RMS of the noise-scaled residual, never below 1 (the noise itself)."""
+    per = r_data.reshape(n_channels, -1)
+    return np.sqrt(np.maximum(np.mean(per * per, axis=1), 1.0))
+
+
+def likelihood_cost(r_data: np.ndarray, n_channels: int) -> float:
+    """The negative log-likelihood of a noise-scaled residual whose channels each have an unknown
+    variance no smaller than the noise: sum over channels of n·log(mean square, floored at 1),
+    plus the mean square itself below the floor. A channel far off the noise (a sensor effect
+    not yet modelled, a model-form misfit) then weighs by its logarithm and cannot bend the fit
+    of the others; near the noise the cost is the usual sum of squares."""
+    per = r_data.reshape(n_channels, -1)
+    ms = np.mean(per * per, axis=1)
+    n = per.shape[1]
+    return float(n * np.sum(np.where(ms > 1.0, 1.0 + np.log(np.maximum(ms, 1e-300)), ms)))
 
 
 def at_noise(r_data: np.ndarray, n_channels: int) -> bool:
@@ -173,17 +210,32 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None,
     def full(rd: np.ndarray, xx: np.ndarray) -> np.ndarray:
         return np.concatenate([rd, wp * (xx - x_nom)])
 
+    nc = len(prob.channels)
+    rows = np.repeat(np.arange(nc), n_data // nc)
+
+    def cost_of(rd: np.ndarray, xx: np.ndarray) -> float:
+        pr = wp * (xx - x_nom)
+        return likelihood_cost(rd, nc) + float(pr @ pr)
+
     r = full(r_data, x)
-    cost = float(r @ r)
+    cost = cost_of(r_data, x)
     lam, radius = 1e-2, 0.5  # damping; largest step of any normalised coordinate
     small = 0  # iterations in a row that gained less than ftol
     jac = np.zeros((n_data, len(x)))
+    fresh = 0  # iterations since the Jacobian was last differenced
     for _ in range(iters):
-        hs = np.where(x + steps <= hi, steps, -steps)  # step inwards at an upper bound
-        preds = prob.predict([model.at(x + h * e).params() for h, e in zip(hs, np.eye(len(x)))])
-        jac = np.column_stack([(prob.residual(pr, prob.fit_mask) - r[:n_data]) / h for pr, h in zip(preds, hs)])
-        jfull = np.vstack([jac, np.diag(wp)])
-        g = jfull.T @ r
+        if fresh == 0 or fresh >= JACOBIAN_EVERY:
+            hs = np.where(x + steps <= hi, steps, -steps)  # step inwards at an upper bound
+            preds = prob.predict([model.at(x + h * e).params() for h, e in zip(hs, np.eye(len(x)))])
+            jac = np.column_stack([(prob.residual(pr, prob.fit_mask) - r[:n_data]) / h for pr, h in zip(preds, hs)])
+            fresh = 0
+        fresh += 1
+        # Iteratively reweighted: each channel scaled by its current RMS over the noise (the
+        # Gauss-Newton step of `likelihood_cost`).
+        w = 1.0 / channel_scales(r[:n_data], nc)[rows]
+        rw = np.concatenate([w * r[:n_data], r[n_data:]])
+        jfull = np.vstack([w[:, None] * jac, np.diag(wp)])
+        g = jfull.T @ rw
         # Parameters at a bound that the gradient pushes outward stay put.
         free = ~(((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0)))
         jtj = jfull.T @ jfull
@@ -191,7 +243,7 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None,
         # units would otherwise crawl one unit per iteration); a log parameter moves by `radius`.
         reach = np.array([1.0 if f.log else max(1.0, 0.5 * abs(xi)) for f, xi in zip(model.frees, x)])
         d = np.maximum(np.diag(jtj), 1e-12 * max(1.0, float(np.max(np.diag(jtj)))))
-        improved, gain = False, 0.0
+        improved, gain, lam0 = False, 0.0, lam
         for _retry in range(3):
             lams = [lam * 0.1, lam, lam * 10]
             trials = []
@@ -208,20 +260,26 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None,
                 trials.append(np.clip(x + step, lo, hi))
             tpreds = prob.predict([model.at(xt).params() for xt in trials])
             tres = [full(prob.residual(tp, prob.fit_mask), xt) for tp, xt in zip(tpreds, trials)]
-            tcost = [float(tr @ tr) for tr in tres]
+            tcost = [cost_of(tr[:n_data], xt) for tr, xt in zip(tres, trials)]
             k = int(np.argmin(tcost))
             if tcost[k] < cost:
                 gain = (cost - tcost[k]) / cost
                 if np.max(np.abs(trials[k] - x) / reach) >= 0.99 * radius:
                     radius = min(RADIUS_MAX, 2.0 * radius)  # the step was capped and still good: widen
+                # Broyden's rank-one update carries the Jacobian to the new point until it is
+                # differenced again (one simulation per parameter saved on every other iteration).
+                dx, dr = trials[k] - x, tres[k][:n_data] - r[:n_data]
+                jac = jac + np.outer(dr - jac @ dx, dx) / max(float(dx @ dx), 1e-300)
                 x, pred, r, cost, lam = trials[k], tpreds[k], tres[k], tcost[k], max(lams[k] * (0.3 if k == 0 else 1.0), 1e-7)
                 improved = True
                 break
             lam *= 100.0
             radius *= 0.25
+        if not improved and fresh > 1:  # failed on a carried Jacobian: difference it afresh, same damping
+            fresh, lam = JACOBIAN_EVERY, lam0
         if log is not None:
             log(f"    LM cost {cost:.6g} lam {lam:.3g} radius {radius:.3g} free {int(free.sum())}/{len(x)}")
         small = 0 if improved and gain >= ftol else small + 1
-        if not improved or small >= 2 or at_noise(r[:n_data], len(prob.channels)):
-            break  # stalled, or down to the noise on every channel
+        if (not improved and fresh == 1) or small >= 2 or at_noise(r[:n_data], len(prob.channels)):
+            break  # stalled on a fresh Jacobian, or down to the noise on every channel
     return model.at(x), pred, jac

@@ -9,7 +9,7 @@ from typing import Any, Callable
 import numpy as np
 
 from htm.ident import features as ft
-from htm.ident.fit import Problem, at_noise, fit
+from htm.ident.fit import Problem, fit
 from htm.ident.model import Candidate, Model
 
 # Non-noise residual over the noise floor (features.systematic_ratio): the search stops at or below.
@@ -100,7 +100,7 @@ def search(prob: Problem, base: Model, nominal: Any, pool: list[Candidate], rate
         ranked = screen(prob, model, work_pred, jac, pool)
         q = np.linalg.qr(jac)[0]  # what the base parameters can absorb, to first order
         log("screen", [(c.effect, c.channel, round(g, 3)) for c, g, _ in ranked[:6]])
-        good: list[tuple[Candidate, dict, Model, dict, tuple]] = []
+        good: list[tuple[Candidate, dict, Model, dict]] = []
         better_base: tuple[float, Model] | None = None
         for cand, gain, step in ranked[:max_refits]:
             if gain < REFIT_SHARE * ranked[0][1]:
@@ -110,15 +110,13 @@ def search(prob: Problem, base: Model, nominal: Any, pool: list[Candidate], rate
             # candidate's parameter; keep the better fit.
             restart = model.x.copy()
             restart[: len(x0)] = x0
-            fits = [fit(prob, _scan(prob, [start.with_candidate(cand, step)], cand, q), iters=REFIT_ITERS)
-                    for start in (model.unpinned(x0), model.at(restart))]
-            fits.sort(key=lambda f: prob.fit_cost(f[1]))
-            trial, twork, tjac = fits[0]
+            starts = [start.with_candidate(cand, step) for start in (model.unpinned(x0), model.at(restart))]
+            trial, twork, tjac = fit(prob, _scan(prob, starts, cand, q), iters=REFIT_ITERS)
             tpred = prob.whole(trial, twork)
             verdict = pays_off(prob, pred, trial, tpred, model, cand)
             log("refit", cand.label, cand.report(trial.params()), verdict)
             if verdict["ok"]:
-                good.append((cand, verdict, trial, twork, fits[1]))
+                good.append((cand, verdict, trial, twork))
             elif verdict["dcost"] < -MIN_GAIN:
                 # Not the effect but a better fit of the base parameters: remember those.
                 cost = prob.fit_cost(twork)
@@ -137,18 +135,12 @@ def search(prob: Problem, base: Model, nominal: Any, pool: list[Candidate], rate
         # Close contenders (e.g. an offset and a gain of the same sensor) are told apart polished.
         contenders = [g for g in good[:2] if g[1]["dbic"] <= 0.5 * good[0][1]["dbic"]]
         polished = []
-        for cand, _, trial, twork, other in contenders:
+        for cand, _, trial, twork in contenders:
             trial, twork, tjac = fit(prob, trial, iters=POLISH_ITERS, pred0=twork)
             again = trial.unpinned(x0)
             if not np.array_equal(again.x, trial.x):
                 # Stuck with base parameters at a bound: polish once more from their nominal values.
                 retry = fit(prob, again, iters=POLISH_ITERS)
-                if prob.fit_cost(retry[1]) < prob.fit_cost(twork):
-                    trial, twork, tjac = retry
-            if not at_noise(prob.residual(twork, prob.fit_mask), len(prob.channels)):
-                # Still off the noise: the refit from the other start may be in the better basin
-                # (the current fit's base parameters were bent by the missing effect).
-                retry = fit(prob, other[0], iters=POLISH_ITERS, pred0=other[1])
                 if prob.fit_cost(retry[1]) < prob.fit_cost(twork):
                     trial, twork, tjac = retry
             tpred = prob.whole(trial, twork)

@@ -237,8 +237,9 @@ def _setup(rec: Record, command: bool = False) -> dict[str, Any]:
 
 def predict(params: Params | list[Params], rec: Record, *, horizon_s: float | None = None, threads: int = 0,
             rtol: float = RTOL, supply: np.ndarray | None | str = "auto", command: bool = False,
-            noise: Mapping[str, np.ndarray] | None = None,
-            quantum: Mapping[str, float] | None = None) -> dict[str, np.ndarray] | list[dict[str, np.ndarray]]:
+            noise: Mapping[str, np.ndarray] | None = None, quantum: Mapping[str, float] | None = None,
+            active: np.ndarray | None = None,
+            with_command: bool = False) -> dict[str, np.ndarray] | list[dict[str, np.ndarray]]:
     """The record's channels (those of y, v, p_a, p_b, p_s, f it has) as the model's sensors would
     read them, noise-free (unless `noise` is given), SI units.
 
@@ -251,7 +252,9 @@ def predict(params: Params | list[Params], rec: Record, *, horizon_s: float | No
     `command`: play the recorded `u` open loop (with restarts) even when a controller is declared
     (a prediction error that stays well posed when the closed loop hunts on its sensor noise).
     `noise`/`quantum` per channel: added to the readings inside the loop (a synthetic record of
-    the model; the returned readings include them).
+    the model; the returned readings include them). `active` (bool per sample; open loop or
+    `command` only): simulate just those samples, the others read NaN. `with_command`: also
+    return the command `u` applied (the model's own controller's in closed loop).
 
     A list of Params runs in parallel in Rust with the GIL released (`threads` = 0: all cores)
     and a failed simulation gives NaN arrays; a single Params raises SolverError instead.
@@ -266,9 +269,11 @@ def predict(params: Params | list[Params], rec: Record, *, horizon_s: float | No
         supply = supply_schedule(rec)
     if supply is not None:
         args["supply"] = np.ascontiguousarray(supply, dtype=float)
+    if active is not None and "controller" not in args:
+        args["active"] = np.ascontiguousarray(active, dtype=bool)
     out = replay(plist, horizon_s=DEFAULT_HORIZON_S if horizon_s is None else float(horizon_s),
                  preroll_s=PREROLL_S, rtol=rtol, threads=threads, **args)
-    keep = list(args["measured"])
+    keep = list(args["measured"]) + (["u"] if with_command else [])
     if single and out[0]["error"] is not None:
         raise SolverError(f"record `{rec.name}`: {out[0]['error']}")
     res = [{c: r[c] for c in keep} for r in out]

@@ -57,7 +57,8 @@ fn result_dict<'py>(py: Python<'py>, r: Result<Replayed, crate::Error>, n: usize
 /// `u`, `steps`, and `error` (None, or the solver's message with NaN arrays). Bad arguments raise.
 #[pyfunction]
 #[pyo3(signature = (params, dt, u, measured = None, controller = None, reference = None, horizon_s = DEFAULT_HORIZON_S,
-                    preroll_s = DEFAULT_PREROLL_S, rtol = DEFAULT_RTOL, noise = None, quantum = None, supply = None, threads = 0))]
+                    preroll_s = DEFAULT_PREROLL_S, rtol = DEFAULT_RTOL, noise = None, quantum = None, supply = None, active = None,
+                    threads = 0))]
 #[allow(clippy::too_many_arguments)]
 fn replay<'py>(
     py: Python<'py>,
@@ -73,6 +74,7 @@ fn replay<'py>(
     noise: Option<&Bound<'py, PyDict>>,
     quantum: Option<&Bound<'py, PyDict>>,
     supply: Option<PyReadonlyArray1<'py, f64>>,
+    active: Option<PyReadonlyArray1<'py, bool>>,
     threads: usize,
 ) -> PyResult<Bound<'py, PyList>> {
     let meas = channel_arrays(measured)?;
@@ -101,6 +103,9 @@ fn replay<'py>(
     rp.corruption = corr;
     if let Some(s) = &supply {
         rp.supply = Some(s.as_slice()?);
+    }
+    if let Some(a) = &active {
+        rp.active = Some(a.as_slice()?);
     }
     let r_s;
     match (ctrl, &reference) {
