@@ -147,15 +147,29 @@ impl Plant {
         f
     }
 
-    /// Extra Coulomb level of the friction bump at position `y` [N] (Gaussian in y).
+    /// The band of positions of the bumps: Gaussian weight at `y` and its derivative in y.
     #[inline]
-    fn bump(&self, y: f64) -> f64 {
+    fn band(&self, y: f64) -> (f64, f64) {
         let p = &self.p;
-        if p.friction_bump_n == 0.0 {
+        if p.friction_bump_n == 0.0 && p.force_bump_n == 0.0 && p.damping_bump_n_s_m == 0.0 {
+            return (0.0, 0.0);
+        }
+        let w = p.friction_bump_width_m;
+        let z = (y - p.friction_bump_position_m) / w;
+        let g = (-0.5 * z * z).exp();
+        (g, -g * z / w)
+    }
+
+    /// Force of the bumps on the piston along +y [N] at position `y`, velocity `v`: the force
+    /// bump, less the friction bump (Coulomb-like) and the damping bump (viscous).
+    #[inline]
+    fn bumps(&self, y: f64, v: f64) -> f64 {
+        let (g, _) = self.band(y);
+        if g == 0.0 {
             return 0.0;
         }
-        let z = (y - p.friction_bump_position_m) / p.friction_bump_width_m;
-        p.friction_bump_n * (-0.5 * z * z).exp()
+        let p = &self.p;
+        g * (p.force_bump_n - p.friction_bump_n * sig(v, self.friction.smoothing_m_s) - p.damping_bump_n_s_m * v)
     }
 
     /// d(specimen_force)/dy [N/m].
@@ -317,7 +331,7 @@ impl Plant {
         dx[PB] = self.bulk.at(pb) / vb * (qb + p.area_b_m2 * v + q_leak);
         // Piston (eq. 2.23, 2.27)
         let f_h = p.area_a_m2 * pa - p.area_b_m2 * pb;
-        let f_f = self.friction.force(v, pa + pb) + self.bump(y) * sig(v, self.friction.smoothing_m_s);
+        let f_f = self.friction.force(v, pa + pb) - self.bumps(y, v);
         let f_g = p.moving_mass_kg * p.gravity_m_s2;
         let mut f_stop = 0.0;
         if y < 0.0 {
@@ -385,9 +399,10 @@ impl OdeSystem<NX> for Plant {
         let level = mean + half * s + fr.pressure_coeff_n_per_pa * (pa + pb) + e;
         let dff_dv = fr.viscous_n_s_m + ds * level + s * (half * ds - e * v.signum() / fr.stribeck_m_s);
         let dff_dpsum = fr.pressure_coeff_n_per_pa * s;
-        let b = self.bump(y);
-        let dff_dv = dff_dv + b * ds;
-        let dff_dy = -b * (y - p.friction_bump_position_m) / (p.friction_bump_width_m * p.friction_bump_width_m) * s;
+        // the bumps enter as a negative friction: -g(y) (F_f - F_c s - c v)
+        let (g, dg) = self.band(y);
+        let dff_dv = dff_dv + g * (p.friction_bump_n * ds + p.damping_bump_n_s_m);
+        let dff_dy = -dg * (p.force_bump_n - p.friction_bump_n * s - p.damping_bump_n_s_m * v);
         let (mut dstop_dy, mut dstop_dv) = (0.0, 0.0);
         if (y < 0.0 && -y * p.end_stop_stiffness_n_m - v * p.end_stop_damping_n_s_m > 0.0)
             || (y > p.stroke_m && (p.stroke_m - y) * p.end_stop_stiffness_n_m - v * p.end_stop_damping_n_s_m < 0.0)
@@ -643,6 +658,8 @@ mod tests {
         p.specimen_closure_offset_m = 2e-4;
         p.friction_bump_n = 300.0;
         p.friction_bump_position_m = 0.052;
+        p.force_bump_n = -200.0;
+        p.damping_bump_n_s_m = 3e4;
         check(p.clone(), &states, -0.7);
         p.valve_natural_hz = 120.0;
         p.valve_damping = 0.6;

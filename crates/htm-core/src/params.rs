@@ -141,6 +141,13 @@ define_params! {
     valve_linear_flow ["-"] = 0.0, closed 0.0, 1.0;
     /// Supply sag: p_s = p_s0 - R*Q_in (EFFECTS supply_pressure_sag); 0 = stiff supply
     supply_resistance_pa_s_per_m3 ["Pa s/m^3"] = 0.0, closed 0.0, 1.0e13;
+    /// Supply ripple, sine part: p_s0 + s*sin(2 pi f t) + c*cos(2 pi f t) (a pump's ripple; not an
+    /// EFFECTS.md id: a probe for structure outside the table), applied per sample in replays
+    supply_ripple_sin_pa ["Pa"] = 0.0, closed -1.0e8, 1.0e8;
+    /// Supply ripple, cosine part
+    supply_ripple_cos_pa ["Pa"] = 0.0, closed -1.0e8, 1.0e8;
+    /// Supply ripple frequency f
+    supply_ripple_hz ["Hz"] = 0.0, closed 0.0, 1.0e5;
     /// Internal leakage across the piston, Q = c*(p_a - p_b) (EFFECTS internal_leakage)
     leakage_coeff_m3_per_s_pa ["m^3/(s Pa)"] = 0.0, closed 0.0, 1.0e-8;
     /// Viscous friction B_v (eq. 3.20)
@@ -164,6 +171,11 @@ define_params! {
     friction_bump_position_m ["m"] = 0.1, closed 0.0, 10.0;
     /// Half width (Gaussian sigma) of the friction bump
     friction_bump_width_m ["m"] = 5.0e-3, open 0.0, 10.0;
+    /// A force along +y over the same band of positions (a spring, a cushion, a load over part of
+    /// the stroke; not an EFFECTS.md id: a probe for structure outside the table); 0 = off
+    force_bump_n ["N"] = 0.0, closed -1.0e6, 1.0e6;
+    /// Extra viscous damping over the same band of positions (an end cushion's throttle); 0 = off
+    damping_bump_n_s_m ["N s/m"] = 0.0, closed 0.0, 1.0e8;
     /// Specimen stiffness K_sp; 0 = free piston (C(T) of Table B.1: 1.04e8, NOTES item 10)
     specimen_stiffness_n_m ["N/m"] = 0.0, closed 0.0, 1.0e11;
     /// Piston position at which the specimen carries no force

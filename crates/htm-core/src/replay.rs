@@ -1,6 +1,6 @@
 //! Re-simulation of a measured record (DATA_FORMAT.md): the whole closed loop from the reference,
 //! the declared controller fed by the simulated *measurements*; or, without a controller, the
-//! recorded command played open loop and re-started from the measured state every horizon.
+//! recorded command played open loop, its position put back on the measurement every horizon.
 //! Batches over parameter sets run on all cores (what a model fit by simulation error needs).
 use std::sync::atomic::{AtomicUsize, Ordering};
 
@@ -22,7 +22,7 @@ pub struct Replay<'a> {
     pub closed_loop: Option<(Controller, &'a [f64])>,
     /// measured channels in `measure::CHANNELS` order (start state, open-loop restarts)
     pub measured: [Option<&'a [f64]>; NC],
-    /// open loop: re-start from the measured state every this many seconds
+    /// open loop: put the position back on the measurement every this many seconds
     pub horizon_s: f64,
     /// closed loop: hold the first reference this long before the record starts, so the model
     /// begins at its own equilibrium (a real record starts from a settled rig)
@@ -52,6 +52,9 @@ pub struct Replayed {
 
 /// Default open-loop restart horizon [s].
 pub const DEFAULT_HORIZON_S: f64 = 0.5;
+/// Open loop on some samples only: each run of active samples is simulated from this long
+/// before it [s], so that velocity and pressures there are the model's own (as in a whole run).
+pub const WARMUP_S: f64 = 0.1;
 /// Default closed-loop pre-roll [s].
 pub const DEFAULT_PREROLL_S: f64 = 1.0;
 /// Default integrator tolerance for re-simulation: the fit needs readings accurate far below the
@@ -149,7 +152,16 @@ impl<'a> Replay<'a> {
         let setpoints: Option<Vec<f64>> = self.supply.map(|s| {
             s.iter().map(|f| m.plant.setpoint_for_rest((p.supply_pressure_pa * f).max(p.tank_pressure_pa + 1e5))).collect()
         });
-        let supply_at = |k: usize| setpoints.as_ref().map(|s| s[k]).unwrap_or(p.supply_pressure_pa);
+        // a pump's ripple on top, at the sample instants (held over the sample)
+        let ripple = |k: usize| {
+            if p.supply_ripple_hz > 0.0 && (p.supply_ripple_sin_pa != 0.0 || p.supply_ripple_cos_pa != 0.0) {
+                let w = 2.0 * std::f64::consts::PI * p.supply_ripple_hz * k as f64 * self.dt;
+                p.supply_ripple_sin_pa * w.sin() + p.supply_ripple_cos_pa * w.cos()
+            } else {
+                0.0
+            }
+        };
+        let supply_at = |k: usize| setpoints.as_ref().map(|s| s[k]).unwrap_or(p.supply_pressure_pa) + ripple(k);
         m.plant.p.supply_pressure_pa = supply_at(0);
         let y0 = self.start_position(&m, &sensors);
         m.x = m.plant.rest_state(y0);
@@ -180,10 +192,27 @@ impl<'a> Replay<'a> {
             None => {
                 let u = held(self.u);
                 let every = ((self.horizon_s / self.dt).round() as usize).max(1);
-                let active = |k: usize| self.active.map(|a| a[k]).unwrap_or(true);
+                // Samples simulated: the active ones and a warm-up before each active run, so that
+                // the pressures there are the model's own (see `anchor`), not the measurement's.
+                let warm = ((WARMUP_S / self.dt).round() as usize).max(1);
+                let simulated: Vec<bool> = match self.active {
+                    None => vec![true; n],
+                    Some(a) => {
+                        let mut sim = a.to_vec();
+                        let mut next_active = usize::MAX;
+                        for k in (0..n).rev() {
+                            if a[k] {
+                                next_active = k;
+                            } else if next_active != usize::MAX && next_active - k <= warm {
+                                sim[k] = true;
+                            }
+                        }
+                        sim
+                    }
+                };
                 for k in 0..n {
                     m.plant.p.supply_pressure_pa = supply_at(k);
-                    if !active(k) {
+                    if !simulated[k] {
                         // not simulated: the state follows the measurement, the valve the command
                         self.restart(&mut m, &sensors, k);
                         probe.push(&m.outputs());
@@ -191,13 +220,18 @@ impl<'a> Replay<'a> {
                         m.step_valve(u[k], self.dt);
                         continue;
                     }
-                    if k % every == 0 || (k > 0 && !active(k - 1)) {
+                    if k == 0 || !simulated[k - 1] {
                         self.restart(&mut m, &sensors, k);
                         probe.restart();
+                    } else if k % every == 0 {
+                        self.anchor(&mut m, &sensors, k);
                     }
                     probe.push(&m.outputs());
                     let mut rd = probe.read_latest();
                     corrupt(&mut rd, &self.corruption, k);
+                    if self.active.is_some_and(|a| !a[k]) {
+                        rd = [f64::NAN; NC]; // warm-up: simulated, not reported
+                    }
                     push(&mut out, &rd, u[k]);
                     m.step(u[k], self.dt)?;
                 }
@@ -245,8 +279,20 @@ impl<'a> Replay<'a> {
         y.map(|r| s.0[0].unread(r)).unwrap_or(fallback).clamp(0.0, p.stroke_m)
     }
 
-    /// Open loop: set position, velocity and chamber pressures from the measurements at sample
-    /// `k` (through the inverse sensors); what is not measured keeps its simulated value.
+    /// Open loop, every horizon: put the position back on the measurement at sample `k`. Only
+    /// the position: an integrator, it drifts away from any model; velocity and pressures settle
+    /// by themselves (the valve and the oil's stiffness hold them) and stay the model's own, so a
+    /// sensor offset or gain on a pressure or velocity channel shows in that reading only, as it
+    /// does in the closed loop, instead of entering the dynamics at every re-start.
+    fn anchor(&self, m: &mut Machine, s: &Sensors, k: usize) {
+        if let Some(y) = self.measured[0].map(|x| x[k]).filter(|v| v.is_finite()) {
+            m.x[Y] = s.0[0].unread(y).clamp(0.0, m.plant.p.stroke_m);
+        }
+    }
+
+    /// Open loop, where a simulated run begins: set position, velocity and chamber pressures
+    /// from the measurements at sample `k` (through the inverse sensors); what is not measured
+    /// keeps its simulated value.
     fn restart(&self, m: &mut Machine, s: &Sensors, k: usize) {
         let at = |c: usize| self.measured[c].map(|x| x[k]).filter(|v| v.is_finite());
         if let Some(y) = at(0) {
@@ -338,8 +384,8 @@ mod tests {
         }
         ol.horizon_s = 0.1;
         let whole = ol.run(&p).unwrap();
-        // every other 0.1 s block simulated
-        let mask: Vec<bool> = (0..r.len()).map(|k| (k / 50) % 2 == 1).collect();
+        // every fourth 0.1 s block reported (each simulated from a warm-up before it)
+        let mask: Vec<bool> = (0..r.len()).map(|k| (k / 50) % 4 == 1).collect();
         ol.active = Some(&mask);
         let part = ol.run(&p).unwrap();
         for k in 0..r.len() {

@@ -238,3 +238,4 @@ def identify(rec: Record) -> dict:
         out["mass"] = fit_mass(rec, best)
         out["points"] = {"v_m_s": v.tolist(), "f_n": f.tolist(), "u_v": [s.u for s in with_p]}
     return out
+

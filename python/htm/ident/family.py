@@ -11,7 +11,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from htm.ident.model import Candidate, Free
+from htm.ident.model import Candidate, Free, Model
 from htm.ident.records import Record, machine_position
 
 
@@ -23,6 +23,8 @@ class Family(Protocol):
     opts: dict[str, Any]  # simulator options for this record
     closed_loop: bool  # sensor noise acts inside a loop the model re-simulates
     has_command: bool  # a recorded command the model can be driven with instead of its loop
+
+    def start(self, base: Model) -> np.ndarray: ...  # the coordinates a fit starts from
 
     def candidates(self, scales: dict[str, float], rate_hz: float) -> list[Candidate]: ...
 

@@ -49,6 +49,7 @@ class Problem:
     val_mask: np.ndarray  # over the whole record
     opts: dict[str, Any] = field(default_factory=dict)
     sparse: bool = False  # fits simulate only the fit samples (open loop / command: restarts make them independent)
+    centred: tuple[str, ...] = ()  # channels whose fit residual has its mean taken out (an offset profiled out)
     simulations: int = 0
     meas: dict[str, np.ndarray] = field(default_factory=dict)
     work: Record | None = None
@@ -94,6 +95,8 @@ class Problem:
             bad = ~np.isfinite(r)
             if bad.any():
                 r = np.where(np.isfinite(m[mask]), np.where(bad, 1e4, r), 0.0)
+            if c in self.centred:
+                r = r - float(np.mean(r))
             parts.append(r)
         return np.concatenate(parts)
 
@@ -187,17 +190,19 @@ def at_noise(r_data: np.ndarray, n_channels: int) -> bool:
     return bool(np.max(np.mean(per * per, axis=1)) < NOISE_COST)
 
 
-def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None,
-        ftol: float = 2e-3, log: Callable[..., None] | None = None) -> tuple[Model, dict, np.ndarray]:
+def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, ftol: float = 2e-3,
+        hold: frozenset[str] = frozenset(), log: Callable[..., None] | None = None) -> tuple[Model, dict, np.ndarray]:
     """Bounded Levenberg-Marquardt on the weighted fit-block residual over the model's free
     parameters: forward-difference Jacobians (one batch of simulations), then three damping
     levels tried at once (one more batch). At most `iters` Jacobians; stops when an iteration
     gains less than `ftol` of the cost twice. `pred0`: the model's working-window prediction, if
-    known. Returns the fitted model, its working-window prediction and the Jacobian there."""
+    known; `hold`: keys of free parameters kept where they are (columns of the Jacobian are zero).
+    Returns the fitted model, its working-window prediction and the Jacobian there."""
     lo = np.array([f.lo for f in model.frees])
     hi = np.array([f.hi for f in model.frees])
     steps = np.array([f.step for f in model.frees])
     x = np.clip(model.x, lo, hi)
+    moving = np.array([f.key not in hold for f in model.frees])
     pred = pred0 if pred0 is not None and np.array_equal(x, model.x) else prob.predict([model.at(x).params()])[0]
     r_data = prob.residual(pred, prob.fit_mask)
     n_data = len(r_data)
@@ -226,8 +231,11 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None,
     for _ in range(iters):
         if fresh == 0 or fresh >= JACOBIAN_EVERY:
             hs = np.where(x + steps <= hi, steps, -steps)  # step inwards at an upper bound
-            preds = prob.predict([model.at(x + h * e).params() for h, e in zip(hs, np.eye(len(x)))])
-            jac = np.column_stack([(prob.residual(pr, prob.fit_mask) - r[:n_data]) / h for pr, h in zip(preds, hs)])
+            idx = np.flatnonzero(moving)
+            preds = prob.predict([model.at(x + hs[i] * np.eye(len(x))[i]).params() for i in idx])
+            jac = np.zeros((n_data, len(x)))
+            for i, pr in zip(idx, preds):
+                jac[:, i] = (prob.residual(pr, prob.fit_mask) - r[:n_data]) / hs[i]
             fresh = 0
         fresh += 1
         # Iteratively reweighted: each channel scaled by its current RMS over the noise (the
@@ -236,8 +244,8 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None,
         rw = np.concatenate([w * r[:n_data], r[n_data:]])
         jfull = np.vstack([w[:, None] * jac, np.diag(wp)])
         g = jfull.T @ rw
-        # Parameters at a bound that the gradient pushes outward stay put.
-        free = ~(((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0)))
+        # Parameters at a bound that the gradient pushes outward stay put, and so do held ones.
+        free = moving & ~(((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0)))
         jtj = jfull.T @ jfull
         # A linear parameter far from its origin may move in proportion to its size (air at 50
         # units would otherwise crawl one unit per iteration); a log parameter moves by `radius`.

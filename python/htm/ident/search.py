@@ -19,6 +19,8 @@ MIN_GAIN = 0.05
 # Evidence a candidate's signature must carry before it is refitted (chi^2 units, fraction).
 SCREEN_CHI2 = 25.0
 SCREEN_FRACTION = 0.01
+# A probe for structure outside the vocabulary must cut the held-out cost by this much.
+PROBE_GAIN = 0.1
 # Candidates refitted per round: those whose screened gain is at least this share of the best.
 REFIT_SHARE = 0.3
 # Least-squares budgets: Jacobians (one simulation per free parameter each, plus 3 trial steps).
@@ -70,12 +72,20 @@ class Result:
     model: Model
     pred: dict[str, np.ndarray]
     findings: list[Finding]
+    work_pred: dict[str, np.ndarray] | None = None  # the final model's prediction over the fit samples
+    jac: np.ndarray | None = None  # and its Jacobian there
 
 
 def search(prob: Problem, base: Model, nominal: Any, pool: list[Candidate], rate: float, *, max_findings: int = 3,
-           max_refits: int = 2, log: Log = lambda *a: None) -> Result:
-    """Fit the base model, then add effects from `pool` while one pays off on the held-out data."""
+           max_refits: int = 2, first: frozenset[str] = frozenset(), log: Log = lambda *a: None) -> Result:
+    """Fit the base model, then add effects from `pool` while one pays off on the held-out data.
+    The base model is fitted in two stages: first with the parameters in `first` held (the
+    details of a real rig — its spool, return line, orifice shape — that would otherwise wander
+    into a wrong basin while the gross parameters are far off), then with all free."""
     x0 = base.x.copy()
+    if first:
+        base, _, _ = fit(prob, base, iters=BASE_ITERS, hold=first)
+        log("first stage", {k: f"{v:.4g}" for k, v in base.values().items()})
     base, work_pred, jac = fit(prob, base, iters=BASE_ITERS)
     base_pred = prob.whole(base, work_pred)
     log("baseline", {k: f"{v:.4g}" for k, v in base.values().items()}, prob.rmse(base_pred))
@@ -189,7 +199,29 @@ def search(prob: Problem, base: Model, nominal: Any, pool: list[Candidate], rate
         last.pred_after = pred
         last.rmse_after = prob.rmse(pred)
         last.params = last.cand.report(model.params())
-    return Result(base, base_pred, model, pred, findings)
+    return Result(base, base_pred, model, pred, findings, work_pred, jac)
+
+
+def probe(prob: Problem, res: Result, pool: list[Candidate], rate: float, log: Log = lambda *a: None) -> Finding | None:
+    """Structure outside the effect vocabulary: the probe of `pool` (a force over part of the
+    stroke, a pump's ripple...) that pays off on the held-out data on top of the final model by
+    `PROBE_GAIN` of the cost, or None. Not a finding of the record: evidence that structure
+    remains which no effect of the vocabulary accounts for."""
+    if not pool or res.work_pred is None or res.jac is None:
+        return None
+    model, pred = res.model, res.pred
+    ranked = screen(prob, model, res.work_pred, res.jac, pool)
+    log("probe screen", [(c.effect, round(g, 3)) for c, g, _ in ranked[:4]])
+    q = np.linalg.qr(res.jac)[0]
+    best: tuple[float, Finding] | None = None
+    for cand, gain, step in ranked[:2]:
+        trial, twork, _ = fit(prob, _scan(prob, [model.with_candidate(cand, step)], cand, q), iters=REFIT_ITERS)
+        tpred = prob.whole(trial, twork)
+        verdict = pays_off(prob, pred, trial, tpred, model, cand)
+        log("probe", cand.label, cand.report(trial.params()), verdict)
+        if verdict["ok"] and verdict["dcost"] < -PROBE_GAIN and (best is None or verdict["dbic"] < best[0]):
+            best = (verdict["dbic"], finding(prob, cand, model, pred, trial, tpred, verdict, rate))
+    return best[1] if best else None
 
 
 def _scan(prob: Problem, starts: list[Model], cand: Candidate, q: np.ndarray) -> Model:

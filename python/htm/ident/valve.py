@@ -9,7 +9,7 @@ import numpy as np
 
 from htm._core import Params
 from htm.ident import sim
-from htm.ident.model import Candidate, Free, get_value, has_key, lin, logf
+from htm.ident.model import Candidate, Free, Model, get_value, has_key, lin, logf
 from htm.ident.records import Record
 
 # Base-model parameters stated by the metadata (nominal; bounds say how far a rig may be off).
@@ -42,6 +42,10 @@ OTHER_FREES = [
 ]
 # Typical values of what the metadata leaves out (a servo-valve's spool).
 SPOOL_HZ, SPOOL_DAMPING = 150.0, 0.7
+# Held while the gross parameters are first fitted (search's first stage): the details of a real
+# rig; the spool meanwhile starts as fast as its bound allows (a static valve).
+DETAILS = frozenset({"friction_stribeck_m_s", "friction_smoothing_m_s", "valve_transition_dp_pa", "valve_natural_hz",
+                     "valve_damping", "tank_pressure_pa", "bulk_modulus_slope"})
 
 
 class ValveFamily:
@@ -63,9 +67,19 @@ class ValveFamily:
         self.base_frees: list[Free] = [f for f in RIG_FREES + OTHER_FREES if has_key(nominal, f.key) and
                                        (not f.log or get_value(nominal, f.key) > 0)]
         self.rig_keys = {f.key for f in RIG_FREES}
+        self.first_stage = DETAILS
         self.opts: dict[str, Any] = {"supply": sim.supply_schedule(rec)}  # once: a switched supply the model follows
         if horizon_s is not None:
             self.opts["horizon_s"] = horizon_s
+
+    def start(self, base: Model) -> np.ndarray:
+        """Coordinates the fit starts from: the nominal values, the spool as fast as its bound
+        allows (a static valve until the second stage frees it)."""
+        x = base.start()
+        for i, f in enumerate(base.frees):
+            if f.key == "valve_natural_hz":
+                x[i] = f.hi
+        return x
 
     @property
     def closed_loop(self) -> bool:
@@ -130,3 +144,72 @@ class ValveFamily:
                                 (lin("specimen_closure_stiffness_n_m", 0.1 * k, 0.0, 1e3),
                                  lin("specimen_closure_offset_m", unit_off, -1e4, 1e4)), "y", starts=(off / unit_off,)))
         return [c for c in out if all(has_key(p, f.key) for f in c.frees)]
+
+    def probes(self, residual: dict[str, np.ndarray], rate_hz: float) -> list[Candidate]:
+        """Structure outside EFFECTS.md that a rig shows (project ids, never reported as findings):
+        a force, a friction or a damping over part of the stroke (a load over a band, a scored
+        bore, an end cushion), placed along the travel the record visits; and a ripple of the
+        supply at a frequency that stands out of the pressure residual's spectrum but not out of
+        the command's (a pump's pistons)."""
+        p, rec = self.nominal, self.rec
+        y = np.asarray(rec.columns["y"], dtype=float)
+        lo, hi = float(np.nanpercentile(y, 1)), float(np.nanpercentile(y, 99))
+        span = max(hi - lo, 1e-4)
+        area = 0.5 * (p["area_a_m2"] + p["area_b_m2"])
+        force_unit = max(1.0, 0.01 * area * p["supply_pressure_pa"])  # 1 % of the actuator's force
+        v = np.gradient(y, 1.0 / rate_hz)
+        damping_unit = force_unit / max(float(np.nanstd(v)), 1e-4)
+        out: list[Candidate] = []
+        for width in (span / 12, span / 4):
+            for centre in np.linspace(lo, hi, 7):
+                band = (lin("friction_bump_position_m", span / 20, 0.0, 1e3, step=0.2, origin=0.0),
+                        logf("friction_bump_width_m", 0.1, 40.0, step=0.1))
+                # the band's centre and width start where placed (the width as a factor of 5 mm)
+                starts = (band[0].coord(float(centre), 0.0), float(np.log(width / p["friction_bump_width_m"])))
+                for effect, key, unit, low in (("position_force", "force_bump_n", force_unit, -1e3),
+                                              ("position_friction", "friction_bump_n", force_unit, 0.0),
+                                              ("position_damping", "damping_bump_n_s_m", damping_unit, 0.0)):
+                    out.append(Candidate(effect, None, (lin(key, unit, low, 1e3), *band), "y", starts=starts,
+                                         fields=(("amplitude", key), ("centre_m", "friction_bump_position_m"),
+                                                 ("width_m", "friction_bump_width_m"))))
+        for f in _ripple_frequencies(rec, residual, rate_hz):
+            unit = max(1e3, 0.001 * p["supply_pressure_pa"])
+            for first, second in (("supply_ripple_sin_pa", "supply_ripple_cos_pa"), ("supply_ripple_cos_pa", "supply_ripple_sin_pa")):
+                out.append(Candidate("supply_ripple", None, (lin(first, unit, -1e3, 1e3), lin(second, unit, -1e3, 1e3)),
+                                     "constant", starts=(0.0,), switch=(("supply_ripple_hz", f),),
+                                     fields=(("sin_pa", "supply_ripple_sin_pa"), ("cos_pa", "supply_ripple_cos_pa"),
+                                             ("frequency_hz", "supply_ripple_hz"))))
+        return [c for c in out if all(has_key(p, f.key) for f in c.frees)]
+
+
+def _ripple_frequencies(rec: Record, residual: dict[str, np.ndarray], rate_hz: float, top: int = 2) -> list[float]:
+    """Frequencies [Hz] at which the pressure residuals' spectrum peaks far above its
+    neighbourhood while the command's does not (a disturbance the experiment did not make)."""
+    from scipy.signal import welch
+
+    chans = [c for c in ("p_s", "p_a", "p_b") if c in residual]
+    if not chans:
+        return []
+    n = len(rec.columns["t"])
+    nper = int(min(n, max(256, 2 ** int(np.log2(rate_hz * 4)))))
+    power = 0.0
+    for c in chans:
+        r = np.nan_to_num(np.asarray(residual[c], dtype=float))
+        f, pxx = welch(r - r.mean(), fs=rate_hz, nperseg=nper)
+        power = power + pxx / max(float(np.median(pxx)), 1e-300)
+    cmd = np.nan_to_num(np.asarray(rec.columns.get("u", rec.columns["y"]), dtype=float))
+    _, pcmd = welch(cmd - cmd.mean(), fs=rate_hz, nperseg=nper)
+    pcmd = pcmd / max(float(np.median(pcmd)), 1e-300)
+    out: list[float] = []
+    order = np.argsort(power)[::-1]
+    for i in order:
+        if f[i] < 2.0 or f[i] > 0.45 * rate_hz:
+            continue
+        near = power[max(0, i - 8): i + 9]
+        if power[i] < 20.0 * float(np.median(near)) or pcmd[i] > 0.1 * float(np.max(pcmd)):
+            continue
+        if all(abs(f[i] - g) > 3 * (f[1] - f[0]) for g in out):
+            out.append(float(f[i]))
+        if len(out) >= top:
+            break
+    return out
