@@ -12,7 +12,7 @@ from htm.errors import RecordError
 from htm.ident import features as ft
 from htm.ident.family import for_record
 from htm.ident.fit import Problem, blocks, spread_blocks
-from htm.ident.floor import form_ratios, own_floor, unexplained
+from htm.ident.floor import GROSS, form_ratios, own_floor, unexplained
 from htm.ident.model import Model, get_value
 from htm.ident.records import Record, clean_record, validate_record
 from htm.ident.search import Finding, Result, probe, search
@@ -95,10 +95,19 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
     floor = own_floor(prob, fitted.model, fitted.pred, rate, quantum)
     form = form_ratios(prob, fitted.pred, rate)
     left = unexplained(form, floor)
+    gross = unexplained(form, floor, GROSS)
     log("own floor", {c: round(v, 2) for c, v in floor.items()}, "beyond form", {c: round(v, 2) for c, v in form.items()},
         "structure left on " + ", ".join(left) if left else "")
+    pinned = [k for k in fitted.model.pinned(len(family.base_frees)) if k in family.rig_keys]
+    if gross and pinned:
+        vals = fitted.model.values()
+        raise IdentificationError(
+            f"cannot identify `{rec.name}`: the record does not match its metadata's rig — the fit pins "
+            + ", ".join(f"{k} = {vals[k]:.4g} (nominal {get_value(nominal, k):.4g})" for k in pinned)
+            + " at its bound and still misses " + ", ".join(f"{c} by {form[c]:.0f}x its noise floor" for c in gross)
+            + "; check the `rig` metadata (geometry, valve rating, mass)")
     outside = None
-    if left and hasattr(family, "probes"):
+    if left and not gross and hasattr(family, "probes"):
         # Structure left: is it of a kind outside the vocabulary (a force over part of the stroke,
         # a pump's ripple...)? Only a probe that pays off well makes it unexplained; what no probe
         # reproduces either is the model's form, not an effect it lacks.

@@ -24,6 +24,10 @@ from htm.ident.model import Model
 # stopping point, search.SYSTEMATIC) and above `MARGIN` times the model's own floor.
 UNEXPLAINED = 1.5
 MARGIN = 2.0
+# Structure this many times beyond the unexplained threshold is no form error of a model that
+# fits: unexplained whether or not a probe reproduces it (and, with the declared rig's parameters
+# pinned at their bounds, the record is refused as not of that rig).
+GROSS = 10.0
 # Synthetic records of the fitted model and their seed.
 REALISATIONS, SEED = 2, 20261121
 # Time constants of the lags of the form map [s], and the smoothing of its sign regressor.
@@ -133,7 +137,7 @@ def form_ratios(prob: Problem, pred: dict[str, np.ndarray], rate: float) -> dict
     return out
 
 
-def unexplained(ratios: dict[str, float], floor: dict[str, float]) -> list[str]:
+def unexplained(ratios: dict[str, float], floor: dict[str, float], margin: float = 1.0) -> list[str]:
     """The channels whose structure is left unexplained: above UNEXPLAINED and above MARGIN
-    times the model's own floor."""
-    return [c for c, r in ratios.items() if r > max(UNEXPLAINED, MARGIN * floor.get(c, 0.0))]
+    times the model's own floor (both times `margin`)."""
+    return [c for c, r in ratios.items() if r > margin * max(UNEXPLAINED, MARGIN * floor.get(c, 0.0))]

@@ -45,6 +45,11 @@ QUANTUM = {"y": 1e-6, "v": 1e-5, "p_a": 1.2e3, "p_b": 1.2e3, "p_s": 1.2e3, "f": 
 SPECIMEN_STIFFNESS_N_M = 2.0e6
 CENTRE_M = 0.1
 CONTROLLER = {"type": "position_pff", "kp_v_per_m": -150.0, "kff_v_per_m_s": -14.3, "u_max_v": 10.0, "law": POSITION_LAW}
+# Force control of the specimen (a loop of ~10 Hz on the 2e6 N/m specimen; negative like the
+# valve's polarity), and the force the experiment holds and swings around.
+FORCE_LAW = "u[k] = clip(kp*(f_ref[k]-f[k]), -u_max, u_max)"
+FORCE_CONTROLLER = {"type": "force_p", "kp_v_per_n": -6e-4, "u_max_v": 10.0, "law": FORCE_LAW}
+FORCE_MEAN_N, FORCE_SWING_N = 4000.0, 6000.0
 # The power unit is switched from high to low pressure part-way (at the first hold after this
 # share of the record, to this share of the supply, with this lag [s]): at one supply the
 # chamber pressures of a symmetric actuator always sum to about p_s, so pressure-dependent seal
@@ -82,6 +87,34 @@ def rich_reference(duration_s: float, rate_hz: float, *, centre_m: float = CENTR
     return np.resize(one, n)
 
 
+def force_reference(duration_s: float, rate_hz: float, *, mean_n: float = FORCE_MEAN_N, swing_n: float = FORCE_SWING_N) -> np.ndarray:
+    """Force reference [N] for a force-controlled experiment: holds, ramps at several rates, sines
+    at several frequencies and steps around `mean_n`, within +-`swing_n`, repeated to fill
+    `duration_s` (tension positive)."""
+    dt = 1.0 / rate_hz
+
+    def hold(f: float, sec: float) -> np.ndarray:
+        return np.full(max(1, int(round(sec / dt))), f)
+
+    def ramp(f0: float, f1: float, sec: float) -> np.ndarray:
+        n = max(2, int(round(sec / dt)))
+        return f0 + (f1 - f0) * np.arange(1, n + 1) / n
+
+    top, bottom = mean_n + swing_n, mean_n - swing_n
+    block: list[np.ndarray] = [hold(mean_n, 0.4)]
+    for step in (0.3, -0.6, 0.3):
+        block.append(hold(block[-1][-1] + step * swing_n, 0.4))
+    for freq, amp, cycles in ((0.5, 0.8, 1), (2.0, 0.4, 2), (5.0, 0.2, 4)):
+        n = int(round(cycles / freq / dt))
+        block.append(mean_n + amp * swing_n * np.sin(2 * np.pi * freq * dt * np.arange(1, n + 1)))
+    block.append(hold(mean_n, 0.3))
+    for sec in (2.0, 0.8, 0.3):  # ramps between the extremes at three rates
+        block += [ramp(mean_n, top, sec / 2), hold(top, 0.25), ramp(top, bottom, sec), hold(bottom, 0.25),
+                  ramp(bottom, mean_n, sec / 2), hold(mean_n, 0.25)]
+    one = np.concatenate(block)
+    return np.resize(one, int(round(duration_s * rate_hz)))
+
+
 def supply_profile(ref: np.ndarray, rate_hz: float) -> np.ndarray:
     """The supply (read at rest) per sample as a factor of nominal: high, then low from the first
     hold of the reference after `SUPPLY_SWITCH_AT` of the record (an operator switches the power
@@ -101,8 +134,9 @@ def make_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, seed:
                 specimen: bool | None = None, effect_outside_table: str | None = None) -> tuple[Record, dict[str, Any]]:
     """A closed-loop position record of the simulated rig with `effects` on (EFFECTS.md ids ->
     parameter dicts in EFFECTS.md names; sensor effects carry `channel`; empty dicts take
-    `DEFAULT_EFFECTS`). The experiment (`rich_reference`) switches the power unit from high to
-    low supply pressure part-way (`supply_profile`). The rig's free parameters are drawn uniformly within +-`rig_spread` of the
+    `DEFAULT_EFFECTS`). The experiment is position control (`rich_reference`, "rich") or force
+    control of the specimen (`force_reference`, "force"); either switches the power unit from high
+    to low supply pressure part-way (`supply_profile`). The rig's free parameters are drawn uniformly within +-`rig_spread` of the
     nominal thesis rig while the metadata states the nominal values; readings get white noise
     and quantization (`NOISE_STD`, `QUANTUM`) inside the loop. A specimen (2e6 N/m, with an `f`
     column) is fitted when asked, or when an effect needs one. `effect_outside_table`:
@@ -112,8 +146,8 @@ def make_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, seed:
     true Params as a dict, "spread": {field: factor}, "outside": name or None}.
     """
     effects = dict(effects or {})
-    if experiment != "rich":
-        raise InputError(f"experiment = {experiment!r}: only \"rich\" exists")
+    if experiment not in ("rich", "force"):
+        raise InputError(f"experiment = {experiment!r}: use \"rich\" (position control) or \"force\" (force control of a specimen)")
     if not (100 <= rate_hz <= 10000):
         raise InputError(f"rate_hz = {rate_hz}: allowed [100, 10000] Hz")
     if not (1.0 <= duration_s <= 3600):
@@ -132,10 +166,10 @@ def make_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, seed:
             vals = {next(iter(effect_fields(eid, channel))): DEFAULT_OFFSET[channel]}
         effect_fields(eid, channel)  # validates the channel
         resolved[eid] = {"channel": channel, "params": {k: float(v) for k, v in vals.items()}}
-    needs_f = "specimen_nonlinearity" in resolved or any(e["channel"] == "f" for e in resolved.values())
+    needs_f = "specimen_nonlinearity" in resolved or any(e["channel"] == "f" for e in resolved.values()) or experiment == "force"
     with_specimen = needs_f if specimen is None else bool(specimen)
     if needs_f and not with_specimen:
-        raise InputError("effects on the force channel need a specimen (specimen=True)")
+        raise InputError("force control and effects on the force channel need a specimen (specimen=True)")
 
     rng = np.random.default_rng(seed)
     nominal = Params("base")
@@ -144,7 +178,7 @@ def make_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, seed:
         "sample_rate_hz": rate_hz,
         "rig": rig_metadata(nominal),
         "specimen": {"stiffness_n_m": SPECIMEN_STIFFNESS_N_M, "zero_force_position_m": CENTRE_M} if with_specimen else None,
-        "controller": dict(CONTROLLER),
+        "controller": dict(FORCE_CONTROLLER if experiment == "force" else CONTROLLER),
     }
     if "load_pressure_feedback" in resolved:
         meta["rig"]["valve_flow_law"] = "linear"
@@ -165,7 +199,10 @@ def make_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, seed:
 
     dt = 1.0 / rate_hz
     half = 0.008 if with_specimen else 0.06
-    ref = rich_reference(duration_s, rate_hz, centre_m=CENTRE_M, half_range_m=half)
+    if experiment == "force":
+        ref = force_reference(duration_s, rate_hz)
+    else:
+        ref = rich_reference(duration_s, rate_hz, centre_m=CENTRE_M, half_range_m=half)
     n = len(ref)
     chans = [c for c in CHANNELS if c != "f" or with_specimen]
     kw: dict[str, Any] = {}
@@ -174,11 +211,93 @@ def make_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, seed:
         kw["noise"] = {c: rng.normal(0.0, NOISE_STD[c], n) for c in chans}
         kw["quantum"] = {c: QUANTUM[c] for c in chans}
         meta["sensors"] = {c: {"resolution": QUANTUM[c], "noise_std": NOISE_STD[c]} for c in chans}
-    out = replay([truth], dt, np.zeros(n), controller=CONTROLLER, reference=ref, preroll_s=PREROLL_S, rtol=1e-6,
+    out = replay([truth], dt, np.zeros(n), controller=meta["controller"], reference=ref, preroll_s=PREROLL_S, rtol=1e-6,
                  supply=supply_profile(ref, rate_hz), threads=1, **kw)[0]
     if out["error"] is not None:
         raise InputError(f"the simulated rig failed (seed {seed}, effects {sorted(resolved)}): {out['error']}")
-    cols = {"t": dt * np.arange(n), "u": out["u"], **{c: out[c] for c in chans}, "y_ref": ref}
-    name = "proving_" + ("_".join(sorted(resolved)) or "clean") + (f"_{effect_outside_table}" if effect_outside_table else "") + f"_s{seed}"
+    cols = {"t": dt * np.arange(n), "u": out["u"], **{c: out[c] for c in chans}, ("f_ref" if experiment == "force" else "y_ref"): ref}
+    name = ("proving_" + ("force_" if experiment == "force" else "") + ("_".join(sorted(resolved)) or "clean")
+            + (f"_{effect_outside_table}" if effect_outside_table else "") + f"_s{seed}")
     rec = Record(cols, meta, name)
     return rec, {"effects": resolved, "params": truth.to_dict(), "spread": spread, "outside": effect_outside_table}
+
+
+# --------------------------------------------------------------------------- the effect matrix
+# Every EFFECTS.md id on its own (sensor effects on two channels each), pairs, clean records,
+# force control and an effect outside the table: (id, effects, make_record keywords). A seed set
+# is a shift added to each case's seed (its index), so that a second set no constant was
+# adjusted against runs the same cases on other rigs and noise.
+MATRIX: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
+    ("sensor_offset-p_a", {"sensor_offset": {"channel": "p_a", "offset_pa": 4e5}}, {}),  # the thesis's own finding
+    ("sensor_offset-f", {"sensor_offset": {"channel": "f", "offset_n": 500.0}}, {}),
+    ("sensor_gain-p_b", {"sensor_gain": {"channel": "p_b", "gain": 1.15}}, {}),
+    ("sensor_gain-v", {"sensor_gain": {"channel": "v", "gain": 0.85}}, {}),
+    ("sensor_delay-y", {"sensor_delay": {"channel": "y", "delay_s": 0.01}}, {}),
+    ("sensor_delay-p_a", {"sensor_delay": {"channel": "p_a", "delay_s": 0.008}}, {}),
+    ("valve_null_bias", {"valve_null_bias": {}}, {}),
+    ("valve_dynamics", {"valve_dynamics": {}}, {}),
+    ("valve_deadband", {"valve_deadband": {}}, {}),
+    ("valve_hysteresis", {"valve_hysteresis": {}}, {}),
+    ("supply_pressure_sag", {"supply_pressure_sag": {}}, {}),
+    ("internal_leakage", {"internal_leakage": {}}, {}),
+    ("friction_asymmetry", {"friction_asymmetry": {}}, {}),
+    ("pressure_dependent_friction", {"pressure_dependent_friction": {}}, {}),
+    ("entrained_air", {"entrained_air": {}}, {}),
+    ("load_pressure_feedback", {"load_pressure_feedback": {}}, {}),
+    ("specimen_nonlinearity", {"specimen_nonlinearity": {}}, {}),
+    ("pair:valve_null_bias+sensor_offset", {"valve_null_bias": {}, "sensor_offset": {"channel": "p_a", "offset_pa": 4e5}}, {}),
+    ("pair:valve_dynamics+internal_leakage", {"valve_dynamics": {}, "internal_leakage": {}}, {}),
+    ("pair:friction_asymmetry+sensor_gain", {"friction_asymmetry": {}, "sensor_gain": {"channel": "p_b", "gain": 1.15}}, {}),
+    ("force:clean", {}, {"experiment": "force"}),
+    ("force:sensor_offset-f", {"sensor_offset": {"channel": "f", "offset_n": 400.0}}, {"experiment": "force"}),
+    ("force:valve_null_bias", {"valve_null_bias": {}}, {"experiment": "force"}),
+    ("clean-500Hz", {}, {}),
+    ("clean-1kHz", {}, {"rate_hz": 1000}),
+    ("clean-specimen", {}, {"specimen": True}),
+    ("outside:friction_bump", {}, {"effect_outside_table": "friction_bump"}),
+]
+MATRIX_SEED = {"A": 100, "B": 7100}  # seed set -> shift; set B was never looked at while tuning
+MATRIX_DURATION_S = 10.0
+
+
+def matrix_record(case: str, seed_set: str = "A") -> tuple[Record, dict[str, Any]]:
+    """The record and truth of one effect-matrix case in one seed set."""
+    names = [c[0] for c in MATRIX]
+    if case not in names:
+        raise InputError(f"unknown matrix case {case!r}; cases: {', '.join(names)}")
+    if seed_set not in MATRIX_SEED:
+        raise InputError(f"unknown seed set {seed_set!r}; use one of {', '.join(MATRIX_SEED)}")
+    i = names.index(case)
+    _, effects, kw = MATRIX[i]
+    return make_record(effects, seed=MATRIX_SEED[seed_set] + i, duration_s=MATRIX_DURATION_S, **kw)
+
+
+def judge(report: Mapping[str, Any], truth: Mapping[str, Any]) -> list[str]:
+    """What is wrong with a diagnosis of a proving-ground record (empty: it passes): the findings
+    must be the true effects (id, and channel for sensor effects and the specimen's force), every
+    true parameter within 30 %, some channel's error at least halved by them, and `unexplained`
+    false — except for an effect outside the table, which must leave no finding and be
+    unexplained."""
+    found = [(f["effect"], f["channel"]) for f in report["findings"]]
+    chan = {"specimen_nonlinearity": "f"}
+    want = {(e, t["channel"] or chan.get(e)) for e, t in truth["effects"].items()}
+    problems = []
+    if truth.get("outside"):
+        if found:
+            problems.append(f"claimed {found} for an effect outside the table")
+        if not report["unexplained"]:
+            problems.append("an effect outside the table left unexplained = false")
+        return problems
+    if sorted(found) != sorted(want):
+        problems.append(f"findings {sorted(found)}, truth {sorted(want)}")
+    if report["unexplained"]:
+        problems.append("unexplained = true")
+    by_id = {f["effect"]: f for f in report["findings"]}
+    for eid, t in truth["effects"].items():
+        for name, true in t["params"].items():
+            est = by_id.get(eid, {}).get("params", {}).get(name)
+            if est is None or abs(est - true) > 0.3 * abs(true):
+                problems.append(f"{eid}.{name}: estimated {est}, true {true:.4g}")
+    if want and not any(report["final"]["rmse"][c] <= 0.5 * report["baseline"]["rmse"][c] for c in report["final"]["rmse"]):
+        problems.append("no channel's error halved")
+    return problems

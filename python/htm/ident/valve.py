@@ -106,17 +106,20 @@ class ValveFamily:
             return Candidate(effect, channel, frees, signature, fields=fields, **kw)
 
         for c in channels:
+            offset = cand("sensor_offset", c, (lin(f"sensor_offset_{c}", scales[c], -1e3, 1e3),), "constant")
+            gain = cand("sensor_gain", c, (lin(f"sensor_gain_{c}", 0.01, -50.0, 50.0, origin=1.0),), f"predicted {c}")
             delay = cand("sensor_delay", c, (lin(f"sensor_delay_{c}_s", dt, 0.0, 100.0),), f"d(predicted {c})/dt")
-            # The loop regulates what its own sensor reads: an offset or gain of that sensor only moves
-            # the true position, which nothing measures unless a specimen's force does.
-            if (c, ctrl) in (("y", "position_pff"), ("f", "force_p")) and not (c == "y" and "f" in channels):
+            # The loop regulates what its own sensor reads: an offset or gain of that sensor only
+            # moves the true state, which nothing else measures — unless a specimen ties position
+            # and force: its zero-force position is trusted, so the force's offset shows against
+            # the position and the position's in the force; a gain of the force only trades with
+            # the identified stiffness, unless the chamber pressures weigh the true force.
+            if (c, ctrl) == ("y", "position_pff") and "f" not in channels:
                 out.append(delay)
-                continue
-            out += [
-                cand("sensor_offset", c, (lin(f"sensor_offset_{c}", scales[c], -1e3, 1e3),), "constant"),
-                cand("sensor_gain", c, (lin(f"sensor_gain_{c}", 0.01, -50.0, 50.0, origin=1.0),), f"predicted {c}"),
-                delay,
-            ]
+            elif (c, ctrl) == ("f", "force_p") and not {"p_a", "p_b"} <= set(channels):
+                out += [offset, delay]
+            else:
+                out += [offset, gain, delay]
         out += [
             cand("valve_null_bias", None, (lin("valve_null_bias_v", 0.02, -50.0, 50.0),), "small |u|"),
             cand("valve_dynamics", None, (lin("valve_tau_s", 1e-3, 0.0, 100.0, step=2.0),), "du/dt"),
