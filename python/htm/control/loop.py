@@ -64,6 +64,9 @@ class ControlLoop:
             self._wait = cfg.loop.tpdo_wait * self.dt
         else:
             self._wait = 0.0 if pump_rig is not None else LOCKSTEP_REPLY_S
+        # per-cycle rows of every test of the session, each tagged with its test's number (`test`):
+        # cycle numbers restart at 1 with each test, so a consumer keeps to its own test's rows
+        self.test_no = 0
         self.cycles: deque[dict[str, Any]] = deque(maxlen=100_000)
         self.feed: deque[dict[str, Any]] = deque(maxlen=400)
         self.commands: deque[Callable[[], None]] = deque()
@@ -147,6 +150,7 @@ class ControlLoop:
             r = c.last_cycle()  # None when a new test has just replaced the controller
         if r is not None:
             r["period"] = self.k
+            r["test"] = self.test_no
             self.cycles.append(r)
             val[CH["amplitude_error_pct"]] = 0.0 if r["starting"] else r["df_err_pct"]
         elif st not in ("running", "holding"):
