@@ -78,12 +78,14 @@ class LiveRecorder:
         if feed:
             self.period = feed[-1]["period"]
             self.w.signals(_columns(feed, SIGNALS))
+        prev = self.cycle
         if rows:
             self.cycle = rows[-1]["cycle"]
             self._last_a = rows[-1]["a_m"]
             self.w.cycles(_columns(rows))
-        for e in events:
-            self.w.event(e["kind"], e["message"], cycle=self.cycle, time_s=e["period"] * lp.dt,
+        for e in events:  # dated by the last cycle of this test that closed before it
+            c = max((r["cycle"] for r in rows if r["period"] <= e["period"]), default=prev)
+            self.w.event(e["kind"], e["message"], cycle=c, time_s=e["period"] * lp.dt,
                          level="WARN" if e["kind"] in ("trip", "estop", "error") else "INFO")
         self.event += len(events)
 

@@ -252,6 +252,7 @@ class Session:
             waited = (lp.k - k0) * lp.dt
             if waited > SUPPLY_TIMEOUT_S or time.monotonic() - t0 > 3 * SUPPLY_TIMEOUT_S + 1.0:
                 p = lp.meas["p_s"]
+                self._do(lambda: lp.io.write_supply(0.0), "unload supply (it did not come up)")
                 raise DeviceError(f"the supply pressure did not come up: p_s = {p / 1e5:.1f} bar after {SUPPLY_TIMEOUT_S:g} s, "
                                   f"the supply_pressure limit needs ≥ {need / 1e5:.1f} bar — check the pump and the relief "
                                   "valve; nothing was energised")

@@ -120,6 +120,7 @@ class TestWriter:
             raise RecordError(f"test {test_id} is finished; nothing to resume")
         segs = journal.read_journal(store.test_dir(test_id))  # raises on corruption, before any write
         w = cls(store, test_id, replay=True, **kw)
+        store.set_status(test_id, "running")  # held by this writer again (it was stopped or interrupted)
         return w, segs
 
     def _to_recording(self, r: journal.Record) -> None:
