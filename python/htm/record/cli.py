@@ -25,6 +25,15 @@ def cmd_list(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_last(args: argparse.Namespace) -> int:
+    with Store(args.store) as store:
+        rows = store.list_tests()
+        if not rows:
+            raise RecordError(f"no tests in {store.root}")
+        print(rows[-1]["id"])
+    return 0
+
+
 def cmd_show(args: argparse.Namespace) -> int:
     with Store(args.store) as store:
         t = store.get(args.id)
@@ -141,6 +150,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     dsub = db.add_subparsers(dest="db_command", required=True, metavar="ACTION")
     p = dsub.add_parser("list", help="every test: id, status, cycles, end reason")
     p.set_defaults(func=cmd_list)
+    p = dsub.add_parser("last", help="the newest test's id (for scripts: ID=$(htm db last))")
+    p.set_defaults(func=cmd_last)
     p = dsub.add_parser("show", help="one test: status, results, events, files")
     p.add_argument("id")
     p.add_argument("--events", type=int, default=30, help="events to print (default 30)")

@@ -215,7 +215,7 @@ class Store:
         return self.root / "tests" / test_id
 
     def list_tests(self) -> list[dict[str, Any]]:
-        cur = self.db.execute("SELECT * FROM tests ORDER BY created_utc, id")
+        cur = self.db.execute("SELECT * FROM tests ORDER BY created_utc, rowid")
         names = [d[0] for d in cur.description]
         return [dict(zip(names, r)) for r in cur.fetchall()]
 

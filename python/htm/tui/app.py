@@ -249,12 +249,16 @@ class HtmApp(App[None]):
             self.session = None
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="htm-tui", description="The htm operator console: the built-in virtual rig, "
                                  "or the hardware a rig configuration (TOML) names.")
     ap.add_argument("--config", help="rig configuration (TOML); default: the built-in virtual rig")
     ap.add_argument("--store", help="test store folder (default: $HTM_STORE or ~/.local/share/htm/store)")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
     HtmApp(config=args.config, store=args.store).run()
     return 0
 
