@@ -10,6 +10,7 @@ import re
 import shlex
 import subprocess
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -44,13 +45,11 @@ def commands(code: str) -> list[str]:
     return [ln.split("  #")[0].strip() for ln in joined.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
 
 
-@pytest.fixture(scope="module")
-def workdir(tmp_path_factory):
-    """A folder laid out like the checkout: .venv, examples, benchmarks, Makefile linked in and
-    ../shared beside it."""
-    base = tmp_path_factory.mktemp("readme")
+def layout(base: Path) -> Path:
+    """A folder laid out like the checkout (.venv, examples, benchmarks, Makefile linked in) with
+    ../shared beside it; returns the checkout folder."""
     work = base / "checkout"
-    work.mkdir()
+    work.mkdir(parents=True)
     (work / ".venv").symlink_to(Path(sys.prefix))
     for name in ("examples", "benchmarks", "Makefile", "python", "crates", "Cargo.toml", "pyproject.toml"):
         (work / name).symlink_to(ROOT / name)
@@ -67,6 +66,23 @@ def env_for(work: Path) -> dict[str, str]:
 README_BLOCKS = blocks()
 
 
+def run_block(work: Path, lang: str, code: str) -> subprocess.CompletedProcess:
+    cmd = ["bash", "-e", "-o", "pipefail", "-c", code] if lang == "sh" else [sys.executable, "-c", code]
+    return subprocess.run(cmd, cwd=work, env=env_for(work), capture_output=True, text=True, timeout=BLOCK_TIMEOUT_S)
+
+
+@pytest.fixture(scope="module")
+def ran(tmp_path_factory):
+    """Every runnable block, each in its own checkout-like folder and store, two at a time (the
+    machine's cores), the longest first."""
+    todo = [(b[0], b[1], b[2]) for b in README_BLOCKS if b[3] is None]
+    todo.sort(key=lambda b: -len(commands(b[2])))
+    base = tmp_path_factory.mktemp("readme")
+    with ThreadPoolExecutor(2) as pool:
+        futs = {line: pool.submit(run_block, layout(base / f"line{line}"), lang, code) for line, lang, code in todo}
+        return {line: f.result() for line, f in futs.items()}
+
+
 def test_the_readme_has_blocks_and_every_skip_says_why():
     assert len(README_BLOCKS) >= 6
     for line, _, _, reason in README_BLOCKS:
@@ -75,17 +91,13 @@ def test_the_readme_has_blocks_and_every_skip_says_why():
 
 
 @pytest.mark.parametrize("line,lang,code,reason", README_BLOCKS, ids=[f"line{b[0]}-{b[1]}" for b in README_BLOCKS])
-def test_readme_block_runs_as_written(workdir, line, lang, code, reason):
+def test_readme_block_runs_as_written(tmp_path, request, line, lang, code, reason):
     if reason is not None:
+        work = layout(tmp_path)
         for cmd in commands(code):
-            check_parses(cmd, workdir)
+            check_parses(cmd, work)
         return
-    env = env_for(workdir)
-    if lang == "sh":
-        run = ["bash", "-e", "-o", "pipefail", "-c", code]
-    else:
-        run = [sys.executable, "-c", code]
-    p = subprocess.run(run, cwd=workdir, env=env, capture_output=True, text=True, timeout=BLOCK_TIMEOUT_S)
+    p = request.getfixturevalue("ran")[line]
     assert p.returncode == 0, f"README block at line {line} failed ({p.returncode}):\n{p.stdout[-3000:]}\n{p.stderr[-3000:]}"
     assert "Traceback" not in p.stderr, p.stderr[-3000:]
 
