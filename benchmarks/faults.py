@@ -10,7 +10,8 @@ store lost or changed. Prints JSON beside the acceptance figures.
 "The fault reaching the loop": the injection period for a sensor or bus fault (the next SYNC sees
 it); for a fault that shows as a growing value (supply loss, heartbeat timeout, valve saturation,
 over-force, over-travel, load-cell drift) the first period its detector's watched value is out
-of range — the detector cannot act before the value says so.
+of range — the detector cannot act before the value says so; for a stuck transducer the first
+repeated position reading.
 """
 from __future__ import annotations
 
@@ -45,8 +46,10 @@ class Fault:
     detectors: tuple[str, ...]  # the detectors that guard against it (the first trip must be one)
     action: str
     gradual: bool = False  # latency counted from the watched value leaving its range
+    repeat: bool = False  # latency counted from the first repeated (frozen) position reading
     position_mode: bool = False  # injected while moving in position control, no specimen gripped
     limits: tuple = ()  # (detector, lo, hi) overrides of the rig configuration
+    jog_m_s: float = 0.01  # position mode: the move the fault meets
 
 
 FAULTS = [
@@ -59,13 +62,14 @@ FAULTS = [
     Fault("valve_saturation", "valve_stuck", -10.0, ("force_band",), "power_off", gradual=True),
     Fault("over_force", "valve_stuck", 1.0, ("force_band",), "power_off", gradual=True),
     Fault("load_cell_drift", "load_drift", 2000.0, ("load_plausibility",), "hold", gradual=True),
-    Fault("specimen_break", "fracture", 1, ("force_band", "velocity", "position_plausibility"), "power_off"),
+    Fault("specimen_break", "fracture", 1, ("force_band", "velocity", "position_plausibility", "load_plausibility"), "power_off"),
     # a frozen position while the force loop cycles a stiff specimen moves < 3 µm a period: the
     # position matters, and so is checked, while the piston moves in position control
-    Fault("transducer_stuck", "transducer_stuck", 1, ("position_plausibility",), "power_off", position_mode=True),
+    Fault("transducer_stuck", "transducer_stuck", 1, ("position_plausibility",), "power_off", position_mode=True,
+          repeat=True),
     # over-travel: a jog that runs past the permitted travel (here set to ±10 mm around the start)
     Fault("over_travel", "jog", 0.02, ("position",), "stop", gradual=True, position_mode=True,
-          limits=(("position", 0.09, 0.11),)),
+          limits=(("position", 0.09, 0.11),), jog_m_s=0.002),
 ]
 
 
@@ -88,8 +92,8 @@ def one(fault: Fault, rng: random.Random, store: Path) -> dict:
                        specimen=None if fault.position_mode else specimen_of(spec), thread=False)
     try:
         if fault.position_mode:
-            s.jog(0.005)
-            s.step(rng.randrange(20, 200))
+            s.jog(fault.jog_m_s)
+            s.step(rng.randrange(150, 400))  # past the jog's acceleration
         else:
             s.start(spec, store=store, recording=False)
             s.step(RAMP_PERIODS + rng.randrange(0, 2000))
@@ -102,13 +106,18 @@ def one(fault: Fault, rng: random.Random, store: Path) -> dict:
             s.jog(fault.value)
         else:
             s.rig.inject(fault.inject, fault.value)
-        crossed, trips = None, []
+        crossed, trips, y_last = None, [], s.loop.meas["y"]
         for _ in range(WINDOW):
             s.step(1)
             v = s.loop.safety.values
-            if crossed is None and any(not lo <= v[CH[ch]] <= hi for ch, lo, hi in watched):
+            if fault.repeat:
+                if crossed is None and s.loop.meas["y"] == y_last:
+                    crossed = s.loop.k
+                y_last = s.loop.meas["y"]
+            elif crossed is None and any(not lo <= v[CH[ch]] <= hi for ch, lo, hi in watched):
                 crossed = s.loop.k
-            trips = [e for e in s.events_since(n0) if e["kind"] == "trip"]
+            # an indicate-only trip informs; the action is the first trip that does something
+            trips = [e for e in s.events_since(n0) if e["kind"] == "trip" and e["action"] != "indicate"]
             if trips:
                 break
         rec = s.recorder
@@ -119,7 +128,7 @@ def one(fault: Fault, rng: random.Random, store: Path) -> dict:
         return out
     first = min(e["period"] for e in trips)
     early = [e for e in trips if e["period"] == first]
-    ref = (crossed if fault.gradual and crossed is not None else k0 + 1)
+    ref = crossed if (fault.gradual or fault.repeat) and crossed is not None else k0 + 1
     worst = max(early, key=lambda e: ("indicate", "hold", "stop", "power_off").index(e["action"]))
     out.update(latency_periods=first - ref, detectors=[e["detector"] for e in early], action=worst["action"],
                right=worst["action"] == fault.action and any(e["detector"] in fault.detectors for e in early))

@@ -20,6 +20,7 @@ from htm.devices.transducer import TransducerMaster
 ERROR_WINDOW = 50  # periods over which CAN error frames are counted
 SPIN_NS = 300_000  # real time: sleep until this long before the deadline, then spin
 FEED_HZ = 20.0
+PLAUS_WINDOW = 4  # periods over which the position is checked against the integrated speed
 LOCKSTEP_REPLY_S = 0.05  # lock-step against a rig in another process: its answer to one SYNC
 
 
@@ -54,9 +55,8 @@ class ControlLoop:
         self._weight = params["moving_mass_kg"] * params["gravity_m_s2"]
         self._errs: deque[int] = deque([0] * ERROR_WINDOW, maxlen=ERROR_WINDOW)
         self._err_seen = 0
-        self._y_prev = math.nan
-        self._v_prev = math.nan
-        self._k_prev = -10  # period of the last fresh position sample
+        # fresh position samples of the last PLAUS_WINDOW periods: (period, y, v)
+        self._fresh: deque[tuple[int, float, float]] = deque(maxlen=PLAUS_WINDOW + 1)
         self._last_results = 0
         self._decim = max(1, round(self.rate_hz / FEED_HZ))
         # how long to wait for this SYNC's TPDO: a share of the period in real time; in lock-step
@@ -165,14 +165,9 @@ class ControlLoop:
         val[CH["bus_off"]] = 1.0 if m.bus_off else 0.0
         fresh = m.age_periods == 0
         plaus = 0.0
-        # position vs integrated speed across the gap since the last fresh sample; after a longer
-        # silence (its own detector's business) the trapezoid says nothing, so no comparison
-        gap = self.k - self._k_prev
-        if fresh and gap <= 2 and math.isfinite(y) and math.isfinite(self._y_prev):
-            plaus = abs((y - self._y_prev) - 0.5 * (v + self._v_prev) * gap * self.dt)
+        if fresh and math.isfinite(y):
+            plaus = self._plausibility(y, v)
         val[CH["position_plausibility_m"]] = plaus
-        if fresh:
-            self._y_prev, self._v_prev, self._k_prev = y, v, self.k
         f_hyd = self._area_a * p_a - self._area_b * p_b - self._weight
         val[CH["load_plausibility_n"]] = abs(f - f_hyd) if self.powered else 0.0
         worst = self.safety.check(self.k)
@@ -198,6 +193,20 @@ class ControlLoop:
         if self.k % self._decim == 0:
             self.feed.append({"period": self.k, "t_s": self.k * self.dt, "state": c.state, **mm})
         return u
+
+    def _plausibility(self, y: float, v: float) -> float:
+        """|position change − integrated speed| [m] over the fresh samples of the last
+        PLAUS_WINDOW periods (trapezoid): a frozen or jumping position adds up period by period,
+        so a transducer stuck at a slow move shows within a few periods, while the quantisation
+        of one sample does not grow. A silence breaks the window (its own detector's business)."""
+        w = self._fresh
+        if w and w[-1][0] != self.k - 1:
+            w.clear()
+        w.append((self.k, y, v))
+        if len(w) < 2:
+            return 0.0
+        dist = sum(0.5 * (a[2] + b[2]) * self.dt for a, b in zip(w, list(w)[1:]))
+        return abs((w[-1][1] - w[0][1]) - dist)
 
     # -- schedulers ---------------------------------------------------------------------------------
     def run_lockstep(self, periods: int) -> None:
