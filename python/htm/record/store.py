@@ -2,8 +2,8 @@
 one folder per test holding its journal, Parquet tables and rerun recording.
 
 Layout: `ROOT/catalogue.sqlite`, `ROOT/tests/ID/` with `journal-NNN.htmj` (while the test is open),
-`cycles.parquet` (one row per cycle, every cycle), `raw.parquet` (raw high-rate windows: the first
-cycles, a few cycles per decade, around events), `recording.rrd`. The root is `--store`, else
+`cycles.parquet` (one row per cycle run through the plant, and one per cycle jump), `raw.parquet`
+(raw high-rate windows: the first cycles, a few cycles per decade, around events), `recording.rrd`. The root is `--store`, else
 `$HTM_STORE`, else `~/.local/share/htm/store`. The schema version is SQLite's `user_version`;
 `MIGRATIONS[i]` takes a catalogue from version i to i + 1 inside one transaction.
 A catalogue that does not read as one raises `RecordError` and is left untouched.
