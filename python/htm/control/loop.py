@@ -11,7 +11,7 @@ from collections import deque
 from typing import Any, Callable
 
 from htm import _core
-from htm.control.safety import CH, EventLog, Safety
+from htm.control.safety import CH, FRACTURE_STATES, EventLog, FractureWatch, Safety
 from htm.control.timing import Timing
 from htm.devices.analog import AnalogIO
 from htm.devices.config import RigConfig
@@ -57,6 +57,7 @@ class ControlLoop:
         self._err_seen = 0
         # fresh position samples of the last PLAUS_WINDOW periods: (period, y, v)
         self._fresh: deque[tuple[int, float, float]] = deque(maxlen=PLAUS_WINDOW + 1)
+        self._fracture = FractureWatch(self.dt, cfg.transducer.speed_resolution_m_s)
         self._last_results = 0
         self._decim = max(1, round(self.rate_hz / FEED_HZ))
         # how long to wait for this SYNC's TPDO: a share of the period in real time; in lock-step
@@ -168,6 +169,13 @@ class ControlLoop:
         if fresh and math.isfinite(y):
             plaus = self._plausibility(y, v)
         val[CH["position_plausibility_m"]] = plaus
+        unexplained = 0.0
+        if st in FRACTURE_STATES and c.targets is not None and fresh and math.isfinite(y):
+            fw = self._fracture
+            if fw.test is not c:  # a new test (a new controller): a new specimen, its own stiffness
+                fw.new_test(c, c.info()["samples_per_cycle"])
+            unexplained = fw.update(self.k, f, v, c.targets[0] - c.targets[1])
+        val[CH["force_unexplained"]] = unexplained
         f_hyd = self._area_a * p_a - self._area_b * p_b - self._weight
         val[CH["load_plausibility_n"]] = abs(f - f_hyd) if self.powered else 0.0
         worst = self.safety.check(self.k)
