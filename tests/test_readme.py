@@ -71,12 +71,20 @@ def run_block(work: Path, lang: str, code: str) -> subprocess.CompletedProcess:
     return subprocess.run(cmd, cwd=work, env=env_for(work), capture_output=True, text=True, timeout=BLOCK_TIMEOUT_S)
 
 
+HEAVY = ("benchmarks/", "examples/", " diagnose ", " resume ", " run ")  # a script or a whole test: seconds
+
+
+def cost(code: str) -> int:
+    """A block's expected run time in "commands": a script or a whole test counts as five."""
+    return sum(5 if any(h in f" {c} " for h in HEAVY) else 1 for c in commands(code))
+
+
 @pytest.fixture(scope="module")
 def ran(tmp_path_factory):
     """Every runnable block, each in its own checkout-like folder and store, two at a time (the
     machine's cores), the longest first."""
     todo = [(b[0], b[1], b[2]) for b in README_BLOCKS if b[3] is None]
-    todo.sort(key=lambda b: -len(commands(b[2])))
+    todo.sort(key=lambda b: -cost(b[2]))
     base = tmp_path_factory.mktemp("readme")
     with ThreadPoolExecutor(2) as pool:
         futs = {line: pool.submit(run_block, layout(base / f"line{line}"), lang, code) for line, lang, code in todo}
@@ -117,6 +125,15 @@ def check_parses(cmd: str, work: Path) -> None:
         from htm.tui.app import build_parser as tui_parser
 
         tui_parser().parse_args(argv[1:])
+    elif prog.endswith("/python") and len(argv) > 1 and argv[1].endswith(".py"):
+        # a script that is not run: it exists, compiles, and knows every option the line gives it
+        script = work / argv[1]
+        assert script.exists(), f"`{cmd}`: {argv[1]} does not exist"
+        src = script.read_text()
+        compile(src, str(script), "exec")
+        for a in argv[2:]:
+            if a.startswith("--"):
+                assert f'"{a.split("=")[0]}"' in src, f"`{cmd}`: {argv[1]} has no option {a}"
     else:
         raise AssertionError(f"no parse check for `{cmd}`: run it, or teach check_parses")
     for a in argv[1:]:

@@ -96,7 +96,7 @@ class Session:
             if virtual:
                 self.rig = VirtualRig(cfg, specimen, threaded=True)
             bus = open_bus(cfg.bus)
-            self._net = network_on(bus, threaded=True)
+            self._net = network_on(bus, threaded=True, lockstep=cfg.loop.mode == "lockstep")
             self._io = AnalogIO(cfg.analog)
             master = TransducerMaster(self._net, cfg.transducer, 1.0 / cfg.loop.rate_hz)
             info = master.configure()
