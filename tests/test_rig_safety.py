@@ -168,3 +168,45 @@ def test_no_false_trip_in_ten_thousand_cycles_and_demod_holds_two_percent():
         assert s.loop.k >= 100_000
     finally:
         s.close()
+
+
+def _spring_cycles(watch, cycles, k_n_m=1e8, mean_n=0.0, amp_n=3000.0, n=50, dt=0.002, k0=1):
+    """Feed `watch` a specimen spring cycled sinusoidally; returns (last period, values)."""
+    w = 2 * math.pi / (n * dt)
+    vals = []
+    k = k0
+    for _ in range(cycles * n):
+        t = k * dt
+        f = mean_n + amp_n * math.sin(w * t)
+        v = amp_n / k_n_m * w * math.cos(w * t)
+        vals.append(watch.update(k, f, round(v / 1e-4) * 1e-4, 2 * amp_n))
+        k += 1
+    return k, vals
+
+
+@pytest.mark.parametrize("mean_n", [0.0, -1000.0])
+def test_fracture_watch_catches_a_break_on_either_side_and_ignores_a_loaded_ring(mean_n):
+    """FractureWatch alone on a spring through zero force (R = -1) and in compression: clean
+    cycles stay at 0; a break (force 0 from one period on) on the compression side shows in that
+    period; a speed spike with the force loaded (a valve ringing the piston) does not count."""
+    from htm.control.safety import FractureWatch
+
+    lim = next(l for l in virtual_config("lockstep").limits if l.name == "fracture").hi
+    fw = FractureWatch(0.002, 1e-4)
+    fw.new_test(object(), 50)
+    k, vals = _spring_cycles(fw, 5, mean_n=mean_n)
+    assert fw.k_n_m == pytest.approx(1e8, rel=0.02), "the stiffness is fitted from the cycles"
+    assert max(vals) < 0.2 * lim
+    # a ring: the speed sample jumps while the loaded force follows the spring
+    k, vals = _spring_cycles(fw, 1, mean_n=mean_n, k0=k)
+    assert fw.update(k, -2500.0 + mean_n, 0.05, 6000.0) == 0.0
+    # break on the compression side: the force was −2.9 kN (or −3.9 kN), now 0
+    fw2 = FractureWatch(0.002, 1e-4)
+    fw2.new_test(object(), 50)
+    k, _ = _spring_cycles(fw2, 5, mean_n=mean_n, k0=1)
+    k, _ = _spring_cycles(fw2, 1, mean_n=mean_n, k0=k)
+    k += 37  # three quarters of a cycle on: the compressive peak
+    for j in range(-2, 0):
+        t = (k + j) * 0.002
+        fw2.update(k + j, mean_n + 3000.0 * math.sin(2 * math.pi * t / 0.1), 0.0, 6000.0)
+    assert fw2.update(k, 0.0, 0.0, 6000.0) > lim
