@@ -96,3 +96,36 @@ def test_every_subcommand_has_help():
     for name in sub.choices:
         r = htm_cli(name, "--help")
         assert r.returncode == 0 and "usage:" in r.stdout, name
+
+
+@pytest.mark.parametrize("edit,message", [
+    (("tolerance_cycles = 10", "tolerance_cycles = 99999999999999999999999"), "end.tolerance_cycles = 99999999999999999999999 must be an integer in [0, "),
+    (("frequency_hz = 10.0", "frequency_hz = 1e300"), "loading.frequency_hz = 1e+300 is out of range: allowed (0, 6250] Hz"),
+])
+def test_out_of_range_spec_numbers_are_one_clear_line(tmp_path, edit, message):
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "examples" / "ct_constant_force.toml").read_text()
+    assert edit[0] in text
+    spec = tmp_path / "s.toml"
+    spec.write_text(text.replace(edit[0], edit[1]))
+    r = htm_cli("run", str(spec), "--out", str(tmp_path / "o"), "--no-store", "--quiet")
+    assert r.returncode == 2 and "Traceback" not in r.stderr and message in r.stderr, r.stderr
+
+
+def test_a_profile_too_long_to_hold_and_an_unknown_key_are_clear_errors(tmp_path):
+    r = htm_cli("simulate", "--profile", "hold:value=1,duration=1e7", "--out", str(tmp_path / "x"))
+    assert r.returncode == 2 and "at most 10,000,000" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    r = htm_cli("simulate", "--profile", "sine:amplitude=1,frequency=2,duration=1,ofset=3", "--out", str(tmp_path / "x"))
+    assert r.returncode == 2 and "unknown key(s) ofset" in r.stderr and "optional offset, phase" in r.stderr, r.stderr
+
+
+def test_run_into_an_unwritable_out_stores_nothing(tmp_path):
+    (tmp_path / "file").write_text("")
+    store = tmp_path / "store"
+    from pathlib import Path
+
+    spec = Path(__file__).resolve().parents[1] / "examples" / "ct_constant_force.toml"
+    r = htm_cli("run", str(spec), "--out", str(tmp_path / "file" / "out"), "--store", str(store), "--quiet")
+    assert r.returncode == 2 and "cannot write there" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert not (store / "catalogue.sqlite").exists() or htm_cli("db", "list", "--store", str(store)).stdout.startswith("no tests")

@@ -324,7 +324,8 @@ def test_sigkill_at_20_random_moments_then_resume_loses_and_doubles_nothing(tmp_
             break
         kills += 1
         with Store(store) as s:
-            assert s.get(tid)["status"] in ("running", "finished")
+            # a killed writer's test is marked interrupted by the next store opened on the root
+            assert s.get(tid)["status"] in ("interrupted", "finished")
             c = s.cycles(tid).get("cycle", np.zeros(0))  # from the journal (a torn tail dropped)
         assert np.array_equal(c, np.arange(1, len(c) + 1)), "the journal after a kill: no gap, no duplicate"
         progress.append(len(c))
@@ -378,3 +379,72 @@ def test_full_disk_in_a_child_stops_safely_then_resumes(tmp_path):
     assert main(["resume", t["id"], "--store", str(store), "--quiet"]) == 0  # space again: it continues
     with Store(store) as s:
         assert np.array_equal(s.cycles(t["id"])["a_m"], ref["a_m"]) and s.get(t["id"])["status"] == "finished"
+
+
+# ---- issue 17: interrupted tests, export, events ----------------------------------------------------
+
+WRITER_CHILD = """
+import sys, time, numpy as np
+from htm.record import Store, TestWriter
+w = TestWriter.create(Store(sys.argv[1]), "live", sys.argv[2], "lockstep", "json", "{}", 10.0, recording=False)
+print(w.id, flush=True)
+for i in range(1, 1000):
+    w.cycles({"cycle": np.array([i]), "a_m": np.array([0.015 + i * 1e-9]), "events": np.zeros(1, np.uint32)})
+    if i == 40:
+        print("40", flush=True)
+    time.sleep(0.01)
+"""
+
+
+@pytest.mark.parametrize("kind", ["device", "simulated"])
+def test_a_killed_writers_test_is_marked_interrupted_and_keeps_its_rows(tmp_path, kind, capsys):
+    store = tmp_path / "store"
+    p = subprocess.Popen([sys.executable, "-c", WRITER_CHILD, str(store), kind], stdout=subprocess.PIPE, text=True)
+    tid = p.stdout.readline().strip()
+    assert p.stdout.readline().strip() == "40"
+    with Store(store) as s:
+        assert s.get(tid)["status"] == "running", "a live writer's test is left alone"
+    p.send_signal(signal.SIGKILL)
+    p.wait()
+    with Store(store) as s:  # the next store opened on the root (e.g. the next test's start)
+        t = s.get(tid)
+        c = s.cycles(tid)["cycle"]
+    assert t["status"] == "interrupted" and t["cycles"] == len(c) >= 40
+    assert np.array_equal(c, np.arange(1, len(c) + 1)), "every row written before the kill is kept"
+    assert any(e["kind"] == "interrupted" for e in t["events"])
+    assert main(["db", "show", tid, "--store", str(store)]) == 0
+    out = capsys.readouterr().out
+    if kind == "device":
+        assert "does not resume" in out and "htm resume" not in out
+        assert main(["resume", tid, "--store", str(store)]) == 2  # a clear refusal, not a traceback
+    else:
+        assert f"htm resume {tid}" in out
+
+
+def test_export_carries_the_recording_and_the_report(tmp_path):
+    store = tmp_path / "store"
+    assert main(["run", str(EXAMPLE), "--out", str(tmp_path / "o"), "--quiet", "--store", str(store)]) == 0
+    with Store(store) as s:
+        (t,) = s.list_tests()
+    assert main(["db", "export", t["id"], "--out", str(tmp_path / "x"), "--store", str(store)]) == 0
+    names = {p.name for p in (tmp_path / "x").iterdir()}
+    assert {"cycles.parquet", "recording.rrd", "report.md", "test.json"} <= names
+    assert {p.name for p in (tmp_path / "o").glob("*.png")} <= names, "the report's plots go with it"
+    assert _rrd(tmp_path / "x" / "recording.rrd"), "the exported recording reads back"
+
+
+def test_summary_and_store_name_the_same_size_criterion_cycle_in_jump_mode(tmp_path):
+    import json
+
+    store = tmp_path / "store"
+    assert main(["run", str(EXAMPLE), "--out", str(tmp_path / "o"), "--quiet", "--store", str(store), "--no-recording"]) == 0
+    first = json.loads((tmp_path / "o" / "summary.json").read_text())["size_criterion_cycle"]
+    with Store(store) as s:
+        (t,) = s.list_tests()
+        ev = [e["cycle"] for e in s.get(t["id"])["events"] if e["kind"] == "size_criterion"]
+        table = s.cycles(t["id"])
+    assert first is not None and ev == [first]
+    # jump mode: one row per cycle run through the plant and one per jump (the README says so)
+    c, jump = table["cycle"], (table["events"] & 16) != 0
+    gaps = np.flatnonzero(np.diff(c) > 1) + 1
+    assert len(gaps) > 10 and jump[gaps].all(), "every gap in the cycle column closes on a jump row"

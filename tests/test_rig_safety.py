@@ -55,7 +55,7 @@ def _inject_and_watch(s, fault, value, periods):
     ("can_error_frames", 5, "can_errors", "stop"),
     ("bus_off", 1, "bus_off", "power_off"),
     ("valve_stuck", 1.0, "force_band", "power_off"),
-    ("fracture", 1, None, "power_off"),
+    ("fracture", 1, "fracture", "power_off"),
 ])
 def test_fault_trips_within_two_periods_and_outputs_stay_safe(running, fault, value, detector, action):
     s = running
@@ -72,6 +72,36 @@ def test_fault_trips_within_two_periods_and_outputs_stay_safe(running, fault, va
     if action == "power_off":
         assert not s.rig.daq.relay(0) and s.rig.daq.output(1) == 0.0, "valve null and amplifier off"
     assert s.snapshot()["interlock"] in ("stop", "power_off")
+
+
+@pytest.mark.parametrize("where", ["peak", "valley", "mean"])
+def test_specimen_break_at_any_phase_trips_the_fracture_detector_at_once(running, where):
+    """A break at the valley leaves the force (R = 0.1: 0.5 kN → 0) inside the ±25 % band; the
+    force no longer follows the displacement, and that trips power off in the next period."""
+    s = running
+    n = s.loop.ctrl.info()["samples_per_cycle"]
+    cycle = []
+    for _ in range(n):  # one steady cycle: the phase (period mod n) of its peak, valley and mean
+        s.step(1)
+        cycle.append((s.loop.k % n, s.loop.meas["f"]))
+    fmax, fmin, _ = s.loop.ctrl.targets
+    if where == "mean":  # the period the rising force passes the mean
+        at = next(ph for (_, a), (ph, b) in zip(cycle, cycle[1:]) if a < 0.5 * (fmax + fmin) <= b)
+    else:
+        at = (max if where == "peak" else min)(cycle, key=lambda c: c[1])[0]
+    while (s.loop.k + 1) % n != at:
+        s.step(1)
+    f_before = s.loop.meas["f"]
+    trips, k0, _ = _inject_and_watch(s, "fracture", 1, 10)
+    band = next(d for d in s.detectors() if d["name"] == "force_band")
+    if where == "valley":
+        assert f_before < fmin + 0.1 * (fmax - fmin) and band["trip_value"] is None, "the band alone misses it"
+    first = min(e["period"] for e in trips)
+    frac = next(e for e in trips if e["detector"] == "fracture")  # a relieved piston's jump may co-trip plausibility
+    assert frac["period"] == first and frac["action"] == "power_off", trips
+    assert first - k0 <= 2, f"break at the {where}: tripped {first - k0} periods after"
+    assert s.loop.max_abs_u_after_trip == 0.0 and not s.rig.daq.relay(0)
+    assert s.snapshot()["interlock"] == "power_off" and s.rig.plant.fractured
 
 
 def test_heartbeat_loss_trips_within_two_periods_of_the_consumer_timeout(running):
@@ -121,7 +151,8 @@ def test_stuck_transducer_during_a_move_trips_on_the_first_stuck_period():
 
 def test_no_false_trip_in_ten_thousand_cycles_and_demod_holds_two_percent():
     """10⁴ cycles at 25 Hz (20 periods each: 2·10⁵ lock-step periods, > 10⁵) on the thesis rig
-    with the demodulation controller: no detector trips, every test cycle within ±2 %."""
+    with the demodulation controller: no detector trips (the fracture detector included: its
+    stiffness fit and residual run the whole time), every test cycle within ±2 %."""
     spec = _spec(25.0)
     s = Session().open(virtual_config("lockstep"), virtual=True, specimen=specimen_of(spec), thread=False)
     try:
@@ -137,3 +168,45 @@ def test_no_false_trip_in_ten_thousand_cycles_and_demod_holds_two_percent():
         assert s.loop.k >= 100_000
     finally:
         s.close()
+
+
+def _spring_cycles(watch, cycles, k_n_m=1e8, mean_n=0.0, amp_n=3000.0, n=50, dt=0.002, k0=1):
+    """Feed `watch` a specimen spring cycled sinusoidally; returns (last period, values)."""
+    w = 2 * math.pi / (n * dt)
+    vals = []
+    k = k0
+    for _ in range(cycles * n):
+        t = k * dt
+        f = mean_n + amp_n * math.sin(w * t)
+        v = amp_n / k_n_m * w * math.cos(w * t)
+        vals.append(watch.update(k, f, round(v / 1e-4) * 1e-4, 2 * amp_n))
+        k += 1
+    return k, vals
+
+
+@pytest.mark.parametrize("mean_n", [0.0, -1000.0])
+def test_fracture_watch_catches_a_break_on_either_side_and_ignores_a_loaded_ring(mean_n):
+    """FractureWatch alone on a spring through zero force (R = -1) and in compression: clean
+    cycles stay at 0; a break (force 0 from one period on) on the compression side shows in that
+    period; a speed spike with the force loaded (a valve ringing the piston) does not count."""
+    from htm.control.safety import FractureWatch
+
+    lim = next(l for l in virtual_config("lockstep").limits if l.name == "fracture").hi
+    fw = FractureWatch(0.002, 1e-4)
+    fw.new_test(object(), 50)
+    k, vals = _spring_cycles(fw, 5, mean_n=mean_n)
+    assert fw.k_n_m == pytest.approx(1e8, rel=0.02), "the stiffness is fitted from the cycles"
+    assert max(vals) < 0.2 * lim
+    # a ring: the speed sample jumps while the loaded force follows the spring
+    k, vals = _spring_cycles(fw, 1, mean_n=mean_n, k0=k)
+    assert fw.update(k, -2500.0 + mean_n, 0.05, 6000.0) == 0.0
+    # break on the compression side: the force was −2.9 kN (or −3.9 kN), now 0
+    fw2 = FractureWatch(0.002, 1e-4)
+    fw2.new_test(object(), 50)
+    k, _ = _spring_cycles(fw2, 5, mean_n=mean_n, k0=1)
+    k, _ = _spring_cycles(fw2, 1, mean_n=mean_n, k0=k)
+    k += 37  # three quarters of a cycle on: the compressive peak
+    for j in range(-2, 0):
+        t = (k + j) * 0.002
+        fw2.update(k + j, mean_n + 3000.0 * math.sin(2 * math.pi * t / 0.1), 0.0, 6000.0)
+    assert fw2.update(k, 0.0, 0.0, 6000.0) > lim

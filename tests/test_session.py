@@ -7,12 +7,13 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from htm.control import Session
 from htm.control.session import specimen_of
 from htm.devices.config import virtual_config
-from htm.errors import InterlockTripped, ParameterError
+from htm.errors import DeviceError, InterlockTripped, ParameterError
 from htm.spec import load
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -114,3 +115,86 @@ def test_rig_in_another_process_over_udp_multicast(tmp_path):
         proc.terminate()
         out, err = proc.communicate(10)
     assert "virtual rig stopping after" in out, err
+
+
+def _wait(cond, timeout: float = 10.0) -> None:
+    t0 = time.monotonic()
+    while not cond():
+        assert time.monotonic() - t0 < timeout, "condition not reached in time"
+        time.sleep(0.05)
+
+
+def test_every_test_of_a_session_is_recorded_with_its_own_rows_report_and_end_reason(tmp_path):
+    """Two tests in one session, the second started right after the first stopped (its supply
+    still unloaded): both recorded from cycle 1, no trip, no recording error; an indicate-only
+    trip does not become the end reason of the operator's stop; each test gets a report."""
+    from htm.record import Store
+
+    spec = load(ROOT / "examples" / "ct_constant_force.toml")
+    tight = {"amplitude_error": {"lo": -1e-6, "hi": 1e-6}}  # indicate-only: trips on every test
+    s = Session().open(virtual_config("lockstep", limits=tight), virtual=True, specimen=specimen_of(spec), thread=False)
+    ids = []
+    try:
+        for _ in range(2):
+            s.start(spec, store=tmp_path)
+            s.step(50 * 30)  # 30 cycles at 10 Hz, 500 Hz
+            s.stop()
+            s.step(50 * 5)
+            rec = s.recorder
+            _wait(lambda: rec.status is not None)
+            ids.append(rec.test_id)
+        events = s.events_since(0)
+    finally:
+        s.close()
+    assert [e for e in events if e["kind"] == "error"] == []
+    trips = [e for e in events if e["kind"] == "trip"]
+    assert trips and all(e["action"] == "indicate" for e in trips), [e["message"] for e in trips]
+    with Store(tmp_path) as st:
+        for tid in ids:
+            t = st.get(tid)
+            c = st.cycles(tid)["cycle"]
+            assert len(c) >= 25 and np.array_equal(c, np.arange(1, len(c) + 1)), f"{tid}: {c[:5]}…"
+            assert (t["status"], t["end_reason"]) == ("stopped", "operator stop")
+            report = Path(t["files"]["report"]["path"]).read_text()
+            assert f"cycles recorded: {len(c)}" in report and "operator stop" in report
+
+
+def test_a_start_after_a_stop_loads_the_supply_and_times_out_clearly_without_it():
+    spec = load(ROOT / "examples" / "ct_constant_force.toml")
+    s = Session().open(virtual_config("lockstep"), virtual=True, specimen=specimen_of(spec), thread=False)
+    try:
+        s.jog(0.0)
+        s.step(10)
+        s.stop()
+        s.step(200)
+        assert not s.snapshot()["amplifier"] and s.snapshot()["p_s"] < 1e6, "the supply is unloaded"
+        s.start(spec, record=False)
+        s.step(200)
+        assert s.snapshot()["interlock"] is None and s.snapshot()["state"] in ("starting", "running")
+        s.stop()
+        s.step(50 * 5)
+        s.rig.inject("supply_loss")  # the pump is off: the supply never comes up
+        with pytest.raises(DeviceError, match="supply pressure did not come up.*nothing was energised"):
+            s.start(spec, record=False)
+        assert not s.snapshot()["amplifier"] and s.snapshot()["interlock"] is None
+    finally:
+        s.close()
+
+
+def test_commands_right_after_open_act_on_a_valid_reading():
+    s = Session().open(virtual_config("lockstep"), virtual=True, thread=False)
+    try:
+        y = s.snapshot()["y"]
+        off = s.tare()  # before any step: open() waited for the first reading
+        assert math.isfinite(y) and math.isfinite(off)
+        s.move_to(y + 1e-3)
+        s.step(1000)
+        snap = s.snapshot()
+        assert snap["interlock"] is None and snap["y"] == pytest.approx(y + 1e-3, abs=2e-5)
+        assert math.isfinite(snap["f"])
+        s.loop.meas["f"] = math.nan  # a load cell that reads nothing: tare refuses, nothing changes
+        with pytest.raises(DeviceError, match="tare: no valid reading"):
+            s.tare()
+        assert s.loop.load_offset_n == off
+    finally:
+        s.close()

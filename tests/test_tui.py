@@ -219,3 +219,77 @@ def test_diagnose_runs_on_a_record_and_shows_findings(store, tmp_path):
             assert first[1] == "sensor_offset" and first[2] == "p_a"
             assert (tmp_path / "diag" / "report.json").exists()
     run(go())
+
+
+def test_results_refresh_on_entering_and_function_keys_leave_a_focused_button(store, tmp_path):
+    from htm.cli import main as htm_main
+    from htm.tui.results import ResultsPane
+
+    async def go():
+        app = HtmApp(session_factory=lambda: None, store=store)
+        async with app.run_test(size=(140, 50)) as pilot:
+            await pilot.press("f5")
+            await pilot.pause()
+            table = app.query_one("#results-table", DataTable)
+            assert table.row_count == 0
+            app.query_one("#refresh").focus()
+            await pilot.press("f2")
+            await pilot.pause()
+            assert app.query_one("#tabs").active == "setup", "F2 from a Results button"
+            assert htm_main(["run", "examples/ct_constant_force.toml", "--out", str(tmp_path / "run"), "--quiet",
+                             "--no-recording", "--store", str(store)]) == 0
+            await pilot.click("#tabs-tab-results" if app.query("#tabs-tab-results") else "Tab#--content-tab-results")
+            await pilot.pause()
+            assert app.query_one("#tabs").active == "results" and table.row_count == 1, "refreshed on entering"
+            app.query_one(ResultsPane).query_one("#view").focus()
+            await pilot.press("f6")
+            await pilot.pause()
+            assert app.query_one("#tabs").active == "diagnose"
+    run(go())
+
+
+def test_run_numbers_before_a_test_and_a_trip_shown_whole_and_once(store):
+    async def go():
+        app = HtmApp(store=store)
+        async with app.run_test(size=(160, 60)) as pilot:
+            await until(pilot, lambda: app.session is not None)
+            await pilot.press("f4")
+            await pilot.pause(0.5)
+            assert "nan" not in text(app, "#run-numbers") and "state[/] idle" in text(app, "#run-numbers")
+            await pilot.press("s")
+            await until(pilot, lambda: app.session.snapshot()["cycles"] >= 12, timeout=60)
+            app.session.rig.inject("transducer_silent")
+            await until(pilot, lambda: app.session.snapshot()["interlock"] == "power_off", timeout=10)
+            app.session.rig.clear_faults()
+            await pilot.pause(1.0)
+            await pilot.press("f12")
+            await until(pilot, lambda: app.session.snapshot()["estop"], timeout=5)
+            await pilot.pause(0.5)
+            table = app.query_one("#detectors", DataTable)
+            state = list(table.columns.values())[4]
+            assert table.get_row("transducer_silent")[4] == "tripped" and state.content_width >= len("tripped")
+            lines = [ln.text for ln in app.query_one("#events").lines]
+            assert sum("trip:" in ln for ln in lines) == 1, lines
+            assert sum("E-STOP" in ln for ln in lines) == 1, lines
+    run(go())
+
+
+def test_diagnose_evidence_fits_the_table_and_shows_whole_below(store):
+    from htm.tui.diagnose_pane import EVIDENCE_CELL, DiagnosePane
+
+    long = "the free run drifts by 4 bar on p_a while the other channels stay within their noise; " * 3
+    finding = {"effect": "sensor_offset", "channel": "p_a", "params": {"offset_pa": 4e5}, "rmse_before": {"p_a": 4e5},
+               "rmse_after": {"p_a": 1e4}, "evidence": long}
+    report = {"record": "r", "findings": [finding], "unexplained": False, "baseline": {"rmse": {"p_a": 4e5}},
+              "final": {"rmse": {"p_a": 1e4}}}
+
+    async def go():
+        app = HtmApp(session_factory=lambda: None, store=store)
+        async with app.run_test(size=(140, 50)) as pilot:
+            await pilot.press("f6")
+            app.query_one(DiagnosePane).show(report, store)
+            await pilot.pause()
+            cell = app.query_one("#findings", DataTable).get_row_at(0)[6]
+            assert len(cell) <= EVIDENCE_CELL and cell.endswith("…")
+            assert long.strip() in str(app.query_one("#finding-detail", Static).content)
+    run(go())

@@ -19,6 +19,10 @@ import numpy as np
 
 from htm.errors import InputError
 
+# the longest profile [samples]: every sample becomes a row of ~10 float columns in memory and
+# in the record (10⁷ samples ≈ 5.6 h at 500 Hz, ≈ 1 GB)
+MAX_SAMPLES = 10_000_000
+
 _KEYS = {
     "hold": ({"value", "duration"}, set()),
     "step": ({"value", "duration"}, set()),
@@ -45,7 +49,8 @@ def _parse_segment(text: str) -> tuple[str, dict[str, str]]:
     if missing:
         raise InputError(f"profile segment `{text}`: missing {', '.join(sorted(missing))}")
     if unknown:
-        raise InputError(f"profile segment `{text}`: unknown key(s) {', '.join(sorted(unknown))}")
+        raise InputError(f"profile segment `{text}`: unknown key(s) {', '.join(sorted(unknown))}; "
+                         f"{kind} takes {', '.join(sorted(required))}" + (f" (optional {', '.join(sorted(optional))})" if optional else ""))
     return kind, args
 
 
@@ -91,12 +96,20 @@ def build(spec: str | list[str], rate_hz: float) -> np.ndarray:
         raise InputError("empty command profile")
     dt = 1.0 / rate_hz
     parts: list[np.ndarray] = []
+    total = 0
     for text in segments:
         kind, a = _parse_segment(text)
         if kind == "csv":
             parts.append(_read_csv(a["path"], a.get("column"), text))
+            total += len(parts[-1])
             continue
-        n = int(round(_num(a, "duration", text, positive=True) / dt))
+        dur = _num(a, "duration", text, positive=True)
+        if total + dur * rate_hz > MAX_SAMPLES:  # refuse before allocating
+            raise InputError(f"profile segment `{text}`: the profile would hold {total + dur * rate_hz:.3g} samples at "
+                             f"{rate_hz:g} Hz; at most {MAX_SAMPLES:,} ({MAX_SAMPLES / rate_hz:,.0f} s at this rate): "
+                             "shorten it or lower --rate")
+        n = int(round(dur / dt))
+        total += n
         if n < 1:
             raise InputError(f"profile segment `{text}`: duration shorter than one sample period ({dt} s)")
         tk = np.arange(n) * dt
@@ -110,4 +123,6 @@ def build(spec: str | list[str], rate_hz: float) -> np.ndarray:
             off = _num(a, "offset", text) if "offset" in a else 0.0
             ph = _num(a, "phase", text) if "phase" in a else 0.0
             parts.append(off + amp * np.sin(2 * np.pi * freq * tk + ph))
+    if total > MAX_SAMPLES:
+        raise InputError(f"the profile holds {total:,} samples; at most {MAX_SAMPLES:,}: shorten it")
     return np.concatenate(parts)

@@ -17,8 +17,6 @@ from htm import _core
 from htm.errors import HtmError
 from htm.spec import TestSpec, load, parse
 
-EVENT_NAMES = {1: "start", 2: "out_of_tolerance", 4: "tolerance_exceeded", 8: "size_criterion", 16: "jump",
-               32: "stiffness_step", 64: "phase_change", 128: "stop", 256: "end"}
 
 
 def run_spec(spec: TestSpec, mode: str | None = None, progress: bool = False) -> tuple[dict[str, Any], float]:
@@ -195,28 +193,10 @@ def write_outputs(out_dir: Path, spec: TestSpec, out: dict[str, Any], wall: floa
     (out_dir / "summary.json").write_text(json.dumps(s, indent=2, default=float))
     text = summary_text(spec, s)
     (out_dir / "summary.txt").write_text(text + "\n")
-    s["report"] = _report(out_dir, spec, table)
+    from htm.fatigue.report import spec_test_report
+
+    s["report"] = spec_test_report(out_dir, spec, table, f"Simulated test {spec.name}")
     return s
-
-
-def _report(out_dir: Path, spec: TestSpec, table: dict[str, np.ndarray]) -> str | None:
-    """The E647 report of the run (a–N, da/dN–ΔK, force band) when the test has enough crack growth."""
-    from htm.fatigue.data import Setup
-    from htm.fatigue.report import write_test_report
-
-    test = (table["events"] & (1 | 128)) == 0
-    ph = spec.phases[-1]
-    if spec.geometry != "ct" and spec.geometry != "mt" or test.sum() < 20 or ph.mode != "constant_force":
-        return None
-    pmax = ph.delta_f_n / (1 - ph.r_ratio) if ph.r_ratio >= 0 else ph.delta_f_n
-    setup = Setup(spec.geometry, spec.width_m, spec.thickness_m, pmax, ph.r_ratio, spec.material["yield_strength_pa"])
-    try:
-        write_test_report(out_dir, {"cycles": table["cycle"][test], "a_m": table["a_m"][test],
-                                    "pmax_n": table["fmax_n"][test], "pmin_n": table["fmin_n"][test]},
-                          setup, title=f"Simulated test {spec.name}")
-    except HtmError as e:  # too little growth for the E647 reduction: the run itself stands
-        return f"not written: {e}"
-    return str(out_dir / "report.md")
 
 
 def summary_text(spec: TestSpec, s: dict[str, Any]) -> str:
@@ -240,6 +220,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     out_dir = Path(args.out)
     if (out_dir / "summary.json").exists():
         raise HtmError(f"{out_dir} already holds a test (summary.json); choose another --out")
+    writable(out_dir)  # before the test runs: a test must not end "finished" with nowhere to write
     if args.no_store:
         out, wall = run_spec(spec, mode, progress=not args.quiet)
         s = write_outputs(out_dir, spec, out, wall, mode)
@@ -271,6 +252,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_store_args(p)
     p.add_argument("--no-store", action="store_true", help="do not record into the store (no journal, no resume, no recording)")
     p.set_defaults(func=cmd_run)
+
+
+def writable(out_dir: Path) -> None:
+    """Create `out_dir` and check a file can be written in it (raises HtmError naming it)."""
+    import tempfile
+
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=out_dir):
+            pass
+    except OSError as e:
+        raise HtmError(f"--out {out_dir}: cannot write there ({e.strerror or e}); nothing was run") from None
 
 
 def add_store_args(p: argparse.ArgumentParser) -> None:

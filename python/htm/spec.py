@@ -18,6 +18,9 @@ from htm.params import thesis_rig, with_overrides
 MODES = ("constant_force", "constant_delta_k", "k_gradient")
 WAVEFORMS = ("sine", "triangle", "trapezoid")
 E647_MIN_K_GRADIENT_PER_M = -80.0  # −0.08 mm⁻¹
+MAX_COUNT = 10**12  # cycle counts (far beyond any test, far inside the core's u64)
+MAX_RATE_HZ = 1e5  # control rate
+MIN_SAMPLES_PER_CYCLE = 16
 
 
 @dataclass
@@ -127,10 +130,10 @@ def _num(d: dict, key: str, where: str, lo: float | None = None, hi: float | Non
     return v
 
 
-def _int(d: dict, key: str, where: str, lo: int, default: int) -> int:
+def _int(d: dict, key: str, where: str, lo: int, default: int, hi: int = MAX_COUNT) -> int:
     v = d.get(key, default)
-    if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-        raise SpecError(f"{where}.{key} = {v!r} must be an integer ≥ {lo}")
+    if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+        raise SpecError(f"{where}.{key} = {v!r} must be an integer in [{lo}, {hi:,}]")
     return v
 
 
@@ -203,8 +206,11 @@ def parse(doc: dict, name: str = "test") -> TestSpec:
         shape = {"rise_fraction": rise, "hold_fraction": _num(ld, "hold_fraction", "loading", 0.0, 1.0 - 2.0 * rise)}
     elif "rise_fraction" in ld or "hold_fraction" in ld:
         raise SpecError("loading: rise_fraction / hold_fraction need waveform = \"trapezoid\"")
-    freq = _num(ld, "frequency_hz", "loading", 0.0, lo_open=True, unit="Hz")
-    rate = _num(ld, "control_rate_hz", "loading", 16.0 * freq, 1e5, default=1000.0, unit=f"Hz (≥ 16 samples per cycle at {freq:g} Hz)")
+    fmax = MAX_RATE_HZ / MIN_SAMPLES_PER_CYCLE
+    freq = _num(ld, "frequency_hz", "loading", 0.0, fmax, lo_open=True,
+                unit=f"Hz ({MIN_SAMPLES_PER_CYCLE} samples per cycle at a control rate ≤ {MAX_RATE_HZ:g} Hz)")
+    rate = _num(ld, "control_rate_hz", "loading", MIN_SAMPLES_PER_CYCLE * freq, MAX_RATE_HZ, default=1000.0,
+                unit=f"Hz (≥ {MIN_SAMPLES_PER_CYCLE} samples per cycle at {freq:g} Hz)")
     if "end_a_m" in ld_main:
         raise SpecError("loading.end_a_m: the test ends at [end] a_over_w")
     phases = []

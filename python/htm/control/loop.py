@@ -11,7 +11,7 @@ from collections import deque
 from typing import Any, Callable
 
 from htm import _core
-from htm.control.safety import CH, EventLog, Safety
+from htm.control.safety import CH, FRACTURE_STATES, EventLog, FractureWatch, Safety
 from htm.control.timing import Timing
 from htm.devices.analog import AnalogIO
 from htm.devices.config import RigConfig
@@ -20,6 +20,7 @@ from htm.devices.transducer import TransducerMaster
 ERROR_WINDOW = 50  # periods over which CAN error frames are counted
 SPIN_NS = 300_000  # real time: sleep until this long before the deadline, then spin
 FEED_HZ = 20.0
+PLAUS_WINDOW = 4  # periods over which the position is checked against the integrated speed
 LOCKSTEP_REPLY_S = 0.05  # lock-step against a rig in another process: its answer to one SYNC
 
 
@@ -54,8 +55,9 @@ class ControlLoop:
         self._weight = params["moving_mass_kg"] * params["gravity_m_s2"]
         self._errs: deque[int] = deque([0] * ERROR_WINDOW, maxlen=ERROR_WINDOW)
         self._err_seen = 0
-        self._y_prev = math.nan
-        self._v_prev = math.nan
+        # fresh position samples of the last PLAUS_WINDOW periods: (period, y, v)
+        self._fresh: deque[tuple[int, float, float]] = deque(maxlen=PLAUS_WINDOW + 1)
+        self._fracture = FractureWatch(self.dt, cfg.transducer.speed_resolution_m_s)
         self._last_results = 0
         self._decim = max(1, round(self.rate_hz / FEED_HZ))
         # how long to wait for this SYNC's TPDO: a share of the period in real time; in lock-step
@@ -64,6 +66,9 @@ class ControlLoop:
             self._wait = cfg.loop.tpdo_wait * self.dt
         else:
             self._wait = 0.0 if pump_rig is not None else LOCKSTEP_REPLY_S
+        # per-cycle rows of every test of the session, each tagged with its test's number (`test`):
+        # cycle numbers restart at 1 with each test, so a consumer keeps to its own test's rows
+        self.test_no = 0
         self.cycles: deque[dict[str, Any]] = deque(maxlen=100_000)
         self.feed: deque[dict[str, Any]] = deque(maxlen=400)
         self.commands: deque[Callable[[], None]] = deque()
@@ -147,6 +152,7 @@ class ControlLoop:
             r = c.last_cycle()  # None when a new test has just replaced the controller
         if r is not None:
             r["period"] = self.k
+            r["test"] = self.test_no
             self.cycles.append(r)
             val[CH["amplitude_error_pct"]] = 0.0 if r["starting"] else r["df_err_pct"]
         elif st not in ("running", "holding"):
@@ -160,11 +166,16 @@ class ControlLoop:
         val[CH["bus_off"]] = 1.0 if m.bus_off else 0.0
         fresh = m.age_periods == 0
         plaus = 0.0
-        if fresh and math.isfinite(y) and math.isfinite(self._y_prev):
-            plaus = abs((y - self._y_prev) - 0.5 * (v + self._v_prev) * self.dt)
+        if fresh and math.isfinite(y):
+            plaus = self._plausibility(y, v)
         val[CH["position_plausibility_m"]] = plaus
-        if fresh:
-            self._y_prev, self._v_prev = y, v
+        unexplained = 0.0
+        if st in FRACTURE_STATES and c.targets is not None and fresh and math.isfinite(y):
+            fw = self._fracture
+            if fw.test is not c:  # a new test (a new controller): a new specimen, its own stiffness
+                fw.new_test(c, c.info()["samples_per_cycle"])
+            unexplained = fw.update(self.k, f, v, c.targets[0] - c.targets[1])
+        val[CH["force_unexplained"]] = unexplained
         f_hyd = self._area_a * p_a - self._area_b * p_b - self._weight
         val[CH["load_plausibility_n"]] = abs(f - f_hyd) if self.powered else 0.0
         worst = self.safety.check(self.k)
@@ -190,6 +201,20 @@ class ControlLoop:
         if self.k % self._decim == 0:
             self.feed.append({"period": self.k, "t_s": self.k * self.dt, "state": c.state, **mm})
         return u
+
+    def _plausibility(self, y: float, v: float) -> float:
+        """|position change − integrated speed| [m] over the fresh samples of the last
+        PLAUS_WINDOW periods (trapezoid): a frozen or jumping position adds up period by period,
+        so a transducer stuck at a slow move shows within a few periods, while the quantisation
+        of one sample does not grow. A silence breaks the window (its own detector's business)."""
+        w = self._fresh
+        if w and w[-1][0] != self.k - 1:
+            w.clear()
+        w.append((self.k, y, v))
+        if len(w) < 2:
+            return 0.0
+        dist = sum(0.5 * (a[2] + b[2]) * self.dt for a, b in zip(w, list(w)[1:]))
+        return abs((w[-1][1] - w[0][1]) - dist)
 
     # -- schedulers ---------------------------------------------------------------------------------
     def run_lockstep(self, periods: int) -> None:

@@ -1,9 +1,11 @@
 """Recording a live test from the device loop into the test store (`htm.record.TestWriter`).
 
-A thread beside the loop (never in it) drains what the loop publishes — per-cycle results, the
-decimated signal feed, the event log — every `PERIOD_S` and hands it to the writer, which
-journals it first. When the test ends (the controller stops, a trip powers off, the session
-closes) the writer is closed with the matching status, so the Results screen and `htm db` see it.
+One recorder per test: a thread beside the loop (never in it) drains what the loop publishes for
+that test — its per-cycle rows (tagged with the test's number), the decimated signal feed, the
+event log — every `PERIOD_S` and hands it to the writer, which journals it first. When the test
+ends (the controller stops, a trip powers off, another test starts, the session closes) the writer
+is closed with the matching status and end reason and the test's report is written beside it, so
+the Results screen and `htm db` see it.
 """
 from __future__ import annotations
 
@@ -26,7 +28,7 @@ def _columns(rows: list[dict[str, Any]], keys: dict[str, str] | None = None) -> 
         return {}
     if keys is not None:
         return {out: np.array([float(r.get(k, math.nan)) for r in rows]) for k, out in keys.items()}
-    names = [k for k, v in rows[0].items() if isinstance(v, (int, float, bool)) and k != "period"]
+    names = [k for k, v in rows[0].items() if isinstance(v, (int, float, bool)) and k not in ("period", "test")]
     cols = {k: np.asarray([r[k] for r in rows]) for k in names}
     cols.setdefault("events", np.zeros(len(rows), np.uint32))  # the engine table's event bits (none here)
     return cols
@@ -37,19 +39,25 @@ class LiveRecorder:
     or `stop()`. The store and its writer live on the recorder's own thread (SQLite connections
     stay with the thread that made them)."""
 
-    def __init__(self, session: Any, store_root: Any, name: str, spec_body: str, frequency_hz: float,
-                 first_event: int, *, recording: bool = True) -> None:
+    def __init__(self, session: Any, store_root: Any, spec: Any, test_no: int, first_event: int, *,
+                 recording: bool = True) -> None:
+        from htm.control.session import cfg_for_store
         from htm.record import Store, TestWriter
+        from htm.record.writer import spec_json
 
         self.s = session
+        self.spec = spec
+        self.test_no = test_no
         self.w: Any = None
         self.ready = threading.Event()
-        self._open = lambda: TestWriter.create(Store(store_root), name, "device", session.cfg.loop.mode, "json",
-                                               spec_body, frequency_hz, recording=recording)
+        body = spec_json(cfg_for_store(spec))
+        self._open = lambda: TestWriter.create(Store(store_root), spec.name, "device", session.cfg.loop.mode, "json",
+                                               body, spec.frequency_hz, recording=recording)
         self.period = session.loop.k
         self.cycle = 0
         self.event = first_event
         self.status: str | None = None
+        self._last_a = spec.a0_m
         self.error: str | None = None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="htm-recorder", daemon=True)
@@ -65,16 +73,19 @@ class LiveRecorder:
         if lp is None:
             return
         feed = [x for x in list(lp.feed) if x["period"] > self.period]
-        rows = [r for r in list(lp.cycles) if r["cycle"] > self.cycle and r.get("period", 0) > 0]
+        rows = [r for r in list(lp.cycles) if r["test"] == self.test_no and r["cycle"] > self.cycle]
         events = self.s.log.since(self.event)
         if feed:
             self.period = feed[-1]["period"]
             self.w.signals(_columns(feed, SIGNALS))
+        prev = self.cycle
         if rows:
             self.cycle = rows[-1]["cycle"]
+            self._last_a = rows[-1]["a_m"]
             self.w.cycles(_columns(rows))
-        for e in events:
-            self.w.event(e["kind"], e["message"], cycle=self.cycle, time_s=e["period"] * lp.dt,
+        for e in events:  # dated by the last cycle of this test that closed before it
+            c = max((r["cycle"] for r in rows if r["period"] <= e["period"]), default=prev)
+            self.w.event(e["kind"], e["message"], cycle=c, time_s=e["period"] * lp.dt,
                          level="WARN" if e["kind"] in ("trip", "estop", "error") else "INFO")
         self.event += len(events)
 
@@ -95,14 +106,16 @@ class LiveRecorder:
                     self._close("stopped", "session closed")
                     return
                 lp = self.s.loop
-                c = lp.ctrl if lp is not None else None
-                ended = c is None or (c.state in ("stopped", "idle") and not lp.powered)
-                tripped = lp is not None and not lp.powered and lp.safety.latched() == "power_off"
+                if lp is None or lp.test_no != self.test_no:  # the session closed or another test replaced this one
+                    self._close("stopped", "replaced by a new test" if lp is not None else "session closed")
+                    return
+                c = lp.ctrl
+                ended = c.state in ("stopped", "idle") and not lp.powered
+                tripped = not lp.powered and lp.safety.latched() == "power_off"
                 if ended or tripped:
                     self._drain()
-                    end = getattr(c, "end_reason", None)
-                    reason = end or (f"interlock {lp.safety.latched()}" if lp is not None and lp.safety.latched() else "stopped")
-                    self._close("finished" if end else "stopped", reason)
+                    end = c.end_reason
+                    self._close("finished" if end else "stopped", end or self._stop_reason(lp))
                     return
         except (HtmError, OSError) as e:  # the store failed: say so; the loop runs on safely
             self.error = str(e)
@@ -112,12 +125,66 @@ class LiveRecorder:
             except (HtmError, OSError):
                 pass
 
+    @staticmethod
+    def _stop_reason(lp: Any) -> str:
+        """Why a test ended that its controller did not end: the e-stop, a stop or power-off
+        interlock (by detector), else the operator (an indicate-only trip stops nothing)."""
+        if lp.safety.estop:
+            return "estop"
+        if lp.safety.interlocked():
+            names = [d["name"] for d in lp.safety.describe() if d["latched"] and d["action"] != "indicate"]
+            return f"interlock {lp.safety.latched()} ({', '.join(names)})"
+        return "operator stop"
+
     def _close(self, status: str, reason: str | None) -> None:
-        if self.status is None:
-            self.status = status
-            self.w.close(status, reason, {"cycles": self.cycle})
+        if self.status is not None:
+            return
+        self.status = status
+        results = {"cycles": self.cycle}
+        if self.cycle:
+            results["final_a_m"] = float(self._last_a)
+        self.w.close(status, reason, results)
+        self._report(reason)
+
+    def _report(self, reason: str | None) -> None:
+        """The test's report beside its tables (the E647 one when the crack grew enough, else a
+        summary that says why not); a report that cannot be written is an event, not a failure."""
+        from htm.fatigue.report import spec_test_report
+
+        st, d = self.w.store, self.w.dir
+        try:
+            table = st.cycles(self.w.id)
+            e647 = spec_test_report(d, self.spec, table, f"Test {self.spec.name} on the rig ({self.w.id})")
+            if e647 is None or e647.startswith("not written"):
+                (d / "report.md").write_text(summary_markdown(self.spec, st.get(self.w.id), table, e647))
+            st.add_file(self.w.id, "report", d / "report.md")
+        except (HtmError, OSError, KeyError, ValueError) as e:
+            self.s.log.add(self.period, "error", f"test {self.w.id}: report not written: {e}")
 
     def stop(self) -> None:
         """Flush what is left and close the test as stopped (the session is closing)."""
         self._stop.set()
         self._thread.join(10.0)
+
+
+def summary_markdown(spec: Any, row: dict[str, Any], table: dict[str, np.ndarray], why: str | None) -> str:
+    """A live test's short report: what ran, how it ended, the force errors and the events."""
+    n = len(table.get("cycle", []))
+    lines = [f"# Test {spec.name} on the rig ({row['id']})", "",
+             f"- status: **{row['status']}**, end reason: {row['end_reason'] or '-'}",
+             f"- {spec.geometry.upper()} W = {spec.width_m * 1e3:.1f} mm, B = {spec.thickness_m * 1e3:.2f} mm, "
+             f"{spec.waveform} {spec.frequency_hz:g} Hz",
+             f"- cycles recorded: {n:,}"]
+    if n:
+        test = ~np.asarray(table.get("starting", np.zeros(n, bool)), dtype=bool)
+        a = table["a_m"]
+        lines.append(f"- crack: a = {spec.a0_m * 1e3:.3f} → {float(a[-1]) * 1e3:.3f} mm")
+        if test.any():
+            lines.append(f"- force error after the ramp-in: max |ΔF| {np.nanmax(np.abs(table['df_err_pct'][test])):.3f} %, "
+                         f"max |peak| {np.nanmax(np.abs(table['peak_err_pct'][test])):.3f} % (ISO 12108 band ±2 %)")
+    lines.append(f"- E647 reduction: {why or 'not applicable to this test'}")
+    lines += ["", "## Events", ""]
+    for e in row["events"]:
+        at = "" if e["cycle"] is None else f"cycle {e['cycle']:,}: "
+        lines.append(f"- {at}{e['kind']} {e['detail'] or ''}")
+    return "\n".join(lines) + "\n"

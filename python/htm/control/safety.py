@@ -12,6 +12,99 @@ from htm.devices.config import CHANNELS, RigConfig
 
 SEVERITY = {"indicate": 0, "hold": 1, "stop": 2, "power_off": 3}
 CH = {name: i for i, name in enumerate(CHANNELS)}
+FRACTURE_WINDOW = 4  # periods over which the force is checked against the specimen's stiffness
+FRACTURE_ZERO = 0.1  # a broken specimen carries no force: |force| within this share of the force range
+FRACTURE_STATES = ("starting", "running", "holding", "stopping")  # a force test holds the specimen
+
+
+class FractureWatch:
+    """Has the specimen broken? A gripped specimen is a spring: each period's force change is
+    its stiffness times the piston's displacement (the transducer's speed, trapezoid-integrated:
+    its 5 µm position steps are worth ~500 N on a C(T) specimen, its 0.1 mm/s speed steps ~20 N).
+    A specimen that breaks carries no force from one period to the next: the force falls to
+    zero while the piston, relieved, moves on, so the force is less than the stretch says by
+    about the force the specimen carried — at a valley too, where the force barely moves and
+    stays inside the force band (R = 0.1: 0.11 of the range).
+
+    The stiffness is measured, not assumed (grips and frame are in series with the specimen):
+    a least-squares fit of force change on displacement over each whole cycle (`n` periods)
+    that moved the force, used from the next cycle on, so a break cannot pull the estimate
+    down before it is judged. Each period's residual (force change − stiffness × displacement)
+    is taken towards zero force (negative in tension, positive in compression: the side the
+    specimen was last loaded on). It has a periodic part (the speed is sampled once a period
+    while a stiff specimen's force wave has kinks the sample does not see; a DAQ read later
+    than the SYNC) that repeats every cycle, so it is summed over FRACTURE_WINDOW periods both
+    as is and less the same periods one cycle earlier, and the smaller sum counts: a break shows
+    in both, a repeating pattern or a slow change of amplitude in at most one. What the speed's
+    quantisation can account for is taken off.
+
+    Only while the force looks like a broken specimen's does it count: within FRACTURE_ZERO of
+    the force range of zero, and no larger in magnitude than the largest in the window (by more
+    than 2 % of the range). A valve fault that rings the piston faster than the speed is sampled
+    also leaves a large residual, but with the specimen loading or loaded (the force band's
+    business). The value is a fraction of the test's force range (its targets Fmax − Fmin);
+    zero until the first cycle has given a stiffness, outside a force test, and for a stale or
+    invalid sample (those have their own detectors; a gap restarts the window)."""
+
+    def __init__(self, dt: float, speed_resolution_m_s: float):
+        self.dt = dt
+        self.speed_res = speed_resolution_m_s
+        self.test: object = None
+        self.n = 0
+        self.k_n_m: float | None = None
+
+    def new_test(self, test: object, samples_per_cycle: int) -> None:
+        self.test, self.n, self.k_n_m = test, max(1, samples_per_cycle), None
+        self._hist: list[tuple[int, float]] = [(-1, 0.0)] * self.n
+        self._block = [0.0, 0.0, 0.0, 0]  # Σ dF·ds, Σ ds², Σ |dF|, periods
+        self._side = 1.0  # +1 tension, −1 compression
+        self._restart()
+
+    def _restart(self) -> None:
+        self._last: tuple[int, float, float] | None = None
+        self._win: deque[tuple[float, float, float]] = deque(maxlen=FRACTURE_WINDOW)
+
+    def update(self, k: int, f: float, v: float, span_n: float) -> float:
+        """Period `k`'s force `f` [N] and fresh speed `v` [m/s]; `span_n` = Fmax − Fmin of the
+        test's targets. Returns how far the force falls short of the stretch over the window, as
+        a fraction of `span_n` (0 unless the force has fallen to near zero)."""
+        if not (math.isfinite(f) and math.isfinite(v) and span_n > 0.0):
+            self._restart()
+            return 0.0
+        last = self._last
+        self._last = (k, f, v)
+        if last is None or last[0] != k - 1:
+            self._win.clear()
+            return 0.0
+        df = f - last[1]
+        ds = 0.5 * (v + last[2]) * self.dt
+        b = self._block
+        b[0] += df * ds
+        b[1] += ds * ds
+        b[2] += abs(df)
+        b[3] += 1
+        if b[3] >= self.n:  # a cycle's worth: refit when the force moved (not while held)
+            if b[2] >= 0.2 * span_n and b[1] > 0.0 and b[0] > 0.0:
+                self.k_n_m = b[0] / b[1]
+            self._block = [0.0, 0.0, 0.0, 0]
+        if self.k_n_m is None:
+            return 0.0
+        r = df - self.k_n_m * ds
+        i = k % self.n
+        pk, pr = self._hist[i]
+        self._hist[i] = (k, r)
+        if abs(last[1]) > 0.02 * span_n:  # the side the specimen is loaded on (kept through zero)
+            self._side = 1.0 if last[1] > 0.0 else -1.0
+        side = self._side
+        win = self._win
+        # per period, how far the force fell short of the stretch towards zero: as is and less
+        # the same period's residual one cycle earlier
+        win.append((-side * r, -side * (r - pr) if pk == k - self.n else -side * r, last[1]))
+        if abs(f) > FRACTURE_ZERO * span_n or abs(f) > max(abs(w[2]) for w in win) + 0.02 * span_n:
+            return 0.0  # loaded, or loading (beyond the noise): not a break
+        short = min(sum(w[0] for w in win), sum(w[1] for w in win))
+        quantum = self.k_n_m * self.speed_res * self.dt * len(win)
+        return max(short - quantum, 0.0) / span_n
 
 
 class EventLog:

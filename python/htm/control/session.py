@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 import sys
 import threading
+import time
 from concurrent.futures import Future
 from pathlib import Path
 from typing import Any, Callable
@@ -40,6 +41,10 @@ from htm.errors import DeviceError, HtmError, InterlockTripped
 from htm.params import with_overrides
 
 COMMAND_TIMEOUT_S = 5.0
+# how long a motion command waits for the unloaded supply to come up to its detector's range [s]
+SUPPLY_TIMEOUT_S = 3.0
+# how long open() waits for the loop's first valid position and force reading [s]
+FIRST_READING_S = 2.0
 
 
 def cfg_for_store(spec) -> dict[str, Any]:
@@ -91,7 +96,7 @@ class Session:
             if virtual:
                 self.rig = VirtualRig(cfg, specimen, threaded=True)
             bus = open_bus(cfg.bus)
-            self._net = network_on(bus, threaded=True)
+            self._net = network_on(bus, threaded=True, lockstep=cfg.loop.mode == "lockstep")
             self._io = AnalogIO(cfg.analog)
             master = TransducerMaster(self._net, cfg.transducer, 1.0 / cfg.loop.rate_hz)
             info = master.configure()
@@ -115,7 +120,26 @@ class Session:
             if cfg.loop.mode == "realtime" or paced:
                 sys.setswitchinterval(5e-4)  # other threads must not hold the GIL for 5 ms
             self._thread.start()
+        try:
+            self._first_reading()
+        except BaseException:
+            self.close()
+            raise
         return self
+
+    def _first_reading(self) -> None:
+        """Return once the loop has measured a finite position and force, so a command right
+        after open() (move_to, tare) never acts on the NaN of "no reading yet"."""
+        lp = self.loop
+        t0 = time.monotonic()
+        while not (math.isfinite(lp.meas["y"]) and math.isfinite(lp.meas["f"])):
+            if time.monotonic() - t0 > FIRST_READING_S:
+                raise DeviceError(f"no valid position and force reading {FIRST_READING_S:g} s after open "
+                                  f"(y = {lp.meas['y']}, force = {lp.meas['f']}): check the transducer and the load cell")
+            if self._thread is None:
+                lp.period()
+            else:
+                time.sleep(0.005)
 
     def _first_contact(self, in_process: bool) -> None:
         """SYNC until the transducer answers (after NMT start), before the limits are armed."""
@@ -210,21 +234,60 @@ class Session:
             latched = [d["name"] for d in s.describe() if d["latched"]] + (["estop"] if s.estop else [])
             raise InterlockTripped(f"interlock latched ({', '.join(latched)}): reset() first")
 
+    def _supply_min_pa(self) -> float:
+        """The lowest supply pressure the detectors accept [Pa] (0 without a supply limit)."""
+        return max((l.lo for l in self.cfg.limits if l.channel == "p_s_pa" and l.action != "indicate"), default=0.0)
+
+    def _load_supply(self) -> None:
+        """Load the supply and wait until its pressure is within its detector's range, before
+        anything is energised: after a stop, a trip or an e-stop the supply is unloaded, and
+        energising at once would trip the supply detector. Waits at most SUPPLY_TIMEOUT_S."""
+        lp = self.loop
+        need = self._supply_min_pa()
+        if lp.powered or lp.meas["p_s"] >= need:
+            return
+        self._do(lambda: lp.io.write_supply(lp.supply_pa), "load supply")
+        k0, t0 = lp.k, time.monotonic()
+        while not lp.meas["p_s"] >= need:
+            waited = (lp.k - k0) * lp.dt
+            if waited > SUPPLY_TIMEOUT_S or time.monotonic() - t0 > 3 * SUPPLY_TIMEOUT_S + 1.0:
+                p = lp.meas["p_s"]
+                self._do(lambda: lp.io.write_supply(0.0), "unload supply (it did not come up)")
+                raise DeviceError(f"the supply pressure did not come up: p_s = {p / 1e5:.1f} bar after {SUPPLY_TIMEOUT_S:g} s, "
+                                  f"the supply_pressure limit needs ≥ {need / 1e5:.1f} bar — check the pump and the relief "
+                                  "valve; nothing was energised")
+            if self._thread is None:
+                lp.period()
+            else:
+                time.sleep(0.005)
+
+    def _reading(self, key: str, what: str) -> float:
+        v = self.loop.meas[key]
+        if not math.isfinite(v):
+            raise DeviceError(f"{what}: no valid reading ({key} = {v}); nothing was changed")
+        return v
+
     def position(self) -> None:
         """Position control holding where the piston is (installation), amplifier on."""
+        self._motion_allowed()
+        self._load_supply()
+
         def f() -> None:
             self._motion_allowed()
             lp = self.loop
-            lp.ctrl.position(lp.meas["y"], 0.0)
+            lp.ctrl.position(self._reading("y", "position control"), 0.0)
             lp.energise()
         self._do(f, "position control")
 
     def _in_position(self, fn: Callable[[], None], what: str) -> None:
+        self._motion_allowed()
+        self._load_supply()
+
         def f() -> None:
             self._motion_allowed()
             lp = self.loop
             if lp.ctrl.state != "position":
-                lp.ctrl.position(lp.meas["y"], 0.0)
+                lp.ctrl.position(self._reading("y", what), 0.0)
             lp.energise()
             fn()
         self._do(f, what)
@@ -245,7 +308,7 @@ class Session:
         """Zero the load cell at its present reading; returns the offset [N]."""
         def f() -> float:
             lp = self.loop
-            lp.load_offset_n += lp.meas["f"]
+            lp.load_offset_n += self._reading("f", "tare")  # a NaN offset would poison every later force
             return lp.load_offset_n
         return self._do(f, "tare load cell")
 
@@ -256,6 +319,7 @@ class Session:
         With `record` the test goes into the test store (`store`: root folder, default
         $HTM_STORE) with a rerun recording (`recording`), see `htm.control.recorder`."""
         self._motion_allowed()
+        self._load_supply()
         cfg = spec.to_config()
         cfg["params"] = with_overrides(_core.Params(self.cfg.rig_preset), self.cfg.rig_overrides)
         lp = self.loop
@@ -263,21 +327,21 @@ class Session:
         f0 = lp.meas["f"] if f0_n is None else f0_n
         ctrl.start_test(cfg, 0.0 if math.isnan(f0) else f0)
 
-        def f() -> None:
+        def f() -> int:
             self._motion_allowed()
             lp.ctrl = ctrl
+            lp.test_no += 1  # this test's rows carry its number (cycles restart at 1)
             lp.energise()
-        if self.recorder is not None:
+            return lp.test_no
+        if self.recorder is not None:  # the previous test's recorder: flushed and closed
             self.recorder.stop()
             self.recorder = None
-        first_event = len(self.log.since(0))
-        self._do(f, f"start test {spec.name}")
-        if record:
+        first_event = self.log.count
+        test_no = self._do(f, f"start test {spec.name}")
+        if record:  # one live recorder per test
             from htm.control.recorder import LiveRecorder
-            from htm.record.writer import spec_json
 
-            self.recorder = LiveRecorder(self, store, spec.name, spec_json(cfg_for_store(spec)), spec.frequency_hz,
-                                         first_event, recording=recording)
+            self.recorder = LiveRecorder(self, store, spec, test_no, first_event, recording=recording)
 
     def hold(self) -> None:
         self._do(self.loop.ctrl.hold, "hold")
@@ -323,10 +387,10 @@ class Session:
         """Live numbers (SI): see the module docstring."""
         lp = self.loop
         c = lp.ctrl
-        last = lp.cycles[-1] if lp.cycles else None
+        last = lp.cycles[-1] if lp.cycles and lp.cycles[-1]["test"] == lp.test_no else None
         info = c.info()
         return {
-            "period": lp.k, "t_s": lp.k * lp.dt, "state": c.state, "mode": self.cfg.loop.mode, "rate_hz": lp.rate_hz,
+            "period": lp.k, "t_s": lp.k * lp.dt, "test": lp.test_no, "state": c.state, "mode": self.cfg.loop.mode, "rate_hz": lp.rate_hz,
             "amplifier": lp.powered, "interlock": lp.safety.latched(), "estop": lp.safety.estop,
             "cycles": c.cycle, "frequency_hz": info["frequency_hz"], "a_m": c.a_m, "end_reason": c.end_reason,
             "delta_k_pa_sqrt_m": last["delta_k_pa_sqrt_m"] if last else math.nan,
@@ -341,7 +405,9 @@ class Session:
         return [s for s in list(self.loop.feed) if s["period"] > period]
 
     def cycles_since(self, cycle: int = 0) -> list[dict[str, Any]]:
-        return [r for r in list(self.loop.cycles) if r["cycle"] > cycle]
+        """Per-cycle rows of the present (or last) test after `cycle`."""
+        n = self.loop.test_no
+        return [r for r in list(self.loop.cycles) if r["test"] == n and r["cycle"] > cycle]
 
     def events_since(self, n: int = 0) -> list[dict[str, Any]]:
         return self.log.since(n)

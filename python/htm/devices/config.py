@@ -41,7 +41,7 @@ INTERFACES = ("virtual", "udp_multicast", "socketcan")
 # Limit detectors: name -> (channel, lo, hi, action). Channels are the loop's watched values.
 CHANNELS = ("position_m", "velocity_m_s", "force_n", "p_a_pa", "p_b_pa", "p_s_pa", "following_error_m",
             "amplitude_error_pct", "force_band", "transducer_age_periods", "transducer_fault", "heartbeat_age_s",
-            "can_error_frames", "bus_off", "position_plausibility_m", "load_plausibility_n")
+            "can_error_frames", "bus_off", "position_plausibility_m", "load_plausibility_n", "force_unexplained")
 DEFAULT_LIMITS: dict[str, dict[str, Any]] = {
     "position": {"channel": "position_m", "lo": 0.002, "hi": 0.198, "action": "stop"},
     "velocity": {"channel": "velocity_m_s", "lo": -0.3, "hi": 0.3, "action": "power_off"},
@@ -59,6 +59,10 @@ DEFAULT_LIMITS: dict[str, dict[str, Any]] = {
     "bus_off": {"channel": "bus_off", "lo": 0.0, "hi": 0.0, "action": "power_off"},
     "position_plausibility": {"channel": "position_plausibility_m", "lo": 0.0, "hi": 15e-6, "action": "power_off"},
     "load_plausibility": {"channel": "load_plausibility_n", "lo": 0.0, "hi": 3000.0, "action": "hold"},
+    # the specimen broke: the force stopped following the displacement (htm.control.safety.FractureWatch,
+    # a fraction of the test's force range); with nothing to push against, the force loop would drive
+    # the piston into its end stop, so the amplifier goes off at once
+    "fracture": {"channel": "force_unexplained", "lo": 0.0, "hi": 0.05, "action": "power_off"},
 }
 ACTIONS = ("indicate", "hold", "stop", "power_off")
 

@@ -39,7 +39,7 @@ class VirtualRig:
         self.daq = SimulatedDaq(cfg.analog.device, create=True)
         try:
             self.bus = open_bus(cfg.bus)
-            self.net = network_on(self.bus, threaded)
+            self.net = network_on(self.bus, threaded, lockstep=cfg.loop.mode == "lockstep")
             self._write_sensors(self.plant.outputs())
             self.daq.write_output(self._supply, self.params["supply_pressure_pa"] / SUPPLY_PA_PER_V)
             self.device = TransducerDevice(self.net, cfg.transducer, self._on_sync)

@@ -270,3 +270,27 @@ def write_test_report(out: str | Path, table: dict, setup: Setup, *, specimen_in
     (out / "report.html").write_text(markdown_to_html(md, {a_n.name: a_n, dadn.name: dadn}, title))
     return {"markdown": out / "report.md", "html": out / "report.html", "reduced": out / "reduced.csv",
             "model": model, "force_band": fb, "validity": s}
+
+
+def spec_test_report(out_dir: Path, spec, table: dict, title: str) -> str | None:
+    """The test report (a–N, da/dN–ΔK, force band) of a test of `spec` (htm.spec.TestSpec) from its
+    per-cycle table (engine columns), when it has enough crack growth: the path of report.md,
+    "not written: why" when the E647 reduction refuses, None for a test it does not apply to."""
+    from htm.errors import HtmError
+
+    if not table or "cycle" not in table:
+        return None
+    test = (np.asarray(table["events"]).astype(np.uint32) & (1 | 128)) == 0
+    if "starting" in table:  # the device loop's rows flag the ramp-in instead of an event bit
+        test &= ~np.asarray(table["starting"], dtype=bool)
+    ph = spec.phases[-1]
+    if spec.geometry not in ("ct", "mt") or test.sum() < 20 or ph.mode != "constant_force":
+        return None
+    pmax = ph.delta_f_n / (1 - ph.r_ratio) if ph.r_ratio >= 0 else ph.delta_f_n
+    setup = Setup(spec.geometry, spec.width_m, spec.thickness_m, pmax, ph.r_ratio, spec.material["yield_strength_pa"])
+    try:
+        write_test_report(out_dir, {"cycles": table["cycle"][test], "a_m": table["a_m"][test],
+                                    "pmax_n": table["fmax_n"][test], "pmin_n": table["fmin_n"][test]}, setup, title=title)
+    except HtmError as e:  # too little growth for the E647 reduction: the test itself stands
+        return f"not written: {e}"
+    return str(Path(out_dir) / "report.md")

@@ -25,6 +25,15 @@ def cmd_list(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_last(args: argparse.Namespace) -> int:
+    with Store(args.store) as store:
+        rows = store.list_tests()
+        if not rows:
+            raise RecordError(f"no tests in {store.root}")
+        print(rows[-1]["id"])
+    return 0
+
+
 def cmd_show(args: argparse.Namespace) -> int:
     with Store(args.store) as store:
         t = store.get(args.id)
@@ -45,8 +54,18 @@ def cmd_show(args: argparse.Namespace) -> int:
         for role, f in sorted(t["files"].items()):
             print(f"  {role:<10} {f['path']} ({(f['bytes'] or 0) / 1e6:.2f} MB)")
         if t["status"] != "finished":
-            print(f"resume with: htm resume {t['id']}")
+            print(resume_hint(t))
     return 0
+
+
+def resume_hint(t: dict) -> str:
+    """What can be done with a test that did not finish."""
+    if t["kind"] == "simulated" and t["status"] != "running":
+        return f"resume with: htm resume {t['id']}"
+    if t["status"] == "running":
+        return "the test is running (its writer holds it)"
+    return (f"a {t['kind']} test does not resume (the physical test cannot be continued from the store); "
+            f"every row recorded is kept: htm db export {t['id']} --out DIR")
 
 
 def cmd_export(args: argparse.Namespace) -> int:
@@ -71,12 +90,32 @@ def cmd_export(args: argparse.Namespace) -> int:
             else:
                 pq.write_table(tab, path, compression="zstd")
             written.append(path)
+        written += _copy_files(t, out)
         meta = {k: t[k] for k in ("id", "name", "kind", "mode", "status", "end_reason", "cycles", "a_end_m",
                                   "created_utc", "updated_utc", "results", "events")}
         (out / "test.json").write_text(json.dumps(meta, indent=1, default=float))
         (out / f"spec.{t['spec_format']}").write_text(t["spec"])
         print("exported: " + ", ".join(str(p) for p in [*written, out / "test.json"]))
     return 0
+
+
+def _copy_files(t: dict, out: Path) -> list[Path]:
+    """The test's other files (recording, report with its plots, summary) into `out`."""
+    import shutil
+
+    copied = []
+    for role, f in sorted(t["files"].items()):
+        src = Path(f["path"])
+        if role in ("cycles", "raw") or not src.exists():
+            continue
+        group = [src]
+        if role == "report":  # the report's plots and tables sit beside it
+            group += [p for p in src.parent.iterdir() if p.suffix in (".png", ".html") or p.name == "reduced.csv"]
+        for p in dict.fromkeys(group):
+            if not (out / p.name).exists():
+                shutil.copy2(p, out / p.name)
+                copied.append(out / p.name)
+    return copied
 
 
 def cmd_delete(args: argparse.Namespace) -> int:
@@ -111,6 +150,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     dsub = db.add_subparsers(dest="db_command", required=True, metavar="ACTION")
     p = dsub.add_parser("list", help="every test: id, status, cycles, end reason")
     p.set_defaults(func=cmd_list)
+    p = dsub.add_parser("last", help="the newest test's id (for scripts: ID=$(htm db last))")
+    p.set_defaults(func=cmd_last)
     p = dsub.add_parser("show", help="one test: status, results, events, files")
     p.add_argument("id")
     p.add_argument("--events", type=int, default=30, help="events to print (default 30)")

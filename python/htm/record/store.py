@@ -2,14 +2,19 @@
 one folder per test holding its journal, Parquet tables and rerun recording.
 
 Layout: `ROOT/catalogue.sqlite`, `ROOT/tests/ID/` with `journal-NNN.htmj` (while the test is open),
-`cycles.parquet` (one row per cycle, every cycle), `raw.parquet` (raw high-rate windows: the first
-cycles, a few cycles per decade, around events), `recording.rrd`. The root is `--store`, else
+`cycles.parquet` (one row per cycle run through the plant, and one per cycle jump), `raw.parquet`
+(raw high-rate windows: the first cycles, a few cycles per decade, around events), `recording.rrd`. The root is `--store`, else
 `$HTM_STORE`, else `~/.local/share/htm/store`. The schema version is SQLite's `user_version`;
 `MIGRATIONS[i]` takes a catalogue from version i to i + 1 inside one transaction.
 A catalogue that does not read as one raises `RecordError` and is left untouched.
+A test whose writer died (SIGKILL, power loss) is still `running` in the catalogue; the next
+`Store` opened on the root finds it (its folder's lock is free) and marks it `interrupted`, keeping
+every row its journal holds.
 """
 from __future__ import annotations
 
+import calendar
+import fcntl
 import json
 import os
 import secrets
@@ -49,7 +54,9 @@ MIGRATIONS = [
     """,
 ]
 SCHEMA_VERSION = len(MIGRATIONS)
-STATUSES = ("running", "finished", "stopped", "failed")
+STATUSES = ("running", "finished", "stopped", "failed", "interrupted")
+# a `running` test without a writer's lock file this young may be starting right now
+STARTING_S = 60.0
 
 
 def default_root() -> Path:
@@ -90,6 +97,44 @@ class Store:
         self.db.execute("PRAGMA foreign_keys = ON")
         for v in range(version, SCHEMA_VERSION):
             self._migrate(v)
+        self.mark_interrupted()
+
+    def mark_interrupted(self) -> list[str]:
+        """Mark `interrupted` every `running` test whose writer is gone (its lock is free): the
+        process was killed or the machine lost power. Its rows stay in its journal (`cycles()`
+        reads them); a simulated one continues with `htm resume`. Returns the ids marked."""
+        marked = []
+        for test_id, created in self.db.execute("SELECT id, created_utc FROM tests WHERE status = 'running'").fetchall():
+            if not self._writer_gone(test_id, created):
+                continue
+            try:
+                segs = journal.read_journal(self.test_dir(test_id))
+                last = max((int(r.arrays["cycle"][-1]) for s in segs for r in s.records
+                            if r.kind == journal.CHUNK and len(r.arrays.get("cycle", []))), default=0)
+                note = f"its writer stopped without closing it (killed or power lost); {last:,} cycles kept in its journal"
+            except RecordError as e:
+                last, note = None, f"its writer stopped without closing it; the journal does not read: {e}"
+            with self._tx():
+                self.db.execute("UPDATE tests SET status = 'interrupted', end_reason = 'interrupted', "
+                                "cycles = COALESCE(?, cycles), updated_utc = ? WHERE id = ? AND status = 'running'",
+                                (last, _now(), test_id))
+                self.db.execute("INSERT INTO events VALUES (?, ?, ?, 'interrupted', ?, 'store')",
+                                (test_id, last, None, note))
+            marked.append(test_id)
+        return marked
+
+    def _writer_gone(self, test_id: str, created_utc: str) -> bool:
+        lock = self.test_dir(test_id) / "lock"
+        if not lock.exists():
+            t = calendar.timegm(time.strptime(created_utc, "%Y-%m-%dT%H:%M:%SZ"))
+            return time.time() - t > STARTING_S or not self.test_dir(test_id).exists()
+        try:
+            with open(lock, "a+") as fh:
+                fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)  # taken: a live writer holds it
+                fcntl.flock(fh, fcntl.LOCK_UN)
+        except OSError:
+            return False
+        return True
 
     def _migrate(self, v: int) -> None:
         try:
@@ -170,7 +215,7 @@ class Store:
         return self.root / "tests" / test_id
 
     def list_tests(self) -> list[dict[str, Any]]:
-        cur = self.db.execute("SELECT * FROM tests ORDER BY created_utc, id")
+        cur = self.db.execute("SELECT * FROM tests ORDER BY created_utc, rowid")
         names = [d[0] for d in cur.description]
         return [dict(zip(names, r)) for r in cur.fetchall()]
 

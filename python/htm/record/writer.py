@@ -27,22 +27,29 @@ EVENT_NAMES = {1: "start", 2: "out_of_tolerance", 4: "tolerance_exceeded", 8: "s
                32: "stiffness_step", 64: "phase_change", 128: "stop", 256: "end"}
 # bits worth an entry in the catalogue's event list when they appear (START and JUMP are states)
 CATALOGUED = 2 | 4 | 8 | 32 | 64 | 256
+JUMP = 16
 # seconds between two checks that the recording's file writer is alive
 FLUSH_EVERY_S = 0.5
 
 
-def engine_events(table: dict[str, np.ndarray], frequency_hz: float) -> list[tuple[int, float, str, str]]:
-    """(cycle, time [s], kind, detail) for every notable event bit that appears in `table`."""
+def engine_events(table: dict[str, np.ndarray], frequency_hz: float, prev_cycle: int = 0) -> list[tuple[int, float, str, str]]:
+    """(cycle, time [s], kind, detail) for every notable event bit that appears in `table`
+    (`prev_cycle`: the cycle of the row before the table's first). A bit on a jump row happened
+    somewhere inside the jump: it is dated at the jump's first cycle, as the engine dates it
+    (`size_criterion_cycle`), so the summary and the store name the same cycle."""
     if not table or len(table.get("cycle", [])) == 0:
         return []
     ev = np.asarray(table["events"], dtype=np.uint32)
+    cyc = np.asarray(table["cycle"])
     prev = np.concatenate([[np.uint32(0)], ev[:-1]])
     out = []
     for bit, name in EVENT_NAMES.items():
         if not bit & CATALOGUED:
             continue
         for i in np.flatnonzero((ev & bit) & ~(prev & bit)):
-            c = int(table["cycle"][i])
+            c = int(cyc[i])
+            if ev[i] & JUMP:
+                c = (int(cyc[i - 1]) if i > 0 else prev_cycle) + 1
             out.append((c, c / frequency_hz, name, f"a = {float(table['a_m'][i]) * 1e3:.3f} mm" if "a_m" in table else ""))
     return sorted(out)
 
@@ -84,6 +91,7 @@ class TestWriter:
         self.last_cycle = max((int(r.arrays["cycle"][-1]) for s in old for r in s.records
                                if r.kind == journal.CHUNK and len(r.arrays.get("cycle", []))), default=0)
         self.rec = None
+        self._rec_cycle = 0  # the last cycle sent to the recording
         self._flushed = time.monotonic()
         if recording:
             from htm.record.streams import Recording
@@ -112,6 +120,7 @@ class TestWriter:
             raise RecordError(f"test {test_id} is finished; nothing to resume")
         segs = journal.read_journal(store.test_dir(test_id))  # raises on corruption, before any write
         w = cls(store, test_id, replay=True, **kw)
+        store.set_status(test_id, "running")  # held by this writer again (it was stopped or interrupted)
         return w, segs
 
     def _to_recording(self, r: journal.Record) -> None:
@@ -119,8 +128,10 @@ class TestWriter:
             return
         if r.kind == journal.CHUNK:
             self.rec.cycles(r.arrays)
-            for c, t, k, d in engine_events(r.arrays, self.frequency_hz):
+            for c, t, k, d in engine_events(r.arrays, self.frequency_hz, self._rec_cycle):
                 self.rec.event(k, d, c, t, "WARN" if k in ("tolerance_exceeded", "size_criterion") else "INFO")
+            if len(r.arrays.get("cycle", [])):
+                self._rec_cycle = int(r.arrays["cycle"][-1])
         elif r.kind == journal.SIGNALS:
             self.rec.signals(r.arrays)
         elif r.kind == journal.EVENT:

@@ -215,8 +215,7 @@ class HtmApp(App[None]):
     def action_estop(self) -> None:
         # straight from the UI thread: Session.estop only sets the latch the loop checks
         if self.session is not None and getattr(self.session, "loop", None) is not None:
-            self.session.estop()
-            self.log_event("[b red]E-STOP pressed[/]")
+            self.session.estop()  # the session logs it; the next poll shows it once
 
     def action_help(self) -> None:
         self.push_screen(HelpScreen())
@@ -224,10 +223,16 @@ class HtmApp(App[None]):
     def action_tab(self, tab: str) -> None:
         tabs = self.query_one("#tabs", TabbedContent)
         if tabs.query(f"#{tab}"):
+            # a widget left focused in the old tab would pull it back to the front
+            self.set_focus(None)
             tabs.active = tab
             pane = {"install": InstallPane, "run": RunPane, "results": ResultsPane}.get(tab)
             if pane is not None:
                 self.query_one(pane).focus()
+
+    def on_tabbed_content_tab_activated(self, ev: TabbedContent.TabActivated) -> None:
+        if ev.pane.id == "results":  # tests may have ended since: show the store as it is now
+            self.query_one(ResultsPane).action_refresh()
 
     def action_simulate(self) -> None:
         self.query_one(SetupPane).action_simulate()
@@ -244,12 +249,16 @@ class HtmApp(App[None]):
             self.session = None
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="htm-tui", description="The htm operator console: the built-in virtual rig, "
                                  "or the hardware a rig configuration (TOML) names.")
     ap.add_argument("--config", help="rig configuration (TOML); default: the built-in virtual rig")
     ap.add_argument("--store", help="test store folder (default: $HTM_STORE or ~/.local/share/htm/store)")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
     HtmApp(config=args.config, store=args.store).run()
     return 0
 

@@ -13,6 +13,7 @@ from textual.widgets import Button, DataTable, Input, Static
 from htm.errors import HtmError
 
 TABLE_SUFFIXES = (".csv", ".csv.gz", ".parquet")
+EVIDENCE_CELL = 48  # characters of evidence in the table; the whole text shows below it
 
 
 def fmt_rmse(d: dict[str, float]) -> str:
@@ -26,7 +27,12 @@ class DiagnosePane(Vertical):
     DiagnosePane #diag-bar Input { width: 1fr; }
     DiagnosePane #diag-status { height: auto; padding: 0 1; }
     DiagnosePane #findings { height: 1fr; }
+    DiagnosePane #finding-detail { height: auto; max-height: 8; padding: 0 1; border-top: solid $accent; }
     """
+
+    def __init__(self, **kw: Any) -> None:
+        super().__init__(**kw)
+        self.findings: list[dict[str, Any]] = []
 
     def compose(self) -> ComposeResult:
         with Horizontal(id="diag-bar"):
@@ -34,7 +40,8 @@ class DiagnosePane(Vertical):
             yield Input(placeholder="output folder", id="diag-out")
             yield Button("Diagnose", id="diag-run", variant="primary")
         yield Static("", id="diag-status")
-        yield DataTable(id="findings", zebra_stripes=True)
+        yield DataTable(id="findings", zebra_stripes=True, cursor_type="row")
+        yield Static("", id="finding-detail")
 
     def on_mount(self) -> None:
         self.query_one("#findings", DataTable).add_columns("#", "effect", "channel", "params", "RMSE before", "RMSE after", "evidence")
@@ -68,9 +75,13 @@ class DiagnosePane(Vertical):
     def show(self, report: dict[str, Any], out_dir: Path) -> None:
         t = self.query_one("#findings", DataTable)
         t.clear()
-        for i, f in enumerate(report["findings"], 1):
+        self.findings = list(report["findings"])
+        for i, f in enumerate(self.findings, 1):
             params = ", ".join(f"{k} = {v:.4g}" for k, v in f["params"].items())
-            t.add_row(str(i), f["effect"], f["channel"] or "", params, fmt_rmse(f["rmse_before"]), fmt_rmse(f["rmse_after"]), f["evidence"])
+            ev = f["evidence"]  # long prose: cut in the table (it would run off the screen), whole below
+            cell = ev if len(ev) <= EVIDENCE_CELL else ev[: EVIDENCE_CELL - 1] + "…"
+            t.add_row(str(i), f["effect"], f["channel"] or "", params, fmt_rmse(f["rmse_before"]), fmt_rmse(f["rmse_after"]), cell)
+        self._detail(0)
         n = len(report["findings"])
         verdict = ("[b yellow]unexplained structure remains[/]" if report["unexplained"]
                    else "[green]nothing systematic left unexplained[/]")
@@ -78,3 +89,13 @@ class DiagnosePane(Vertical):
             f"[b]{report['record']}[/]: {n} finding{'s' if n != 1 else ''}; {verdict}\n"
             f"baseline RMSE {fmt_rmse(report['baseline']['rmse'])}\nfinal RMSE    {fmt_rmse(report['final']['rmse'])}\n"
             f"report: {out_dir / 'report.md'}")
+
+    @on(DataTable.RowHighlighted, "#findings")
+    def _highlighted(self, ev: DataTable.RowHighlighted) -> None:
+        self._detail(ev.cursor_row)
+
+    def _detail(self, i: int) -> None:
+        """The highlighted finding's whole evidence, wrapped to the screen."""
+        f = self.findings[i] if 0 <= i < len(self.findings) else None
+        self.query_one("#finding-detail", Static).update(
+            "" if f is None else f"[b]{i + 1}. {f['effect']}[/] {f['channel'] or ''}: {f['evidence']}")

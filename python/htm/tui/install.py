@@ -11,6 +11,8 @@ from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
 from textual.widgets import Button, Input, Label, Static
 
+from htm.tui.runpane import num
+
 JOG_RATES_MM_S = (0.1, 0.5, 1.0, 2.0, 5.0, 10.0)
 STEPS_MM = (0.001, 0.01, 0.1, 1.0)
 
@@ -70,8 +72,8 @@ class InstallPane(Vertical):
         self.query_one("#install-numbers", Static).update(
             f"[b]state[/] {snap.get('state')}   [b]amplifier[/] {'ON' if snap.get('amplifier') else 'off'}   "
             f"[b]specimen protect[/] {protect}   [b]interlock[/] {snap.get('interlock') or 'none'}\n"
-            f"[b]position[/] {y * 1e3:9.4f} mm   [b]reference[/] {snap.get('reference_m', math.nan) * 1e3:9.4f} mm   "
-            f"[b]force[/] {f / 1e3:8.3f} kN\n"
+            f"[b]position[/] {num(y * 1e3, '9.4f')} mm   [b]reference[/] {num(snap.get('reference_m', math.nan) * 1e3, '9.4f')} mm   "
+            f"[b]force[/] {num(f / 1e3, '8.3f')} kN\n"
             f"[b]jog rate[/] {self.rate_mm_s:g} mm/s   [b]step[/] {self.step_mm:g} mm")
 
     def _cmd(self, name: str, *args) -> None:

@@ -18,6 +18,11 @@ FEED_KEEP = 200     # decimated samples shown (≈ 10 s at 20 Hz)
 CYCLES_KEEP = 2000  # per-cycle points shown
 
 
+def num(v: float, fmt: str) -> str:
+    """A live number, or a dash while there is none yet (before the first cycle)."""
+    return "–" if v is None or not math.isfinite(v) else format(v, fmt)
+
+
 class RunPane(Vertical):
     can_focus = True
     BINDINGS = [
@@ -81,13 +86,13 @@ class RunPane(Vertical):
     def update_live(self, snap: dict[str, Any], detectors: list[dict[str, Any]]) -> None:
         tm = snap.get("timing") or {}
         self.query_one("#run-numbers", Static).update(
-            f"[b]state[/] {snap['state']}   [b]cycles[/] {snap['cycles']:,}   [b]f[/] {snap['frequency_hz']:.2f} Hz   "
-            f"[b]a[/] {snap['a_m'] * 1e3:.3f} mm   [b]ΔK[/] {snap['delta_k_pa_sqrt_m'] / 1e6:.2f} MPa·√m   "
-            f"[b]K_sp[/] {snap['k_sp_n_m'] / 1e6:.1f} kN/mm\n"
-            f"[b]peak err[/] {snap['peak_err_pct']:+.2f} %   [b]ΔF err[/] {snap['df_err_pct']:+.2f} %   "
+            f"[b]state[/] {snap['state']}   [b]cycles[/] {snap['cycles']:,}   [b]f[/] {num(snap['frequency_hz'], '.2f')} Hz   "
+            f"[b]a[/] {num(snap['a_m'] * 1e3, '.3f')} mm   [b]ΔK[/] {num(snap['delta_k_pa_sqrt_m'] / 1e6, '.2f')} MPa·√m   "
+            f"[b]K_sp[/] {num(snap['k_sp_n_m'] / 1e6, '.1f')} kN/mm\n"
+            f"[b]peak err[/] {num(snap['peak_err_pct'], '+.2f')} %   [b]ΔF err[/] {num(snap['df_err_pct'], '+.2f')} %   "
             f"[b]amplifier[/] {'ON' if snap['amplifier'] else 'off'}   [b]interlock[/] {snap['interlock'] or 'none'}"
             f"{'   [b red]E-STOP[/]' if snap.get('estop') else ''}   "
-            f"[b]loop[/] p99 {tm.get('p99_ms', math.nan):.3f} ms, overruns {tm.get('overruns', 0)}"
+            f"[b]loop[/] p99 {num(tm.get('p99_ms', math.nan), '.3f')} ms, overruns {tm.get('overruns', 0)}"
             + (f"   [b]end[/] {snap['end_reason']}" if snap.get("end_reason") else ""))
         self._plots()
         self._detectors(detectors)
@@ -114,7 +119,7 @@ class RunPane(Vertical):
             return
         for r in rows:
             for col, val in zip(t.columns, r):
-                t.update_cell(r[0], col, val)
+                t.update_cell(r[0], col, val, update_width=True)  # "ok" → "tripped" must fit
 
     # ---- commands ---------------------------------------------------------------------------
     def _cmd(self, name: str, *args) -> None:
