@@ -12,10 +12,15 @@
 //!   z   = k·(r + (β/ω)·ṙ) + y_0 − y                 valve command: position error + feed-forward β
 //!   z_b = play(z; b)                                 backlash of half width b (a valve's play)
 //!   τ_v·ż_v = z_b − z_v        (z_v = z_b if τ_v = 0) valve lag
-//!   ẏ   = dz(ω·[(z_v + α|z_v|)·√(1 − sgn(z_v)·F/F_s) − C·F], v_c)
+//!   ẏ   = dz(ω·[(z_v + α|z_v|)·√(1 − sgn(z_v)·L/F_s) − C·L], v_c)
 //!   F   = k_s·(y − y_s) + c_s·ẏ + F_c·tanh(ẏ/v_f) − k_cl·⌊y_s + y_cl − y⌋₊    specimen force (tension +)
-//!   f   = F + f_0                                    load cell reading
+//!   f   = F + f_0                                    load cell reading (predicted)
+//!   L   = f_recorded − f_0, or F without a recorded load cell     the force loading the loop
 //! ```
+//!
+//! Where the load cell is recorded, its force loads the loop (an input) while the specimen model
+//! predicts it (an output): the loop's fit does not lean on the specimen model, and the
+//! specimen's residual is its own.
 //!
 //! ω = 2π·bandwidth is the loop gain, k the command-to-position gain, y_0 the command-to-transducer
 //! offset, C the loop's static compliance under load (the valve's and seals' flow–pressure
@@ -252,6 +257,8 @@ struct Law<'a> {
     p: &'a LoopParams,
     w: f64,
     cmd: &'a [f64],
+    /// the recorded load cell, pre-rolled like the command: the force acting on the loop
+    load: Option<&'a [f64]>,
     lag: f64,
     ff: f64,
     dt: f64,
@@ -281,64 +288,87 @@ impl Law<'_> {
         f
     }
 
-    /// Velocity the valve opening `zv` gives against the load `force`.
+    /// Velocity the valve opening `zv` gives against the load `force`, and its derivative with
+    /// respect to the force.
     #[inline]
-    fn valve_velocity(&self, zv: f64, force: f64) -> f64 {
+    fn valve_velocity(&self, zv: f64, force: f64) -> (f64, f64) {
         let p = self.p;
-        let mut a = zv + p.asymmetry * zv.abs();
+        let a = zv + p.asymmetry * zv.abs();
+        let (mut g, mut dg) = (a, 0.0);
         if p.load_per_stall_n > 0.0 {
-            a *= (1.0 - zv.signum() * p.load_per_stall_n * force).max(0.0).sqrt();
+            let s = zv.signum() * p.load_per_stall_n;
+            let l2 = 1.0 - s * force;
+            if l2 > 0.0 {
+                let l = l2.sqrt();
+                g = a * l;
+                dg = -a * s / (2.0 * l);
+            } else {
+                g = 0.0;
+            }
         }
-        dead_zone(self.w * (a - p.compliance_m_per_n * force), p.velocity_loss_m_s)
+        let x = self.w * (g - p.compliance_m_per_n * force);
+        let v = dead_zone(x, p.velocity_loss_m_s);
+        let inside = p.velocity_loss_m_s > 0.0 && x.abs() <= p.velocity_loss_m_s;
+        (v, if inside { 0.0 } else { self.w * (dg - p.compliance_m_per_n) })
     }
 
-    /// (velocity, specimen force) at position `y` with valve opening `zv`: the root of
-    /// v = valve_velocity(zv, F(y, v)), unique since the right side does not rise with v.
-    fn motion(&self, zv: f64, y: f64) -> (f64, f64) {
+    /// (velocity, specimen force) at position `y` with valve opening `zv` at fractional sample
+    /// `i` (the force only `want_force` when it does not act back on the loop). The force that
+    /// loads the loop is the recorded one where the load cell is recorded; otherwise the
+    /// specimen's own, and the velocity is the root of
+    /// h(v) = v − valve_velocity(zv, F(y, v)). h rises with slope h' ≥ 1 (the specimen's force
+    /// grows with the velocity, the valve's velocity falls with the force), so the root is unique
+    /// and lies within |h(v)| of any v: Newton from `hint` (a velocity nearby), each step kept
+    /// inside the bracket that every evaluation narrows.
+    fn motion(&self, zv: f64, y: f64, i: f64, hint: f64, want_force: bool) -> (f64, f64) {
         let p = self.p;
         let rate_dependent = p.specimen_damping_n_s_m > 0.0 || p.specimen_friction_n > 0.0;
         let acts_back = p.compliance_m_per_n > 0.0 || p.load_per_stall_n > 0.0;
-        if !rate_dependent || !acts_back {
-            let v = self.valve_velocity(zv, if acts_back { self.specimen(y, 0.0) } else { 0.0 });
-            return (v, self.specimen(y, v));
+        if let Some(load) = self.load {
+            // a recorded load cell: its force (less the cell's offset) loads the loop; the
+            // specimen's modelled force is the prediction of that reading
+            let f = if acts_back { at(load, i) - p.sensor_offset_f } else { 0.0 };
+            let v = self.valve_velocity(zv, f).0;
+            return (v, if want_force { self.specimen(y, v) } else { f64::NAN });
         }
-        let h = |v: f64| v - self.valve_velocity(zv, self.specimen(y, v));
-        let g0 = -h(0.0);
-        if g0 == 0.0 {
-            return (0.0, self.specimen(y, 0.0));
+        if !acts_back {
+            // the force is an output only
+            let v = self.valve_velocity(zv, 0.0).0;
+            return (v, if want_force { self.specimen(y, v) } else { f64::NAN });
         }
-        // h rises with v: the root lies between 0 and g0 (regula falsi, Illinois variant)
-        let (mut a, mut b) = (0.0f64.min(g0), 0.0f64.max(g0));
-        let (mut ha, mut hb) = (h(a), h(b));
-        let tol = 1e-13 * g0.abs() + 1e-15;
-        let mut side = 0i8;
-        let mut v = 0.5 * (a + b);
-        for _ in 0..100 {
-            if hb - ha <= 0.0 {
-                break;
-            }
-            v = (a * hb - b * ha) / (hb - ha);
-            let hv = h(v);
-            if hv.abs() <= 0.0 || (b - a) <= tol {
-                break;
-            }
-            if hv < 0.0 {
-                a = v;
-                ha = hv;
-                if side == -1 {
-                    hb *= 0.5;
-                }
-                side = -1;
+        if !rate_dependent {
+            let f = self.specimen(y, 0.0);
+            return (self.valve_velocity(zv, f).0, f);
+        }
+        // the force's part that does not depend on the velocity, then per iterate one tanh
+        let f_static = self.specimen(y, 0.0);
+        let (cs, fc, vf) = (p.specimen_damping_n_s_m, p.specimen_friction_n, p.specimen_friction_velocity_m_s);
+        let (mut lo, mut hi) = (f64::NEG_INFINITY, f64::INFINITY);
+        let mut v = hint;
+        let mut f = f_static;
+        for _ in 0..60 {
+            let t = if fc > 0.0 { (v / vf).tanh() } else { 0.0 };
+            f = f_static + cs * v + fc * t;
+            let (g, dg_df) = self.valve_velocity(zv, f);
+            let hv = v - g;
+            let dh = 1.0 - dg_df * (cs + if fc > 0.0 { fc / vf * (1.0 - t * t) } else { 0.0 });
+            if hv > 0.0 {
+                hi = hi.min(v);
+                lo = lo.max(v - hv);
             } else {
-                b = v;
-                hb = hv;
-                if side == 1 {
-                    ha *= 0.5;
-                }
-                side = 1;
+                lo = lo.max(v);
+                hi = hi.min(v - hv);
             }
+            let mut next = v - hv / dh;
+            if !(next >= lo && next <= hi) {
+                next = 0.5 * (lo + hi);
+            }
+            if (next - v).abs() <= 1e-14 + 1e-11 * v.abs() {
+                break; // (v, f) is the root to far below any sensor's resolution
+            }
+            v = next;
         }
-        (v, self.specimen(y, v))
+        (v, f)
     }
 
     /// Valve opening the velocity law sees: the lagged state, or the play's output at once.
@@ -376,11 +406,22 @@ pub fn validate_input(dt: f64, y_ref: &[f64]) -> Result<()> {
 }
 
 /// Position, velocity and force the model predicts at every sample of the command `y_ref` [m]
-/// sampled every `dt` [s] (NaN = a dropped sample, the previous value held). The loop starts
-/// settled on the first command: it is held before the record for a few loop time constants.
-pub fn simulate(p: &LoopParams, dt: f64, y_ref: &[f64]) -> Result<LoopOutput> {
+/// sampled every `dt` [s] (NaN = a dropped sample, the previous value held). `load`: the
+/// recorded load cell [N], when there is one, is the force that loads the loop (the predicted
+/// force is the modelled specimen's all the same); without it the specimen's own force does.
+/// The loop starts settled on the first command: it is held before the record for a few loop
+/// time constants.
+pub fn simulate(p: &LoopParams, dt: f64, y_ref: &[f64], load: Option<&[f64]>) -> Result<LoopOutput> {
     p.validate()?;
     validate_input(dt, y_ref)?;
+    if let Some(f) = load {
+        if f.len() != y_ref.len() {
+            return Err(Error::Input(format!("the load cell `f` has {} samples but y_ref has {}", f.len(), y_ref.len())));
+        }
+        if !f.iter().any(|x| x.is_finite()) {
+            return Err(Error::Input("the load cell `f` holds no finite value".into()));
+        }
+    }
     let n = y_ref.len();
     let w = 2.0 * std::f64::consts::PI * p.bandwidth_hz;
     let preroll_s = (6.0 / w + 6.0 * p.valve_tau_s + p.delay_s).clamp(0.2, 5.0);
@@ -390,7 +431,13 @@ pub fn simulate(p: &LoopParams, dt: f64, y_ref: &[f64]) -> Result<LoopOutput> {
     cmd.extend_from_slice(&seen);
     // `delay_s` is the command's whole mean delay: the hold's own (N − 1)/2 samples are part of it
     let lag = (p.delay_s / dt - 0.5 * (update_every(p, dt) as f64 - 1.0)).max(0.0);
-    let law = Law { p, w, cmd: &cmd, lag, ff: p.feedforward / w, dt };
+    let loaded: Option<Vec<f64>> = load.map(|f| {
+        let f = held(f);
+        let mut x = vec![f[0]; pre];
+        x.extend_from_slice(&f);
+        x
+    });
+    let law = Law { p, w, cmd: &cmd, load: loaded.as_deref(), lag, ff: p.feedforward / w, dt };
     // fastest rate of the loop: the integrator, stiffened by the specimen through C (the valve
     // lag is integrated exactly, whatever its time constant)
     let stiff = p.compliance_m_per_n * (p.specimen_stiffness_n_m + p.specimen_closure_stiffness_n_m);
@@ -404,6 +451,7 @@ pub fn simulate(p: &LoopParams, dt: f64, y_ref: &[f64]) -> Result<LoopOutput> {
     let mut y = p.gain * cmd[0] + p.offset_m;
     let mut zv = 0.0;
     let mut memory = 0.0;
+    let mut v_last = 0.0;
     let mut out = LoopOutput { y: Vec::with_capacity(n), v: Vec::with_capacity(n), f: Vec::with_capacity(n) };
     for k in 0..pre + n {
         for j in 0..substeps {
@@ -411,7 +459,8 @@ pub fn simulate(p: &LoopParams, dt: f64, y_ref: &[f64]) -> Result<LoopOutput> {
             // RK4 on the position; the valve's opening at each stage from the exact response of
             // the lag to a command varying linearly from the step's start to that stage
             let zb0 = play(law.command(i, y), memory, half);
-            let (k1, f0) = law.motion(law.opening(zb0, zv), y);
+            let (k1, f0) = law.motion(law.opening(zb0, zv), y, i, v_last, j == 0);
+            v_last = k1;
             if j == 0 && k >= pre {
                 out.y.push(y);
                 out.v.push(k1);
@@ -422,7 +471,7 @@ pub fn simulate(p: &LoopParams, dt: f64, y_ref: &[f64]) -> Result<LoopOutput> {
             }
             let stage = |c: f64, yc: f64| -> f64 {
                 let zb = play(law.command(i + c * di, yc), memory, half);
-                law.motion(law.opening(zb, lagged.at(zv, zb0, zb, c)), yc).0
+                law.motion(law.opening(zb, lagged.at(zv, zb0, zb, c)), yc, i + c * di, k1, false).0
             };
             let k2 = stage(0.5, y + 0.5 * h * k1);
             let k3 = stage(0.5, y + 0.5 * h * k2);
@@ -466,8 +515,8 @@ impl Lag {
 }
 
 /// `simulate` for every parameter set, spread over `threads` threads (0 = all cores).
-pub fn simulate_batch(ps: &[LoopParams], dt: f64, y_ref: &[f64], threads: usize) -> Vec<Result<LoopOutput>> {
-    crate::batch::map(ps, threads, |p| simulate(p, dt, y_ref))
+pub fn simulate_batch(ps: &[LoopParams], dt: f64, y_ref: &[f64], load: Option<&[f64]>, threads: usize) -> Vec<Result<LoopOutput>> {
+    crate::batch::map(ps, threads, |p| simulate(p, dt, y_ref, load))
 }
 
 #[cfg(test)]
@@ -489,7 +538,7 @@ mod tests {
         let dt = 1e-3;
         let p = LoopParams { bandwidth_hz: 5.0, ..Default::default() };
         let r = sine(4000, dt, 5.0, 1e-3);
-        let y = simulate(&p, dt, &r).unwrap().y;
+        let y = simulate(&p, dt, &r, None).unwrap().y;
         let peak = y[2000..].iter().fold(0.0f64, |m, v| m.max(v.abs()));
         assert!((peak / 1e-3 - 0.5f64.sqrt()).abs() < 0.01, "peak ratio {}", peak / 1e-3);
     }
@@ -502,13 +551,13 @@ mod tests {
             *x = 1e-3;
         }
         let p = LoopParams { bandwidth_hz: 20.0, delay_s: 0.01, ..Default::default() };
-        let y = simulate(&p, dt, &r).unwrap().y;
+        let y = simulate(&p, dt, &r, None).unwrap().y;
         assert!(y[109].abs() < 1e-9, "moved before the delay: {}", y[109]);
         assert!(y[115] > 1e-5);
         // a ramp: a plain loop lags by v/ω, full feed-forward tracks it exactly
         let r = ramp_up_down(2000, dt, 0.01);
-        let plain = simulate(&LoopParams { bandwidth_hz: 2.0, ..Default::default() }, dt, &r).unwrap().y;
-        let ff = simulate(&LoopParams { bandwidth_hz: 2.0, feedforward: 1.0, ..Default::default() }, dt, &r).unwrap().y;
+        let plain = simulate(&LoopParams { bandwidth_hz: 2.0, ..Default::default() }, dt, &r, None).unwrap().y;
+        let ff = simulate(&LoopParams { bandwidth_hz: 2.0, feedforward: 1.0, ..Default::default() }, dt, &r, None).unwrap().y;
         let lag = 0.01 / (2.0 * PI * 2.0);
         assert!((r[900] - plain[900] - lag).abs() < 1e-3 * lag, "{} vs {lag}", r[900] - plain[900]);
         assert!((r[900] - ff[900]).abs() < 1e-9, "{}", r[900] - ff[900]);
@@ -521,7 +570,7 @@ mod tests {
         let (ks, c) = (2e6, 1e-9);
         let p = LoopParams { bandwidth_hz: 5.0, specimen_stiffness_n_m: ks, specimen_zero_force_position_m: -1e-3,
                              compliance_m_per_n: c, sensor_offset_f: 50.0, ..Default::default() };
-        let out = simulate(&p, dt, &vec![0.0; n]).unwrap();
+        let out = simulate(&p, dt, &vec![0.0; n], None).unwrap();
         // at rest: y = -C·k_s·(y + 1 mm)
         let y_rest = -c * ks * 1e-3 / (1.0 + c * ks);
         assert!((out.y[n - 1] - y_rest).abs() < 1e-12, "{} vs {y_rest}", out.y[n - 1]);
@@ -530,18 +579,36 @@ mod tests {
         let r = sine(4000, dt, 2.0, 1e-3);
         let d = LoopParams { bandwidth_hz: 5.0, specimen_damping_n_s_m: 2e4, specimen_friction_n: 500.0,
                              specimen_friction_velocity_m_s: 1e-3, ..Default::default() };
-        let free = simulate(&d, dt, &r).unwrap();
+        let free = simulate(&d, dt, &r, None).unwrap();
         for k in (100..4000).step_by(97) {
             let v = free.v[k];
             let want = 2e4 * v + 500.0 * (v / 1e-3).tanh();
             assert!((free.f[k] - want).abs() < 1e-9 * want.abs().max(1.0));
         }
-        let loaded = simulate(&LoopParams { compliance_m_per_n: 2e-7, ..d.clone() }, dt, &r).unwrap();
+        let loaded = simulate(&LoopParams { compliance_m_per_n: 2e-7, ..d.clone() }, dt, &r, None).unwrap();
         let amp = |y: &[f64]| y[2000..].iter().fold(0.0f64, |m, v| m.max(v.abs()));
         assert!(amp(&loaded.y) < 0.9 * amp(&free.y), "{} vs {}", amp(&loaded.y), amp(&free.y));
-        // the implicit velocity is consistent: v = ω·(z − C·F) with F at that v
-        let m = simulate(&LoopParams { compliance_m_per_n: 2e-7, ..d }, dt, &r).unwrap();
-        assert!(m.v.iter().all(|v| v.is_finite()));
+        // a recorded load cell loads the loop instead of the modelled specimen (less its offset):
+        // the droop is C·(f − f_0), while the predicted force stays the specimen's
+        let rec_f = vec![1050.0; n];
+        let with_cell = simulate(&p, dt, &vec![0.0; n], Some(&rec_f)).unwrap();
+        assert!((with_cell.y[n - 1] + c * 1000.0).abs() < 1e-12, "{}", with_cell.y[n - 1]);
+        assert!((with_cell.f[n - 1] - (ks * (with_cell.y[n - 1] + 1e-3) + 50.0)).abs() < 1e-6);
+        assert!(matches!(simulate(&p, dt, &vec![0.0; n], Some(&rec_f[1..])), Err(Error::Input(_))));
+        // the implicit velocity solves v = valve_velocity(z, F(v)) from any hint, also where the
+        // friction's slope F_c/v_f times the loop's compliance is far above 1
+        let stiff = LoopParams { bandwidth_hz: 7.0, specimen_friction_n: 2000.0, specimen_friction_velocity_m_s: 2e-3,
+                                 specimen_damping_n_s_m: 5e3, compliance_m_per_n: 1e-6, load_per_stall_n: 1e-4,
+                                 velocity_loss_m_s: 1e-4, ..Default::default() };
+        let cmd = [0.0, 0.0];
+        let law = Law { p: &stiff, w: 2.0 * PI * 7.0, cmd: &cmd, load: None, lag: 0.0, ff: 0.0, dt };
+        for &zv in &[-2e-3, -1e-4, 1e-5, 3e-4, 5e-3] {
+            for &hint in &[-1.0, 0.0, 0.02, 1.0] {
+                let (v, f) = law.motion(zv, 1e-3, 0.0, hint, true);
+                let (g, _) = law.valve_velocity(zv, f);
+                assert!((v - g).abs() < 1e-10 * g.abs().max(1e-6), "zv {zv} hint {hint}: v {v} vs {g}");
+            }
+        }
     }
 
     #[test]
@@ -549,13 +616,13 @@ mod tests {
         let dt = 1e-3;
         let r = sine(6000, dt, 3.0, 2e-3);
         let pa = LoopParams { bandwidth_hz: 5.0, asymmetry: 0.1, ..Default::default() };
-        let ya = simulate(&pa, dt, &r).unwrap().y;
+        let ya = simulate(&pa, dt, &r, None).unwrap().y;
         let mean: f64 = ya[2000..].iter().sum::<f64>() / 4000.0;
         assert!(mean.abs() > 1e-5, "asymmetry should shift the mean, got {mean}");
         // a spring pulling back: extension (against it) is slower than with a load-blind valve
         let spring = LoopParams { bandwidth_hz: 5.0, specimen_stiffness_n_m: 1e7, ..Default::default() };
-        let blind = simulate(&spring, dt, &r).unwrap();
-        let stall = simulate(&LoopParams { load_per_stall_n: 1.0 / 4e4, ..spring }, dt, &r).unwrap();
+        let blind = simulate(&spring, dt, &r, None).unwrap();
+        let stall = simulate(&LoopParams { load_per_stall_n: 1.0 / 4e4, ..spring }, dt, &r, None).unwrap();
         let top = |y: &[f64]| y[2000..].iter().fold(f64::MIN, |m, v| m.max(*v));
         assert!(top(&stall.y) < top(&blind.y) - 1e-5, "{} vs {}", top(&stall.y), top(&blind.y));
         assert_eq!(LoopParams { load_per_stall_n: 2.5e-5, ..Default::default() }.get(STALL_FORCE_KEY), Some(4e4));
@@ -566,7 +633,7 @@ mod tests {
         let dt = 1e-3;
         let (w_hz, speed, vc) = (2.0, 0.01, 2e-3);
         let r = ramp_up_down(3000, dt, speed);
-        let y = simulate(&LoopParams { bandwidth_hz: w_hz, velocity_loss_m_s: vc, ..Default::default() }, dt, &r).unwrap().y;
+        let y = simulate(&LoopParams { bandwidth_hz: w_hz, velocity_loss_m_s: vc, ..Default::default() }, dt, &r, None).unwrap().y;
         let e = (speed + vc) / (2.0 * PI * w_hz);
         assert!((r[1400] - y[1400] - e).abs() < 1e-3 * e, "{} vs {e}", r[1400] - y[1400]);
     }
@@ -577,8 +644,8 @@ mod tests {
         let b = 2e-4;
         let r = ramp_up_down(3000, dt, 0.01);
         let p = LoopParams { bandwidth_hz: 2.0, ..Default::default() };
-        let plain = simulate(&p, dt, &r).unwrap().y;
-        let play = simulate(&LoopParams { backlash_m: b, ..p }, dt, &r).unwrap().y;
+        let plain = simulate(&p, dt, &r, None).unwrap().y;
+        let play = simulate(&LoopParams { backlash_m: b, ..p }, dt, &r, None).unwrap().y;
         // on the way up the valve lags the command by b: the position trails by b more
         assert!((plain[1400] - play[1400] - b).abs() < 1e-3 * b, "{}", plain[1400] - play[1400]);
         // after the reversal the valve keeps pushing up until the command has come back by 2b:
@@ -600,8 +667,8 @@ mod tests {
         let dt = 1e-3;
         let r = ramp_up_down(4000, dt, 0.01);
         let base = LoopParams { bandwidth_hz: 5.0, delay_s: 0.006, ..Default::default() };
-        let plain = simulate(&base, dt, &r).unwrap().y;
-        let held = simulate(&LoopParams { command_period_s: 0.011, ..base }, dt, &r).unwrap().y;
+        let plain = simulate(&base, dt, &r, None).unwrap().y;
+        let held = simulate(&LoopParams { command_period_s: 0.011, ..base }, dt, &r, None).unwrap().y;
         let diff: Vec<f64> = (1000..1900).map(|k| held[k] - plain[k]).collect();
         let mean = diff.iter().sum::<f64>() / diff.len() as f64;
         let ripple = diff.iter().fold(0.0f64, |m, d| m.max(d.abs()));
@@ -617,18 +684,18 @@ mod tests {
         }
         let fast = LoopParams { bandwidth_hz: 8.0, ..Default::default() };
         let lag = LoopParams { valve_tau_s: 0.03, ..fast.clone() };
-        let out = simulate_batch(&[fast.clone(), lag.clone(), fast.clone()], dt, &r, 2);
+        let out = simulate_batch(&[fast.clone(), lag.clone(), fast.clone()], dt, &r, None, 2);
         let (a, b) = (out[0].as_ref().unwrap(), out[1].as_ref().unwrap());
         assert_eq!(a, out[2].as_ref().unwrap());
-        assert_eq!(b, &simulate(&lag, dt, &r).unwrap());
+        assert_eq!(b, &simulate(&lag, dt, &r, None).unwrap());
         let peak = |y: &[f64]| y.iter().cloned().fold(f64::MIN, f64::max);
         assert!(peak(&a.y) <= 1e-3 + 1e-9 && peak(&b.y) > 1.05e-3, "{} {}", peak(&a.y), peak(&b.y));
         // the lag is integrated exactly: a vanishing one is the static valve, a slow one agrees
         // with the same lag sampled ten times finer
-        let tiny = simulate(&LoopParams { valve_tau_s: 1e-9, ..fast.clone() }, dt, &r).unwrap();
+        let tiny = simulate(&LoopParams { valve_tau_s: 1e-9, ..fast.clone() }, dt, &r, None).unwrap();
         assert!(tiny.y.iter().zip(&a.y).all(|(x, y)| (x - y).abs() < 1e-9));
         let fine_r: Vec<f64> = (0..r.len() * 10).map(|k| at(&r, k as f64 / 10.0)).collect();
-        let fine = simulate(&lag, dt / 10.0, &fine_r).unwrap();
+        let fine = simulate(&lag, dt / 10.0, &fine_r, None).unwrap();
         let worst = (200..1500).map(|k| (fine.y[10 * k] - b.y[k]).abs()).fold(0.0, f64::max);
         assert!(worst < 2e-6, "{worst}");
     }
@@ -636,11 +703,11 @@ mod tests {
     #[test]
     fn bad_input_is_refused() {
         let p = LoopParams { asymmetry: 1.5, ..Default::default() };
-        assert!(matches!(simulate(&p, 1e-3, &[0.0]), Err(Error::Parameter { .. })));
+        assert!(matches!(simulate(&p, 1e-3, &[0.0], None), Err(Error::Parameter { .. })));
         let p = LoopParams::default();
-        assert!(matches!(simulate(&p, 1e-3, &[]), Err(Error::Input(_))));
-        assert!(matches!(simulate(&p, 0.0, &[0.0]), Err(Error::Input(_))));
-        assert!(matches!(simulate(&p, 1e-3, &[f64::NAN, f64::NAN]), Err(Error::Input(_))));
+        assert!(matches!(simulate(&p, 1e-3, &[], None), Err(Error::Input(_))));
+        assert!(matches!(simulate(&p, 0.0, &[0.0], None), Err(Error::Input(_))));
+        assert!(matches!(simulate(&p, 1e-3, &[f64::NAN, f64::NAN], None), Err(Error::Input(_))));
         let mut q = LoopParams::default();
         assert!(q.set("no_such", 1.0).is_err() && q.set(STALL_FORCE_KEY, -1.0).is_err());
         q.set(STALL_FORCE_KEY, 5e4).unwrap();

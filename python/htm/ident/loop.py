@@ -83,16 +83,17 @@ def effect_fields(effect: str) -> dict[str, str]:
 
 
 def simulate(plist: list[LoopParams], rec: Record, *, threads: int = 0) -> list[dict[str, np.ndarray]]:
-    """Each parameter set's predicted readings (`y`, `v`, `f`) over `rec`, driven by its `y_ref`;
-    one batch in Rust on all cores (`threads` = 0) with the GIL released. A failed simulation
-    gives NaN arrays."""
+    """Each parameter set's predicted readings (`y`, `v`, `f`) over `rec`, driven by its `y_ref`
+    and loaded by its recorded force `f` if any (else by the modelled specimen's); one batch in
+    Rust on all cores (`threads` = 0) with the GIL released. A failed simulation gives NaN arrays."""
     t = np.asarray(rec.columns["t"], dtype=float)
     if len(t) < 2:
         raise RecordError(f"record `{rec.name}` has {len(t)} samples; at least 2 are needed to simulate")
     if "y_ref" not in rec.columns:
         raise RecordError(f"record `{rec.name}` has no position command `y_ref` to drive the machine's loop with")
     dt = float(np.median(np.diff(t)))
-    out = loop_simulate(list(plist), dt, np.ascontiguousarray(rec.columns["y_ref"], dtype=float), threads=threads)
+    load = np.ascontiguousarray(rec.columns["f"], dtype=float) if "f" in rec.columns else None
+    out = loop_simulate(list(plist), dt, np.ascontiguousarray(rec.columns["y_ref"], dtype=float), load=load, threads=threads)
     return [{c: r[c] for c in CHANNELS} for r in out]
 
 
@@ -104,6 +105,7 @@ class LoopFamily:
     name = FAMILY
     closed_loop = False  # the model runs on the recorded command; sensor noise does not enter it
     has_command = False  # no valve command: nothing to fit on instead of the model's own run
+    whole_record = True  # a simulation costs milliseconds: fit every block of the record
 
     def __init__(self, rec: Record, channels: list[str]) -> None:
         other = [c for c in channels if c not in CHANNELS]
@@ -117,8 +119,8 @@ class LoopFamily:
         self.rig_keys: set[str] = set()
         t = np.asarray(rec.columns["t"], dtype=float)
         self.dt = float(np.median(np.diff(t)))
-        y = _filled(rec.columns["y"])
-        r = _filled(rec.columns["y_ref"])
+        y = filled(rec.columns["y"])
+        r = filled(rec.columns["y_ref"])
         self.force = "f" in channels
         v = np.gradient(smooth(y, 5), self.dt)
         self.v_max = max(float(np.percentile(np.abs(v), 99)), 1e-6)
@@ -126,7 +128,7 @@ class LoopFamily:
         nominal = params_from_meta(rec.meta)
         nominal["offset_m"] = float(np.median(y) - np.median(r))
         if self.force:
-            f = _filled(rec.columns["f"])
+            f = filled(rec.columns["f"])
             self.f_max = max(float(np.percentile(np.abs(f - np.median(f)), 99)), 1e-3)
             spec = rec.meta.get("specimen") if isinstance(rec.meta.get("specimen"), dict) else {}
             if spec.get("zero_force_position_m") is None:
@@ -211,22 +213,25 @@ class LoopFamily:
                 cand("load_dependent_velocity", (lin("load_per_stall_n", 0.01 / fmax, 0.0, 95.0),), "y"),
                 cand("sensor_offset", (lin("sensor_offset_f", scales["f"], -1e4, 1e4),), "constant"),
                 cand("specimen_friction", (lin("specimen_friction_n", 0.01 * fmax, 0.0, 1e4),
-                                           logf("specimen_friction_velocity_m_s", 0.02, 50.0, step=0.1)), "sign(v)"),
+                                           logf("specimen_friction_velocity_m_s", 0.02, 50.0, step=0.1)), "sign(v)",
+                     starts=(0.0,)),
             ]
-            # The closure position is not smooth to find: screen a few along the travel.
-            y = _filled(self.rec.columns["y"])
+            # The closure position is not smooth to find: screen a few along the travel. It stays
+            # inside the travel: a kink beyond it is a stiffer spring with an offset, not closure.
+            y = filled(self.rec.columns["y"])
             k = max(self.nominal["specimen_stiffness_n_m"], fmax / self.y_span)
             y0 = self.nominal["specimen_zero_force_position_m"]
             unit_off = max(1e-6, 0.1 * float(np.std(y)))
+            lo, hi = ((float(np.percentile(y, q)) - y0) / unit_off for q in (2, 98))
             for q in (10, 30, 50, 70, 90):
                 off = float(np.percentile(y, q)) - y0
                 out.append(cand("specimen_nonlinearity", (lin("specimen_closure_stiffness_n_m", 0.1 * k, 0.0, 1e4),
-                                                          lin("specimen_closure_offset_m", unit_off, -1e5, 1e5)),
+                                                          lin("specimen_closure_offset_m", unit_off, lo, hi)),
                                 "y", starts=(off / unit_off,)))
         return out
 
 
-def _filled(x: np.ndarray) -> np.ndarray:
+def filled(x: np.ndarray) -> np.ndarray:
     """A column with dropped samples (NaN) bridged linearly (for start values and scales)."""
     x = np.asarray(x, dtype=float)
     ok = np.isfinite(x)

@@ -142,6 +142,9 @@ def make_loop_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, 
     passes the command's velocity forward (`feedforward`) unless told otherwise or
     `command_quantisation` is on.
 
+    The rig is drawn from `seed` alone: records of one seed and other `variant`s are runs of
+    the same rig (their sensor noise differs).
+
     Returns (record, truth): truth = {"effects": {id: {"channel", "params"}}, "params": the
     valve-level Params as a dict}."""
     effects = {k: dict(v) or dict(DEFAULT_EFFECTS.get(k, {})) for k, v in (effects or {}).items()}
@@ -208,7 +211,8 @@ def make_loop_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, 
     kw: dict[str, Any] = {}
     sensors: dict[str, Any] = {}
     if noise:
-        kw["noise"] = {c: rng.normal(0.0, NOISE_STD[c], n) for c in chans}
+        noise_rng = np.random.default_rng([seed, variant])
+        kw["noise"] = {c: noise_rng.normal(0.0, NOISE_STD[c], n) for c in chans}
         kw["quantum"] = {c: QUANTUM[c] for c in chans}
         sensors = {c: {"resolution": QUANTUM[c], "noise_std": NOISE_STD[c]} for c in chans}
     out = replay([truth], dt, np.zeros(n), controller=controller, reference=seen, preroll_s=PREROLL_S, rtol=1e-6,

@@ -108,20 +108,31 @@ fn output_dict<'py>(py: Python<'py>, r: crate::Result<LoopOutput>, n: usize) -> 
 }
 
 /// The displacement-loop model run with every parameter set in `params` (list of LoopParams)
-/// on the command `y_ref` [m] sampled every `dt` [s] (NaN = dropped, previous value held).
+/// on the command `y_ref` [m] sampled every `dt` [s] (NaN = dropped, previous value held);
+/// `load`, the recorded load cell [N] if any, is the force that loads the loop.
 /// Returns one dict per parameter set: `y` [m], `v` [m/s], `f` [N] per sample and `error`
 /// (None, or the message with NaN arrays). The batch runs on `threads` threads (0 = all cores)
 /// with the GIL released. Bad arguments raise.
 #[pyfunction]
-#[pyo3(signature = (params, dt, y_ref, threads = 0))]
-fn loop_simulate<'py>(py: Python<'py>, params: Vec<PyLoopParams>, dt: f64, y_ref: PyReadonlyArray1<'py, f64>, threads: usize) -> PyResult<Bound<'py, PyList>> {
+#[pyo3(signature = (params, dt, y_ref, load = None, threads = 0))]
+fn loop_simulate<'py>(py: Python<'py>, params: Vec<PyLoopParams>, dt: f64, y_ref: PyReadonlyArray1<'py, f64>,
+                      load: Option<PyReadonlyArray1<'py, f64>>, threads: usize) -> PyResult<Bound<'py, PyList>> {
     let r = y_ref.as_slice()?;
     validate_input(dt, r).map_err(py_err)?;
+    let f = match &load {
+        Some(a) => Some(a.as_slice()?),
+        None => None,
+    };
+    if let Some(f) = f {
+        if f.len() != r.len() {
+            return Err(InputError::new_err(format!("load has {} samples but y_ref has {}", f.len(), r.len())));
+        }
+    }
     let ps: Vec<LoopParams> = params.into_iter().map(|p| p.inner).collect();
     if ps.is_empty() {
         return Err(InputError::new_err("loop_simulate needs at least one parameter set"));
     }
-    let results = py.detach(|| simulate_batch(&ps, dt, r, threads));
+    let results = py.detach(|| simulate_batch(&ps, dt, r, f, threads));
     let out = PyList::empty(py);
     for res in results {
         out.append(output_dict(py, res, r.len())?)?;
