@@ -55,8 +55,25 @@ def arx_run(theta: np.ndarray, r: np.ndarray, y0: np.ndarray, d: int) -> np.ndar
 
 
 def tared_rmse(pred: np.ndarray, meas: np.ndarray, window: np.ndarray) -> float:
-    p = pred + (np.mean(meas[window]) - np.mean(pred[window]))
-    return float(np.sqrt(np.mean((p - meas) ** 2)))
+    """RMS of `pred` - `meas` with the prediction shifted to the measurement's level in `window`
+    (inf for a run-away prediction: an unstable ARX candidate)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        p = pred + (np.mean(meas[window]) - np.mean(pred[window]))
+        e = float(np.sqrt(np.mean((p - meas) ** 2)))
+    return e if np.isfinite(e) else float("inf")
+
+
+def arx_baseline(rec0, rec1) -> dict:
+    """The second-order ARX fitted on `rec0` (delay by its own free-run error there) and its
+    tared free-run position RMS on both records."""
+    r0, y0 = rec0.columns["y_ref"], rec0.columns["y"]
+    r1, y1 = rec1.columns["y_ref"], rec1.columns["y"]
+    w0, w1 = rest_window(rec0, TARE_S), rest_window(rec1, TARE_S)
+    best = min(ARX_DELAYS, key=lambda d: tared_rmse(arx_run(arx_fit(r0, y0, d), r0, y0, d), y0, w0))
+    theta = arx_fit(r0, y0, best)
+    return {"delay_samples": best, "coefficients": [float(x) for x in theta],
+            "rmse_y_0A_m": tared_rmse(arx_run(theta, r0, y0, best), y0, w0),
+            "rmse_y_1A_m": tared_rmse(arx_run(theta, r1, y1, best), y1, w1)}
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -80,14 +97,7 @@ def main(argv: list[str] | None = None) -> None:
     prediction = json.loads((pred_dir / "report.json").read_text())
 
     rec0, rec1 = read_record(FIT), read_record(OTHER)
-    r0, y0 = rec0.columns["y_ref"], rec0.columns["y"]
-    r1, y1 = rec1.columns["y_ref"], rec1.columns["y"]
-    w0, w1 = rest_window(rec0, TARE_S), rest_window(rec1, TARE_S)
-    best = min(ARX_DELAYS, key=lambda d: tared_rmse(arx_run(arx_fit(r0, y0, d), r0, y0, d), y0, w0))
-    theta = arx_fit(r0, y0, best)
-    arx = {"delay_samples": best, "coefficients": [float(x) for x in theta],
-           "rmse_y_0A_m": tared_rmse(arx_run(theta, r0, y0, best), y0, w0),
-           "rmse_y_1A_m": tared_rmse(arx_run(theta, r1, y1, best), y1, w1)}
+    arx = arx_baseline(rec0, rec1)
 
     # the baseline (nominal loop of the 0 A record with the baseline's fitted parameters) and the
     # final model with each finding switched off again, on the 1 A chirp

@@ -96,3 +96,38 @@ def test_loop_params_and_the_batch_binding_refuse_bad_input_by_name():
         _core.loop_simulate([q], 0.0, r)
     with pytest.raises(_core.InputError, match="load"):
         _core.loop_simulate([q], 1e-3, r, load=r[:10])
+
+
+@pytest.fixture(scope="module")
+def utfsm(tmp_path_factory):
+    """The shipped UTFSM chirps through the CLI, as examples/utfsm_chirp.py runs them."""
+    import utfsm_chirp  # examples/ (conftest puts it on the path)
+
+    out = tmp_path_factory.mktemp("utfsm")
+    assert utfsm_chirp.main(["--out", str(out)]) == 0
+    return out
+
+
+def test_the_shipped_0a_chirp_is_diagnosed_from_the_cli_and_its_model_predicts_the_1a_chirp(utfsm):
+    from utfsm_predict import TARE_S, arx_baseline, tared_rmse  # benchmarks/: the ARX baseline
+
+    from htm.ident.loop import EFFECT_FIELDS
+    from htm.ident.predict import rest_window
+    from htm.ident.records import read_record
+
+    report = json.loads((utfsm / "diagnosis_0A" / "report.json").read_text())
+    model = json.loads((utfsm / "diagnosis_0A" / "model.json").read_text())
+    assert model["family"] == "machine_position" and model["channels"] == ["y", "f"]
+    assert {f["effect"] for f in report["findings"]} <= set(EFFECT_FIELDS)
+    # the load cell reads about -250 N where the damper carries no force
+    offset = [f for f in report["findings"] if f["effect"] == "sensor_offset"]
+    assert offset and offset[0]["channel"] == "f" and -300 < offset[0]["params"]["offset_n"] < -200
+    assert report["final"]["rmse"]["y"] < 0.85 * report["baseline"]["rmse"]["y"]
+    assert (utfsm / "diagnosis_0A" / "loop_response.png").stat().st_size > 10_000
+    # the 1 A chirp, another run with a much stronger damper, predicted from its command alone
+    prediction = json.loads((utfsm / "predict_1A" / "report.json").read_text())
+    data = Path(__file__).resolve().parents[1] / "data" / "utfsm"
+    rec0, rec1 = read_record(data / "utfsm_chirp_0A.csv.gz"), read_record(data / "utfsm_chirp_1A.csv.gz")
+    w1 = rest_window(rec1, TARE_S)
+    assert prediction["rmse"]["y"] < arx_baseline(rec0, rec1)["rmse_y_1A_m"]
+    assert prediction["rmse"]["y"] < 0.05 * tared_rmse(rec1.columns["y_ref"], rec1.columns["y"], w1)

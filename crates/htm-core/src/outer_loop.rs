@@ -446,7 +446,7 @@ pub fn simulate(p: &LoopParams, dt: f64, y_ref: &[f64], load: Option<&[f64]>) ->
     let h = dt / substeps as f64;
     let di = 1.0 / substeps as f64;
     let half = p.backlash_m;
-    let lagged = Lag { tau: p.valve_tau_s, h };
+    let lagged = Lag::new(p.valve_tau_s, h);
 
     let mut y = p.gain * cmd[0] + p.offset_m;
     let mut zv = 0.0;
@@ -493,24 +493,30 @@ pub fn simulate(p: &LoopParams, dt: f64, y_ref: &[f64], load: Option<&[f64]>) ->
 /// varying linearly over the step (stable and exact in the static limit τ → 0).
 struct Lag {
     tau: f64,
-    h: f64,
+    /// per stage fraction c ∈ {½, 1}: (c·h, τ·(x + e^{−x} − 1), e^{−x}) with x = c·h/τ
+    half: (f64, f64, f64),
+    full: (f64, f64, f64),
 }
 
 impl Lag {
-    /// z_v at the fraction `c` of the step from z_v = `zv0`, the input going from `zb0` to `zbc`.
+    fn new(tau: f64, h: f64) -> Self {
+        let k = |t: f64| {
+            let x = if tau > 0.0 { t / tau } else { 0.0 };
+            (t, tau * (x + (-x).exp_m1()), (-x).exp())
+        };
+        Lag { tau, half: k(0.5 * h), full: k(h) }
+    }
+
+    /// z_v at the fraction `c` (½ or 1) of the step from z_v = `zv0`, the input going from `zb0`
+    /// to `zbc`: z_v(t) = z_b(t) − s·τ·(1 − e^{−x}) + (z_v0 − z_b0)·e^{−x}, s the input's slope,
+    /// written without cancellation.
     #[inline]
     fn at(&self, zv0: f64, zb0: f64, zbc: f64, c: f64) -> f64 {
         if self.tau <= 0.0 {
             return zbc;
         }
-        if c <= 0.0 {
-            return zv0;
-        }
-        let t = c * self.h;
-        let x = t / self.tau;
-        let slope = (zbc - zb0) / t;
-        // z_v(t) = z_b(t) − s·τ·(1 − e^{−x}) + (z_v0 − z_b0)·e^{−x}, written without cancellation
-        zb0 + slope * self.tau * (x + (-x).exp_m1()) + (zv0 - zb0) * (-x).exp()
+        let (t, a, e) = if c < 1.0 { self.half } else { self.full };
+        zb0 + (zbc - zb0) / t * a + (zv0 - zb0) * e
     }
 }
 

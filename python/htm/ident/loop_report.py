@@ -27,21 +27,31 @@ SHOWN = {"gain": ("command-to-position gain", 1.0, ""), "offset_m": ("offset", 1
 
 def frequency_response(rec: Record, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(frequencies [Hz], complex y/y_ref) where the command excites the record and the measured
-    position follows it coherently (cross-spectral estimate over `SEGMENT_S` segments)."""
-    from scipy import signal
-
+    position follows it coherently: averaged cross-spectra over Hann-windowed `SEGMENT_S`
+    segments overlapping by half (Welch)."""
     t = np.asarray(rec.columns["t"], dtype=float)
     fs = 1.0 / float(np.median(np.diff(t)))
     r = filled(rec.columns["y_ref"])
-    r = r - r.mean()
-    y = filled(y)
     nper = int(min(len(r), max(64, SEGMENT_S * fs)))
-    f, prr = signal.welch(r, fs=fs, nperseg=nper)
-    _, pry = signal.csd(r, y - y.mean(), fs=fs, nperseg=nper)
-    ym = filled(rec.columns["y"])
-    _, coh = signal.coherence(r, ym - ym.mean(), fs=fs, nperseg=nper)
-    keep = (f > 0) & (prr > EXCITED * prr.max()) & (coh >= COHERENT)
-    return f[keep], pry[keep] / prr[keep]
+    f, (rr, ry, yy, rm, mm) = _spectra(nper, fs, r, filled(y), filled(rec.columns["y"]))
+    coh = np.abs(rm) ** 2 / np.maximum(rr * mm, 1e-300)
+    keep = (f > 0) & (rr > EXCITED * rr.max()) & (coh >= COHERENT)
+    return f[keep], ry[keep] / rr[keep]
+
+
+def _spectra(nper: int, fs: float, r: np.ndarray, y: np.ndarray, m: np.ndarray) -> tuple[np.ndarray, tuple]:
+    """Averaged auto- and cross-spectra (r·r, r·y, y·y, r·m, m·m), each segment's mean removed."""
+    step = max(1, nper // 2)
+    starts = range(0, len(r) - nper + 1, step)
+    win = 0.5 - 0.5 * np.cos(2 * np.pi * np.arange(nper) / nper)  # periodic Hann
+
+    def seg(x: np.ndarray) -> np.ndarray:
+        segs = np.stack([x[i:i + nper] for i in starts])
+        return np.fft.rfft((segs - segs.mean(axis=1, keepdims=True)) * win, axis=1)
+
+    fr, fy, fm = seg(r), seg(y), seg(m)
+    mean = lambda a, b: np.mean(np.conj(a) * b, axis=0)  # noqa: E731
+    return np.fft.rfftfreq(nper, 1.0 / fs), (mean(fr, fr).real, mean(fr, fy), mean(fy, fy).real, mean(fr, fm), mean(fm, fm).real)
 
 
 def linear_loop(p: Any, f: np.ndarray) -> np.ndarray:
