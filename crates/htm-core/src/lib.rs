@@ -1,5 +1,6 @@
 //! htm-core: the numerics of htm. Pure Rust over plain structs and slices; the `python`
 //! feature adds thin pyo3 bindings that own no logic.
+pub mod batch;
 pub mod control;
 pub mod crack;
 pub mod cyclic;

@@ -19,7 +19,7 @@ impl Field {
         let lo = if self.min_open { "(" } else { "[" };
         format!("{lo}{}, {}] {}", self.min, self.max, self.unit)
     }
-    fn check(&self, v: f64) -> Result<()> {
+    pub fn check(&self, v: f64) -> Result<()> {
         let low_ok = if self.min_open { v > self.min } else { v >= self.min };
         if v.is_finite() && low_ok && v <= self.max {
             Ok(())

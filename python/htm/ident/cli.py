@@ -1,5 +1,6 @@
-"""The identification commands: `htm identify` (the thesis's chapter-3 identification) and
-`htm diagnose` (the model fit and effect search)."""
+"""The identification commands: `htm identify` (the thesis's chapter-3 identification),
+`htm diagnose` (the model fit and effect search) and `htm predict` (an identified model on
+another record of the same rig)."""
 from __future__ import annotations
 
 import argparse
@@ -71,6 +72,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="output directory")
     p.set_defaults(func=cmd_identify)
     _register_diagnose(sub)
+    _register_predict(sub)
 
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
@@ -95,3 +97,30 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--verbose", action="store_true", help="print the search as it goes")
     p.set_defaults(func=cmd_diagnose)
+
+
+def cmd_predict(args: argparse.Namespace) -> int:
+    from htm.ident.predict import predict, read_model, write_prediction
+
+    model = read_model(args.model)
+    rec = read_record(args.record, args.meta)
+    result = predict(model, rec, tare_s=args.tare)  # refused records raise before anything is written
+    report = write_prediction(Path(args.out), model, result, args.tare)
+    errs = ", ".join(f"{c} {v:.4g}" for c, v in report["rmse"].items())
+    print(f"predicted {rec.name} with the {model.family} model of `{model.meta.get('record')}`: RMS error {errs} (SI); "
+          f"wrote {Path(args.out) / 'report.json'}")
+    return 0
+
+
+def _register_predict(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("predict", help="re-simulate a record with a model identified by `htm diagnose`",
+                       description="Re-simulate another DATA_FORMAT.md record of the same rig with the model.json that "
+                                   "`htm diagnose` wrote (valve-level or machine_position); write predictions.csv "
+                                   "(c_pred per measured channel) and report.json (RMS error per channel).")
+    p.add_argument("model", help="model.json written by htm diagnose")
+    p.add_argument("record", help="record table (NAME.csv, NAME.csv.gz or NAME.parquet)")
+    p.add_argument("--meta", help="metadata JSON (default: NAME.json beside the table)")
+    p.add_argument("--tare", type=float, metavar="S",
+                   help="take each sensor's zero from the record's first S seconds, which must be at rest")
+    p.add_argument("--out", required=True, help="output directory")
+    p.set_defaults(func=cmd_predict)

@@ -70,7 +70,8 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
         prob = Problem(rec, family.simulate, channels, sigma, n, fit_mask, val_mask, {**family.opts, "command": closed},
                        sparse=True)
     else:
-        n_work = min(n, int(round(work_s * rate)))
+        # a family whose simulation is cheap fits the whole record (a chirp's high end comes last)
+        n_work = n if getattr(family, "whole_record", False) else min(n, int(round(work_s * rate)))
         fit_mask, val_mask = blocks(n_work, n, rate)
         prob = Problem(rec, family.simulate, channels, sigma, n_work, fit_mask, val_mask, dict(family.opts))
     # A closed loop's predictions are free runs from the reference (DATA_FORMAT.md).
@@ -134,8 +135,8 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
     log("done", report["final"]["rmse"], "unexplained" if left else "")
     info = {"simulations": simulations, "seconds": time.perf_counter() - t_start, "noise_floor": sigma,
             "systematic_ratio": ratios, "own_floor": floor, "form_ratio": form, "unexplained_channels": left,
-            "outside": outside,
-            "fitted_on": fitted_on}
+            "outside": outside, "fitted_on": fitted_on,
+            "family": family.name}  # model.json says which simulator re-runs the model
     if out_dir is not None:
         from htm.ident.report import write_diagnosis
 
@@ -164,14 +165,15 @@ def _restate_free_run(prob: Problem, res: Result, rate: float) -> Result:
 
 def _check_excitation(rec: Record, sigma: dict[str, float]) -> None:
     y = np.asarray(rec.columns["y"], dtype=float)
-    u = np.asarray(rec.columns["u"], dtype=float) if "u" in rec.columns else np.zeros(1)
+    cmd, unit = ("u", "V") if "u" in rec.columns or "y_ref" not in rec.columns else ("y_ref", "m")  # a machine_position record's command
+    u = np.asarray(rec.columns[cmd], dtype=float) if cmd in rec.columns else np.zeros(1)
     span_y = float(np.nanmax(y) - np.nanmin(y))
     span_u = float(np.nanmax(u) - np.nanmin(u))
     stroke = float((rec.meta.get("rig") or {}).get("stroke_m") or 0.0)
     if span_y < max(50 * sigma["y"], 1e-4 * stroke):
         raise IdentificationError(
             f"cannot identify `{rec.name}`: no excitation — position y moves only {span_y:.3g} m "
-            f"(noise {sigma['y']:.2g} m) and command u spans {span_u:.3g} V; record a moving experiment "
+            f"(noise {sigma['y']:.2g} m) and command {cmd} spans {span_u:.3g} {unit}; record a moving experiment "
             "(ramps, sines, steps)")
 
 

@@ -23,6 +23,8 @@ class Family(Protocol):
     opts: dict[str, Any]  # simulator options for this record
     closed_loop: bool  # sensor noise acts inside a loop the model re-simulates
     has_command: bool  # a recorded command the model can be driven with instead of its loop
+    # Optional `whole_record: bool`: fit on the whole record, not only the caller's first
+    # `work_s` seconds (a family whose simulation is cheap; absent = False).
 
     def start(self, base: Model) -> np.ndarray: ...  # the coordinates a fit starts from
 

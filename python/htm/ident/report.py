@@ -21,6 +21,13 @@ def write_diagnosis(out: Path, rec: Record, report: dict[str, Any], res: Result,
     (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
     write_predictions(out / report["predictions"], rec, res.base_pred, res.pred)
     _write_markdown(out, rec, report, res.base_pred, res.pred, res.findings, info)
+    from htm.ident.predict import write_model  # the identified model, for `htm predict` (both families)
+
+    write_model(out / "model.json", rec, res, info["family"])
+    if info["family"] == "machine_position":  # the loop's gain and phase vs frequency, measured and modelled
+        from htm.ident.loop_report import append_loop_section
+
+        append_loop_section(out, rec, report, res)
 
 
 def write_predictions(path: Path, rec: Record, before: dict[str, np.ndarray], after: dict[str, np.ndarray]) -> None:

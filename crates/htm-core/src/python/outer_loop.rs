@@ -1,44 +1,147 @@
-//! Bindings for the reduced displacement-loop model (`outer_loop`).
+//! Bindings of the displacement-loop model (`outer_loop`): its parameter set and batched
+//! simulation with the GIL released.
 use numpy::{PyArray1, PyReadonlyArray1};
+use pyo3::exceptions::PyKeyError;
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
+use pyo3::types::{PyDict, PyList};
 
 use super::{py_err, InputError};
-use crate::outer_loop::{simulate, LoopParams};
+use crate::outer_loop::{simulate_batch, validate_input, LoopOutput, LoopParams, LOOP_FIELDS, STALL_FORCE_KEY};
 
-const NAMES: [&str; 8] = ["gain", "bandwidth_hz", "delay_s", "offset_m", "load_m_s_per_n", "asymmetry", "valve_bandwidth_hz", "friction_m_s"];
-
-fn params_from(d: &Bound<'_, PyDict>) -> PyResult<LoopParams> {
-    let mut p = LoopParams::default();
-    for (k, v) in d.iter() {
-        let key: String = k.extract()?;
-        let v: f64 = v.extract()?;
-        match key.as_str() {
-            "gain" => p.gain = v,
-            "bandwidth_hz" => p.bandwidth_hz = v,
-            "delay_s" => p.delay_s = v,
-            "offset_m" => p.offset_m = v,
-            "load_m_s_per_n" => p.load_m_s_per_n = v,
-            "asymmetry" => p.asymmetry = v,
-            "valve_bandwidth_hz" => p.valve_bandwidth_hz = v,
-            "friction_m_s" => p.friction_m_s = v,
-            _ => return Err(InputError::new_err(format!("unknown displacement-loop parameter `{key}` (known: {})", NAMES.join(", ")))),
-        }
-    }
-    Ok(p)
+/// Parameters of a machine's closed displacement loop (SI); `LoopParams()` has every effect off.
+#[pyclass(name = "LoopParams", module = "htm._core", from_py_object)]
+#[derive(Clone)]
+pub struct PyLoopParams {
+    pub inner: LoopParams,
 }
 
-/// Position [m] predicted by the displacement-loop model with parameters `params` (dict of SI
-/// values; missing keys take their defaults) from the command `y_ref` [m] and load `f` [N].
+#[pymethods]
+impl PyLoopParams {
+    #[new]
+    fn new() -> Self {
+        PyLoopParams { inner: LoopParams::default() }
+    }
+
+    fn __getitem__(&self, name: &str) -> PyResult<f64> {
+        self.inner.get(name).ok_or_else(|| PyKeyError::new_err(format!("unknown displacement-loop parameter `{name}`")))
+    }
+
+    fn __setitem__(&mut self, name: &str, value: f64) -> PyResult<()> {
+        if self.inner.get(name).is_none() {
+            return Err(PyKeyError::new_err(format!("unknown displacement-loop parameter `{name}`")));
+        }
+        self.inner.set(name, value).map_err(py_err)
+    }
+
+    fn __contains__(&self, name: &str) -> bool {
+        self.inner.get(name).is_some()
+    }
+
+    /// Names of the fields (the derived `load_stall_force_n` is readable too).
+    fn keys(&self) -> Vec<&'static str> {
+        LOOP_FIELDS.iter().map(|f| f.name).collect()
+    }
+
+    /// Raise ParameterError naming the first field out of range.
+    fn validate(&self) -> PyResult<()> {
+        self.inner.validate().map_err(py_err)
+    }
+
+    fn copy(&self) -> Self {
+        self.clone()
+    }
+
+    fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let d = PyDict::new(py);
+        for f in LOOP_FIELDS {
+            d.set_item(f.name, self.inner.get(f.name).unwrap())?;
+        }
+        Ok(d)
+    }
+
+    /// Name, unit, documentation and allowed range of every field.
+    #[staticmethod]
+    fn fields<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
+        let out = PyList::empty(py);
+        for f in LOOP_FIELDS {
+            let d = PyDict::new(py);
+            d.set_item("name", f.name)?;
+            d.set_item("unit", f.unit)?;
+            d.set_item("doc", f.doc.trim())?;
+            d.set_item("min", f.min)?;
+            d.set_item("max", f.max)?;
+            d.set_item("min_open", f.min_open)?;
+            d.set_item("allowed", f.allowed())?;
+            out.append(d)?;
+        }
+        Ok(out)
+    }
+
+    #[classattr]
+    fn stall_force_key() -> &'static str {
+        STALL_FORCE_KEY
+    }
+
+    fn __repr__(&self) -> String {
+        let p = &self.inner;
+        format!("LoopParams(gain={}, bandwidth_hz={}, delay_s={}, feedforward={}, ...)", p.gain, p.bandwidth_hz, p.delay_s, p.feedforward)
+    }
+}
+
+fn output_dict<'py>(py: Python<'py>, r: crate::Result<LoopOutput>, n: usize) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    match r {
+        Ok(o) => {
+            d.set_item("y", PyArray1::from_vec(py, o.y))?;
+            d.set_item("v", PyArray1::from_vec(py, o.v))?;
+            d.set_item("f", PyArray1::from_vec(py, o.f))?;
+            d.set_item("error", py.None())?;
+        }
+        Err(e) => {
+            for c in ["y", "v", "f"] {
+                d.set_item(c, PyArray1::from_vec(py, vec![f64::NAN; n]))?;
+            }
+            d.set_item("error", e.to_string())?;
+        }
+    }
+    Ok(d)
+}
+
+/// The displacement-loop model run with every parameter set in `params` (list of LoopParams)
+/// on the command `y_ref` [m] sampled every `dt` [s] (NaN = dropped, previous value held);
+/// `load`, the recorded load cell [N] if any, is the force that loads the loop.
+/// Returns one dict per parameter set: `y` [m], `v` [m/s], `f` [N] per sample and `error`
+/// (None, or the message with NaN arrays). The batch runs on `threads` threads (0 = all cores)
+/// with the GIL released. Bad arguments raise.
 #[pyfunction]
-fn outer_loop_simulate<'py>(py: Python<'py>, params: &Bound<'py, PyDict>, y_ref: PyReadonlyArray1<'py, f64>, f: PyReadonlyArray1<'py, f64>, dt: f64) -> PyResult<Bound<'py, PyArray1<f64>>> {
-    let p = params_from(params)?;
-    let (r, f) = (y_ref.as_slice()?, f.as_slice()?);
-    let y = py.detach(|| simulate(&p, r, f, dt)).map_err(py_err)?;
-    Ok(PyArray1::from_vec(py, y))
+#[pyo3(signature = (params, dt, y_ref, load = None, threads = 0))]
+fn loop_simulate<'py>(py: Python<'py>, params: Vec<PyLoopParams>, dt: f64, y_ref: PyReadonlyArray1<'py, f64>,
+                      load: Option<PyReadonlyArray1<'py, f64>>, threads: usize) -> PyResult<Bound<'py, PyList>> {
+    let r = y_ref.as_slice()?;
+    validate_input(dt, r).map_err(py_err)?;
+    let f = match &load {
+        Some(a) => Some(a.as_slice()?),
+        None => None,
+    };
+    if let Some(f) = f {
+        if f.len() != r.len() {
+            return Err(InputError::new_err(format!("load has {} samples but y_ref has {}", f.len(), r.len())));
+        }
+    }
+    let ps: Vec<LoopParams> = params.into_iter().map(|p| p.inner).collect();
+    if ps.is_empty() {
+        return Err(InputError::new_err("loop_simulate needs at least one parameter set"));
+    }
+    let results = py.detach(|| simulate_batch(&ps, dt, r, f, threads));
+    let out = PyList::empty(py);
+    for res in results {
+        out.append(output_dict(py, res, r.len())?)?;
+    }
+    Ok(out)
 }
 
 pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    m.add_function(wrap_pyfunction!(outer_loop_simulate, m)?)?;
+    m.add_class::<PyLoopParams>()?;
+    m.add_function(wrap_pyfunction!(loop_simulate, m)?)?;
     Ok(())
 }
