@@ -520,7 +520,7 @@ def force_reference(rng, ts, dur, flim, rate_max, f_bw, special=None, extra=None
         kind = _pick(rng, ["sine", "sine", "ramp", "ramp", "hold", "steps"]) if i >= 2 else ["sine", "ramp"][i]
         i += 1
         if kind == "sine":
-            f = _lu(rng, 0.2, max(0.3, min(10.0, f_bw / 2)))
+            f = _lu(rng, 0.2, max(0.3, min(10.0, f_bw / 3)))
             amp = min(_u(rng, 0.15, 0.6) * flim, hi - mean, mean - lo, 0.5 * rate_max / (2 * math.pi * f))
             if special == "closure":
                 amp = max(amp, min(0.5 * flim, hi - mean, mean - lo))
@@ -696,23 +696,23 @@ def declared_meta(b):
     rig, rng = b["rig"], np.random.default_rng(int(b["meta_rng"]))
 
     def off(x, n=3):
-        return _round_sig(x * _u(rng, 0.7, 1.3), n)
+        return _round_sig(x * _u(rng, 0.71, 1.29), n)
 
     r = {
         "area_a_m2": rig["area_a_m2"], "area_b_m2": rig["area_b_m2"], "stroke_m": rig["stroke_m"],
-        "supply_pressure_pa": off(rig["supply_pressure_pa"], 2), "tank_pressure_pa": 0.0,
-        "valve_rated_flow_m3_s": off(rig["valve_rated_flow_m3_s"], 2), "valve_rated_dp_pa": 7e6,
+        "supply_pressure_pa": off(rig["supply_pressure_pa"]), "tank_pressure_pa": 0.0,
+        "valve_rated_flow_m3_s": off(rig["valve_rated_flow_m3_s"]), "valve_rated_dp_pa": 7e6,
         "valve_max_command_v": R.U_RATED, "moving_mass_kg": off(rig["mass_kg"] + (b["oov"] or {}).get("mass_kg", 0.0), 2),
-        "orientation": rig["orientation"], "bulk_modulus_pa": off(rig["beta_at_half_supply_pa"], 2),
-        "dead_volume_a_m3": off(rig["dead_volume_a_m3"] + rig["line_volume_a_m3"], 2),
-        "dead_volume_b_m3": off(rig["dead_volume_b_m3"] + rig["line_volume_b_m3"], 2),
+        "orientation": rig["orientation"], "bulk_modulus_pa": off(rig["beta_at_half_supply_pa"]),
+        "dead_volume_a_m3": off(rig["dead_volume_a_m3"] + rig["line_volume_a_m3"]),
+        "dead_volume_b_m3": off(rig["dead_volume_b_m3"] + rig["line_volume_b_m3"]),
         "oil_density_kg_m3": 870.0,
     }
     if "load_pressure_feedback" in b["phys"]:
         r["valve_flow_law"] = "linear"
     meta = {"format": "htm-record/1", "sample_rate_hz": b["fs"], "rig": r}
     sp = rig.get("specimen_true")
-    meta["specimen"] = None if not sp else {"stiffness_n_m": off(sp["stiffness_n_m"], 2),
+    meta["specimen"] = None if not sp else {"stiffness_n_m": off(sp["stiffness_n_m"]),
                                             "zero_force_position_m": sp["zero_force_position_m"]}
     meta["controller"] = {k: v for k, v in b["ctrl"].items()}
     meta["sensors"] = b["sens_decl"]
@@ -767,7 +767,7 @@ def write_case(b, sim, name, out):
     npz["state_p_s_valve"] = sim["p_s_valve"]
     npz["state_f_specimen"] = sim["f_spec"]
     npz["u_at_valve"] = sim["u_valve"]
-    np.savez_compressed(os.path.join(tr_dir, name + ".npz"), **npz)
+    _savez_det(os.path.join(tr_dir, name + ".npz"), npz)
     rig_true = dict(b["rig"])
     rig_true["controller_design"] = b["design"]
     rig_true["sensors_true"] = b["sens_true"]
@@ -779,6 +779,19 @@ def write_case(b, sim, name, out):
              "oov": b["oov"], "rig_true": rig_true, "notes": notes}
     with open(os.path.join(tr_dir, name + ".json"), "w") as f:
         json.dump(_json_clean(truth), f, indent=1)
+
+
+def _savez_det(path, arrays):
+    """np.savez_compressed with fixed zip timestamps, so that a seed gives byte-identical files"""
+    import io
+    import zipfile
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        for k, v in arrays.items():
+            buf = io.BytesIO()
+            np.lib.format.write_array(buf, np.asanyarray(v), allow_pickle=False)
+            zi = zipfile.ZipInfo(k + ".npy", date_time=(1980, 1, 1, 0, 0, 0))
+            zi.compress_type = zipfile.ZIP_DEFLATED
+            zf.writestr(zi, buf.getvalue())
 
 
 def _notes(b):
@@ -844,7 +857,7 @@ def main(argv=None):
                       "oov": c["oov"], "sample_rate_hz": b["fs"], "duration_s": round(b["duration_s"], 2),
                       "form": b["rig"]["form"], "orientation": b["rig"]["orientation"],
                       "control": b["control"], "channels": [ch for ch in R.CHANNELS if ch in b["sens_true"]],
-                      "sim_ok": sim["ok"], "secs": round(sim["secs"], 1)})
+                      "sim_ok": sim["ok"]})
         print(f"{nm} {c['id']:24s} {c['class']:6s} {b['fs']:5.0f} Hz {b['duration_s']:5.1f} s  "
               f"{sim['secs']:5.1f} s  ok={sim['ok']}", flush=True)
     suite_path = os.path.join(a.out, "suite.json")
