@@ -49,7 +49,7 @@ SUITE = [
     # one single per EFFECTS.md id
     _c("s_offset_pb", "single", [("sensor_offset", "p_b")], quick=True, pab=True),
     _c("s_gain_pa", "single", [("sensor_gain", "p_a")], pab=True),
-    _c("s_delay_y", "single", [("sensor_delay", "y")], pab=True),
+    _c("s_delay_y", "single", [("sensor_delay", "y")], pab=True, form="single_rod"),
     _c("s_null_bias", "single", [("valve_null_bias", None)], quick=True, pab=True),
     _c("s_valve_dyn", "single", [("valve_dynamics", None)], quick=True, pab=True),
     _c("s_deadband", "single", [("valve_deadband", None)], pab=True),
@@ -76,7 +76,7 @@ SUITE = [
     _c("f_leak", "force", [("internal_leakage", None)], specimen=True, control="force", pab=True),
     # outside the vocabulary
     _c("o_friction_bump", "oov", oov="friction_bump", quick=True, pab=True, ref="bump"),
-    _c("o_supply_ripple", "oov", oov="supply_ripple", quick=True, pab=True, ps=False, fs=[1000, 2000]),
+    _c("o_supply_ripple", "oov", oov="supply_ripple", quick=True, pab=True, ps=True, fs=[1000, 2000]),
     _c("o_end_cushion", "oov", oov="end_cushion", pab=True, ref="cushion", fs=[500, 1000, 2000]),
     _c("o_fixture_resonance", "oov", oov="compliant_fixture", pab=True, fs=[1000, 2000]),
 ]
@@ -276,7 +276,7 @@ def draw_effect(rng, eid, ch, rig, sens):
     if eid == "sensor_gain":
         return {"gain": 1.0 + sgn * _u(rng, 0.03, 0.06)}, {}
     if eid == "sensor_delay":
-        d = max(2, int(round(_u(rng, 2e-3, 10e-3) * fs)))
+        d = max(2, int(round(_u(rng, 3e-3, 10e-3) * fs)))
         return {"delay_s": d / fs}, {}
     if eid == "valve_null_bias":
         p = {"bias_v": sgn * _u(rng, 0.05, 0.2)}
@@ -292,7 +292,7 @@ def draw_effect(rng, eid, ch, rig, sens):
         return p, p
     if eid == "supply_pressure_sag":
         qin = qr * math.sqrt(0.5 * ps / R.RATED_EDGE_DP)
-        r = _u(rng, 0.06, 0.15) * ps / qin
+        r = _u(rng, 0.08, 0.2) * ps / qin
         return {"resistance_pa_s_per_m3": r}, {"resistance_pa_s_per_m3": r, "time_constant_s": _u(rng, 0.005, 0.02)}
     if eid == "internal_leakage":
         p = {"coeff_m3_per_s_pa": _u(rng, 0.02, 0.05) * qr / ps}
@@ -361,48 +361,93 @@ def valve_gains(rig):
     return kq, kq / (0.5 * (aa + ab))
 
 
-def loop_lags(rig, phys, sens_true, ch):
+def loop_response(rig, phys, sens_true, control, w, zeta_h=0.05):
+    """open-loop frequency response per unit controller gain (|kp| = 1) of a linearised rig: spool
+    (2nd order) [+ valve lag] -> flow gain -> cylinder with oil stiffness, mass, specimen (damping
+    zeta_h assumed low) -> sensor filter, delay, sample-and-hold and one-sample computation delay."""
+    kq, _ = valve_gains(rig)
     fs = rig["sample_rate_hz"]
-    lag = 2 * rig["zeta"] / rig["wn"] + 1.5 / fs + phys.get("valve_dynamics", {}).get("tau_s", 0.0)
-    s = sens_true.get(ch, {})
-    lag += s.get("delay_s", 0.0)
-    if s.get("lowpass_hz"):
-        lag += 1 / (2 * math.pi * s["lowpass_hz"])
-    return lag
-
-
-def design_controller(rng, rig, phys, sens_true, control):
-    """gains a rig engineer would set on this (true) rig: stable, reasonably fast"""
-    kq, kvel = valve_gains(rig)
-    pol = rig["polarity"]
+    ts = 1.0 / fs
     m = rig["mass_kg"] + phys.get("compliant_fixture", {}).get("mass_kg", 0.0)
     aa, ab, stroke = rig["area_a_m2"], rig["area_b_m2"], rig["stroke_m"]
     beta = rig["beta_at_half_supply_pa"]
     kh = beta * (aa ** 2 / (rig["dead_volume_a_m3"] + rig["line_volume_a_m3"] + aa * stroke / 2)
                  + ab ** 2 / (rig["dead_volume_b_m3"] + rig["line_volume_b_m3"] + ab * stroke / 2))
     ks = rig["specimen_true"]["stiffness_n_m"] if rig.get("specimen_true") else 0.0
+    a_eff = 0.5 * (aa + ab)
+    s = 1j * w
+    wn, z = rig["wn"], rig["zeta"]
+    g = kq * wn ** 2 / (s ** 2 + 2 * z * wn * s + wn ** 2)
+    tau = phys.get("valve_dynamics", {}).get("tau_s", 0.0)
+    if tau:
+        g = g / (1 + tau * s)
+    b = 2 * zeta_h * math.sqrt((kh + ks) * m)
+    g = g * kh / (a_eff * s * (m * s ** 2 + b * s + ks + kh))
+    ch = "y" if control == "position" else "f"
+    if control != "position":
+        g = g * ks
+    sn = sens_true.get(ch, {})
+    if sn.get("lowpass_hz"):
+        g = g / (1 + s / (2 * math.pi * sn["lowpass_hz"]))
+    x = w * ts / 2
+    zoh = np.sinc(x / math.pi) * np.exp(-1j * x)
+    return g * zoh * np.exp(-s * (sn.get("delay_s", 0.0) + ts)), kh, ks, m
+
+
+def gain_limits(L1, w, gm=3.0, pm_deg=45.0):
+    """largest |kp| with gain margin >= gm and phase margin >= pm for the response L1 (|kp| = 1)"""
+    mag = np.abs(L1)
+    ph = np.unwrap(np.angle(L1))
+    kmax = np.inf
+    for kk in range(1, 6):
+        d = ph + (2 * kk - 1) * math.pi
+        idx = np.where(np.sign(d[:-1]) != np.sign(d[1:]))[0]
+        for i in idx:
+            kmax = min(kmax, 1.0 / (gm * mag[i]))
+    return kmax, ph
+
+
+def crossover(kp, L1, w, ph):
+    above = np.where(kp * np.abs(L1) >= 1.0)[0]
+    if len(above) == 0:
+        return w[0], math.pi
+    i = above[-1]
+    return w[i], math.pi + ph[i]
+
+
+def design_controller(rng, rig, phys, sens_true, control):
+    """gains a rig engineer would set on this (true) rig: a target bandwidth, lowered until the
+    linearised loop keeps a gain margin >= 3 and a phase margin >= 45 deg"""
+    kq, kvel = valve_gains(rig)
+    pol = rig["polarity"]
+    fs = rig["sample_rate_hz"]
+    w = np.logspace(math.log10(0.5), math.log10(5 * math.pi * fs), 4000)
+    L1, kh, ks, m = loop_response(rig, phys, sens_true, control, w)
     wr = math.sqrt((kh + ks) / m)
     fixture = phys.get("compliant_fixture")
     if control == "position":
-        lag = loop_lags(rig, phys, sens_true, "y")
         target = 2 * math.pi * _u(rng, 3.0, 15.0)
-        wc = min(target, 0.12 * wr, 0.45 / lag)
         if fixture:
-            wc = min(wc, 0.25 * 2 * math.pi * fixture["frequency_hz"])
-        kpos = kvel * kh / (kh + ks)
-        kp = pol * wc / kpos
+            target = min(target, 0.25 * 2 * math.pi * fixture["frequency_hz"])
+        k = target / (kvel * kh / (kh + ks))
+    else:
+        target = 2 * math.pi * _u(rng, 2.0, 8.0)
+        k = target / (kvel / (1 / ks + 1 / kh))
+    kmax, ph = gain_limits(L1, w)
+    k = min(k, kmax)
+    for _ in range(60):
+        wc, pm = crossover(k, L1, w, ph)
+        if pm >= math.radians(45.0):
+            break
+        k *= 0.9
+    info = {"crossover_hz": wc / 2 / math.pi, "target_hz": target / 2 / math.pi,
+            "phase_margin_deg": math.degrees(pm), "gain_margin": (kmax * 3.0 / k) if np.isfinite(kmax) else None,
+            "resonance_hz": wr / 2 / math.pi, "design_zeta_h": 0.05}
+    if control == "position":
         kff = pol * _u(rng, 0.85, 1.05) / kvel
-        return {"type": "position_pff", "kp_v_per_m": kp, "kff_v_per_m_s": kff, "u_max_v": 10.0,
-                "law": LAW_POS}, {"crossover_hz": wc / 2 / math.pi, "target_hz": target / 2 / math.pi,
-                                  "loop_lag_s": lag, "resonance_hz": wr / 2 / math.pi}
-    lag = loop_lags(rig, phys, sens_true, "f")
-    g = kvel / (1 / ks + 1 / kh)
-    target = 2 * math.pi * _u(rng, 2.0, 8.0)
-    wc = min(target, 0.12 * wr, 0.4 / lag)
-    kpf = pol * wc / g
-    return {"type": "force_p", "kp_v_per_n": kpf, "u_max_v": 10.0, "law": LAW_FORCE}, {
-        "crossover_hz": wc / 2 / math.pi, "target_hz": target / 2 / math.pi, "loop_lag_s": lag,
-        "resonance_hz": wr / 2 / math.pi}
+        return {"type": "position_pff", "kp_v_per_m": pol * k, "kff_v_per_m_s": kff, "u_max_v": 10.0,
+                "law": LAW_POS}, info
+    return {"type": "force_p", "kp_v_per_n": pol * k, "u_max_v": 10.0, "law": LAW_FORCE}, info
 
 
 # ------------------------------------------------------------------ references
@@ -422,12 +467,19 @@ class _Ref:
         t = np.arange(int(round(cycles / f / self.ts))) * self.ts
         self.parts.append(self.x + amp * np.sin(2 * math.pi * f * t))
 
-    def steps(self, amp, dwell, n, rng):
+    def steps(self, amp, dwell, n, rng, rise):
+        """steps with a short smooth rise (a function generator's edge, not a jump)"""
         c = self.x
-        for i in range(n):
-            lvl = c + amp * (1 if i % 2 == 0 else -1) * _u(rng, 0.6, 1.0)
-            self.parts.append(np.full(int(round(dwell / self.ts)), lvl))
-        self.parts.append(np.full(int(round(dwell / self.ts)), c))
+        nr = max(3, int(round(rise / self.ts)))
+        sm = np.arange(1, nr + 1) / nr
+        sm = sm * sm * (3 - 2 * sm)
+        lvls = [c + amp * (1 if i % 2 == 0 else -1) * _u(rng, 0.6, 1.0) for i in range(n)] + [c]
+        prev = c
+        for lvl in lvls:
+            self.parts.append(prev + (lvl - prev) * sm)
+            self.parts.append(np.full(max(1, int(round(dwell / self.ts)) - nr), lvl))
+            prev = lvl
+        self.x = c
 
     def n(self):
         return sum(len(p) for p in self.parts)
@@ -475,7 +527,7 @@ def position_reference(rng, ts, dur, lo, hi, vmax, f_bw, kp, start, special=None
             c = _u(rng, lo + amp, hi - amp)
             r.move(c, 0.5 * (vmin + vtop))
             r.hold(0.3)
-            r.steps(amp, _u(rng, 0.4, 1.2), int(rng.integers(2, 5)), rng)
+            r.steps(amp, _u(rng, 0.4, 1.2), int(rng.integers(2, 5)), rng, _u(rng, 0.01, 0.03))
         elif kind == "hold":
             r.hold(_u(rng, 0.5, 2.0))
         elif kind == "cushion":
@@ -537,7 +589,7 @@ def force_reference(rng, ts, dur, flim, rate_max, f_bw, special=None, extra=None
         elif kind == "steps":
             amp = _u(rng, 0.03, 0.1) * flim
             r.move(mean, rtop * 0.5)
-            r.steps(amp, _u(rng, 0.4, 1.0), int(rng.integers(2, 4)), rng)
+            r.steps(amp, _u(rng, 0.4, 1.0), int(rng.integers(2, 4)), rng, _u(rng, 0.01, 0.03))
         else:
             r.move(_u(rng, lo, hi), _lu(rng, rmin, rtop))
             r.hold(_u(rng, 0.5, 2.0))
