@@ -80,16 +80,25 @@ def visibility(b, sim_on, sim_off):
     return out
 
 
-def check_case(case, seed):
+def check_case(case, seed, converge=False):
     b = C.build_case(case, seed)
-    sim = C.run_case(b)
+    sim = C.simulate_case(b)
     d = diagnose_sim(b, sim)
+    d["detune"] = b["design"]["detune_factor"]
+    d["step_retries"] = sim["step_retries"]
+    if converge and sim["ok"]:
+        # integration error: the same case at half the internal step
+        fine = C.run_case(b, h_target=12.5e-6)
+        d["step_err"] = {ch: round(float(np.max(np.abs(sim["true"][ch] - fine["true"][ch]))
+                                         / noise_level(b["sens_true"][ch])), 3)
+                         for ch in R.CHANNELS if ch in b["sens_true"]}
     d.update(id=case["id"], cls=case["class"], fs=b["fs"], dur=round(b["duration_s"], 1), form=b["rig"]["form"],
              orient=b["rig"]["orientation"], control=b["control"], xover_hz=round(b["design"]["crossover_hz"], 1),
              effects=[f"{e['effect']}/{e['channel']}" if e["channel"] else e["effect"] for e in b["truth_eff"]]
              + ([f"oov:{case['oov']}"] if case["oov"] else []))
     if (case["effects"] or case["oov"]) and sim["ok"]:
         boff = C.build_case(case, seed, effects_on=False)
+        C.use_gains(boff, b)
         soff = C.run_case(boff)
         if soff["ok"]:
             vis = visibility(b, sim, soff)
@@ -132,13 +141,14 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--md")
     ap.add_argument("--json")
+    ap.add_argument("--converge", action="store_true", help="also re-run at half the step (max |diff| / noise)")
     a = ap.parse_args(argv)
     cases = [c for c in C.SUITE if c["quick"]] if a.quick else list(C.SUITE)
     if a.only:
         cases = [c for c in C.SUITE if c["id"] in set(a.only)]
     rows = []
     for c in cases:
-        d = check_case(c, a.seed)
+        d = check_case(c, a.seed, a.converge)
         rows.append(d)
         print(json.dumps({k: (round(v, 4) if isinstance(v, float) else v) for k, v in d.items()}), flush=True)
     tab = md_table(rows)

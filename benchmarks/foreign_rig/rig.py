@@ -347,6 +347,18 @@ def _ros2_step(X, h, ucmd, p, sc, act, W, piv, f0, f1, fp, k1, k2, Xt, tmp, new_
 
 
 @njit(cache=True)
+def _step_ok(X):
+    """pressures (scaled states, MPa) not below -0.1 bar and everything finite"""
+    for i in range(N_S):
+        if not math.isfinite(X[i]):
+            return False
+    for i in range(5):
+        if X[i] < -0.01:
+            return False
+    return True
+
+
+@njit(cache=True)
 def _signals(x, p, sig):
     sig[0] = x[S_Y]
     sig[1] = x[S_V]
@@ -393,6 +405,9 @@ def _simulate(p, x0, sc, act, nsub, jac_every, n_pre, ref, sup, ctrl_type, kp, k
         sig_prev[c] = sig[c]
     hp = 0.0
     first_play = True
+    Xsave = np.zeros(N_S)
+    force_jac = True
+    n_retry = 0
     for kk in range(ntot):
         k = kk - n_pre
         kr = k if k >= 0 else 0
@@ -453,7 +468,19 @@ def _simulate(p, x0, sc, act, nsub, jac_every, n_pre, ref, sup, ctrl_type, kp, k
         extra[kk, 1] = sig[5]
         extra[kk, 2] = ue
         for j in range(nsub):
-            _ros2_step(X, h, ue, p, sc, act, W, piv, f0, f1, fp, k1, k2, Xt, tmp, j % jac_every == 0)
+            for i in range(N_S):
+                Xsave[i] = X[i]
+            _ros2_step(X, h, ue, p, sc, act, W, piv, f0, f1, fp, k1, k2, Xt, tmp,
+                       force_jac or (j % jac_every == 0))
+            force_jac = False
+            if not _step_ok(X):
+                # a stale Jacobian or a hard transient: redo the step as 4 steps, fresh Jacobian each
+                for i in range(N_S):
+                    X[i] = Xsave[i]
+                for jj in range(4):
+                    _ros2_step(X, 0.25 * h, ue, p, sc, act, W, piv, f0, f1, fp, k1, k2, Xt, tmp, True)
+                force_jac = True
+                n_retry += 1
             for i in range(N_S):
                 xs[i] = X[i] * sc[i]
             _signals(xs, p, sig)
@@ -468,8 +495,8 @@ def _simulate(p, x0, sc, act, nsub, jac_every, n_pre, ref, sup, ctrl_type, kp, k
             if not math.isfinite(X[i]):
                 bad = True
         if bad:
-            return kk
-    return ntot
+            return kk, n_retry
+    return ntot, n_retry
 
 
 # ---------------------------------------------------------------- python side
@@ -640,7 +667,7 @@ def simulate(rig: dict, eff: dict, sensors: dict, ctrl: dict, ref: np.ndarray, s
     states = np.zeros((ntot, N_S)); extra = np.zeros((ntot, 3))
     bias = eff.get("valve_null_bias", {}).get("bias_v", 0.0)
     play = eff.get("valve_hysteresis", {}).get("half_width_v", 0.0)
-    done = _simulate(p, x0, STATE_SCALE, act, nsub, int(jac_every), n_pre, np.ascontiguousarray(ref, dtype=float),
+    done, n_retry = _simulate(p, x0, STATE_SCALE, act, nsub, int(jac_every), n_pre, np.ascontiguousarray(ref, dtype=float),
                      np.ascontiguousarray(sup, dtype=float), ctype, float(kp), float(kff), float(ctrl["u_max_v"]),
                      float(bias), float(play), s_tau, s_delay, s_gain, s_off, s_quant, s_lo, s_hi, noise,
                      rd_true, rd_meas, u, states, extra)
@@ -657,5 +684,6 @@ def simulate(rig: dict, eff: dict, sensors: dict, ctrl: dict, ref: np.ndarray, s
         "f_spec": extra[sl, 1],
         "u_valve": extra[sl, 2],
         "nsub": nsub,
+        "step_retries": int(n_retry),
     }
     return out
