@@ -692,10 +692,12 @@ def build_case(case, seed, effects_on=True):
         phys_sim = phys
     else:
         phys_sim = {}
+    rig_sim = rig
     if "load_pressure_feedback" in phys and not effects_on:
         rig_sim = dict(rig, pressure_compensated_valve=True)
-    else:
-        rig_sim = rig
+    if "compliant_fixture" in phys and not effects_on:
+        # the same fixture, rigidly attached
+        rig_sim = dict(rig, mass_kg=rig["mass_kg"] + phys["compliant_fixture"]["mass_kg"])
     noise_seed = int(np.random.SeedSequence([int(seed), zlib.crc32(case["id"].encode()), 7]).generate_state(1)[0])
     return dict(case=case, rig=rig, rig_sim=rig_sim, phys=phys, phys_sim=phys_sim, sens_true=sens_true,
                 sens_sim=sens_sim, sens_decl=sens_decl, ctrl=ctrl, ctrl_sim=ctrl_sim, design=design, ref=ref,

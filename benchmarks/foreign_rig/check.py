@@ -89,9 +89,12 @@ def check_case(case, seed, converge=False):
     if converge and sim["ok"]:
         # integration error: the same case at half the internal step
         fine = C.run_case(b, h_target=12.5e-6)
-        d["step_err"] = {ch: round(float(np.max(np.abs(sim["true"][ch] - fine["true"][ch]))
-                                         / noise_level(b["sens_true"][ch])), 3)
-                         for ch in R.CHANNELS if ch in b["sens_true"]}
+        d["step_err_rms"] = {ch: round(float(np.sqrt(np.mean((sim["true"][ch] - fine["true"][ch]) ** 2))
+                                             / noise_level(b["sens_true"][ch])), 3)
+                             for ch in R.CHANNELS if ch in b["sens_true"]}
+        d["step_err_max"] = {ch: round(float(np.max(np.abs(sim["true"][ch] - fine["true"][ch]))
+                                             / noise_level(b["sens_true"][ch])), 3)
+                             for ch in R.CHANNELS if ch in b["sens_true"]}
     d.update(id=case["id"], cls=case["class"], fs=b["fs"], dur=round(b["duration_s"], 1), form=b["rig"]["form"],
              orient=b["rig"]["orientation"], control=b["control"], xover_hz=round(b["design"]["crossover_hz"], 1),
              effects=[f"{e['effect']}/{e['channel']}" if e["channel"] else e["effect"] for e in b["truth_eff"]]

@@ -103,18 +103,22 @@ def _line_q(dp, rlam, rturb):
 
 
 @njit(cache=True)
-def _beta(p, prm):
-    """effective bulk modulus of oil with free air (isothermal), collapsing towards vacuum"""
+def _beta(p, prm, qnet):
+    """effective bulk modulus of oil with free air (isothermal), collapsing towards vacuum; below
+    the vapour pressure a cavity forms: no stiffness while the node keeps losing oil (qnet < 0),
+    the (air) stiffness again as soon as oil flows back in (the cavity's volume is neglected)"""
     pv = prm[P_PVAP]
     d = p - pv
     pp = pv + 0.5 * (d + math.sqrt(d * d + 4.0e6))       # smooth max(p, p_vap), 1 kPa rounding
     bo = prm[P_BETA0] + prm[P_BETA_K] * pp
+    cav = _sig((p - pv) / 1.0e3)
+    cav = cav + (1.0 - cav) * _sig(qnet / 1.0e-7)
     a0 = prm[P_AIR]
     if a0 <= 0.0:
-        return bo
+        return bo * cav
     r = a0 * P_ATM / pp
     alpha = r / (1.0 - a0 + r)
-    return 1.0 / ((1.0 - alpha) / bo + alpha / pp)
+    return cav / ((1.0 - alpha) / bo + alpha / pp)
 
 
 @njit(cache=True)
@@ -222,12 +226,17 @@ def _rhs(x, ucmd, p, out):
     va = vmin_a + _ramp(va - vmin_a, 0.05 * vmin_a)
     vb = vmin_b + _ramp(vb - vmin_b, 0.05 * vmin_b)
     qleak = p[P_LEAK] * (pa - pb)
-    out[S_PA] = _beta(pa, p) / va * (qla - aa * v - qleak)
-    out[S_PB] = _beta(pb, p) / vb * (qlb + ab * v + qleak)
-    out[S_PVA] = _beta(pva, p) / p[P_VLA] * (qv_a - qla)
-    out[S_PVB] = _beta(pvb, p) / p[P_VLB] * (qv_b - qlb)
+    qn = qla - aa * v - qleak
+    out[S_PA] = _beta(pa, p, qn) / va * qn
+    qn = qlb + ab * v + qleak
+    out[S_PB] = _beta(pb, p, qn) / vb * qn
+    qn = qv_a - qla
+    out[S_PVA] = _beta(pva, p, qn) / p[P_VLA] * qn
+    qn = qv_b - qlb
+    out[S_PVB] = _beta(pvb, p, qn) / p[P_VLB] * qn
     if p[P_RSAG] > 0.0:
-        out[S_PS] = _beta(ps, p) / p[P_VSUP] * ((ps_src - ps) / p[P_RSAG] - q_pa - q_pb)
+        qn = (ps_src - ps) / p[P_RSAG] - q_pa - q_pb
+        out[S_PS] = _beta(ps, p, qn) / p[P_VSUP] * qn
     # ---- friction (LuGre)
     vabs = math.sqrt(v * v + 1e-10)
     th = 0.5 * (1.0 + math.tanh(v / 1e-4))
