@@ -758,7 +758,10 @@ def sane(b, sim):
                 and np.mean(np.abs(u) >= 9.999) < 0.05 and np.std(u[-int(0.8 * b["fs"]):]) < 0.3)
 
 
-def simulate_case(b, h_target=25e-6):
+H_STEP = 12.5e-6   # internal step target [s]; see README (convergence)
+
+
+def simulate_case(b, h_target=None):
     """run the case; if the loop misbehaves, detune it as an engineer would (gain x 0.6, at most 4
     times) and record the factor in the design"""
     key = "kp_v_per_m" if b["control"] == "position" else "kp_v_per_n"
@@ -782,8 +785,9 @@ def use_gains(b, ref_b):
             b["ctrl"][k] = b["ctrl_sim"][k] = ref_b["ctrl"][k]
 
 
-def run_case(b, h_target=25e-6):
+def run_case(b, h_target=None):
     """simulate a built case (internal step ~h_target, an integer number per sample)"""
+    h_target = h_target or H_STEP
     t0 = time.time()
     sim = R.simulate(b["rig_sim"], b["phys_sim"], b["sens_sim"], b["ctrl_sim"], b["ref"], b["sup"], b["fs"],
                      b["noise_seed"], h_target=h_target, jac_every=4)

@@ -88,7 +88,7 @@ def check_case(case, seed, converge=False):
     d["step_retries"] = sim["step_retries"]
     if converge and sim["ok"]:
         # integration error: the same case at half the internal step
-        fine = C.run_case(b, h_target=12.5e-6)
+        fine = C.run_case(b, h_target=C.H_STEP / 2)
         d["step_err_rms"] = {ch: round(float(np.sqrt(np.mean((sim["true"][ch] - fine["true"][ch]) ** 2))
                                              / noise_level(b["sens_true"][ch])), 3)
                              for ch in R.CHANNELS if ch in b["sens_true"]}
