@@ -285,23 +285,36 @@ impl<'a> Replay<'a> {
     /// sensor offset or gain on a pressure or velocity channel shows in that reading only, as it
     /// does in the closed loop, instead of entering the dynamics at every re-start.
     fn anchor(&self, m: &mut Machine, s: &Sensors, k: usize) {
-        if let Some(y) = self.measured[0].map(|x| x[k]).filter(|v| v.is_finite()) {
+        if let Some(y) = self.reading_of(s, 0, k) {
             m.x[Y] = s.0[0].unread(y).clamp(0.0, m.plant.p.stroke_m);
         }
+    }
+
+    /// Channel `c`'s reading of the state at sample `k`: a sensor delayed by d shows it d later
+    /// (linear between samples; the last sample where the record ends). None where not finite.
+    fn reading_of(&self, s: &Sensors, c: usize, k: usize) -> Option<f64> {
+        let x = self.measured[c]?;
+        let at = k as f64 + (s.0[c].delay_s / self.dt).max(0.0);
+        let i = (at.floor() as usize).min(x.len() - 1);
+        let j = (i + 1).min(x.len() - 1);
+        let w = (at - i as f64).clamp(0.0, 1.0);
+        let v = if w == 0.0 { x[i] } else { (1.0 - w) * x[i] + w * x[j] };
+        v.is_finite().then_some(v)
     }
 
     /// Open loop, where a simulated run begins: set position, velocity and chamber pressures
     /// from the measurements at sample `k` (through the inverse sensors); what is not measured
     /// keeps its simulated value.
     fn restart(&self, m: &mut Machine, s: &Sensors, k: usize) {
-        let at = |c: usize| self.measured[c].map(|x| x[k]).filter(|v| v.is_finite());
+        let at = |c: usize| self.reading_of(s, c, k);
         if let Some(y) = at(0) {
             m.x[Y] = s.0[0].unread(y).clamp(0.0, m.plant.p.stroke_m);
         }
         let v = at(1).map(|v| s.0[1].unread(v)).or_else(|| {
-            // central difference of the measured position over +-2 samples
+            // central difference of the measured position over +-2 samples (where it reads k)
             let y = self.measured[0]?;
-            let (lo, hi) = (k.saturating_sub(2), (k + 2).min(y.len() - 1));
+            let ky = (k + (s.0[0].delay_s / self.dt).round().max(0.0) as usize).min(y.len() - 1);
+            let (lo, hi) = (ky.saturating_sub(2), (ky + 2).min(y.len() - 1));
             let d = (y[hi] - y[lo]) / ((hi - lo).max(1) as f64 * self.dt);
             d.is_finite().then(|| d / s.0[0].gain)
         });
