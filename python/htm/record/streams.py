@@ -24,6 +24,9 @@ in `stride` plus every cycle that carries an event (the store's Parquet table ho
 """
 from __future__ import annotations
 
+import os
+import select
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -70,6 +73,82 @@ def blueprint() -> Any:
     )
 
 
+class _Spool:
+    """The recording file, written by this process rather than by rerun: rerun's `FileSink` writes
+    into a pipe (`/dev/fd/N`) and a thread copies the bytes to `path`.
+
+    rerun-sdk 0.41's file writer thread ends at its first failed write (a full disk: ENOSPC,
+    EFBIG), and a flush queued behind that write is never answered: the recording stream's own
+    thread then waits forever, and with it every later flush, `disconnect` and the SDK's atexit
+    shutdown (the process would never exit). A pipe does not fail, so rerun's writer never meets the
+    disk; the error is this thread's, reported by `sync`, and past it the pipe is still drained
+    (the bytes discarded) so rerun never blocks."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.file = open(path, "wb", buffering=0)
+        self.r, self.w = os.pipe()
+        self.error: OSError | None = None
+        self.eof = False
+        self.cond = threading.Condition()
+        self.readable, self.pending = select.poll(), select.poll()  # one per thread (a poll object is not shared)
+        for q in (self.readable, self.pending):
+            q.register(self.r, select.POLLIN)
+        self.thread = threading.Thread(target=self._copy, name="htm-rrd-spool", daemon=True)
+        self.thread.start()
+
+    @property
+    def sink_path(self) -> str:
+        return f"/dev/fd/{self.w}"
+
+    def sink_opened(self) -> None:
+        """rerun holds its own descriptor of the pipe: drop ours, so its close is our end of file."""
+        os.close(self.w)
+
+    def _copy(self) -> None:
+        while True:
+            self.readable.poll()
+            with self.cond:
+                data = os.read(self.r, 1 << 16)
+                if not data:
+                    self.eof = True
+                    self.cond.notify_all()
+                    return
+                view = memoryview(data)
+                while view and self.error is None:
+                    try:
+                        view = view[self.file.write(view):]
+                    except OSError as e:  # full disk: keep what landed, drain the rest
+                        self.error = e
+                self.cond.notify_all()
+
+    def _pending(self) -> bool:
+        return not self.eof and bool(self.pending.poll(0))
+
+    def sync(self, timeout_s: float = 30.0) -> None:
+        """Wait until every byte rerun has put in the pipe is written (or dropped after an error);
+        raise `OSError` if the file could not be written."""
+        with self.cond:
+            if not self.cond.wait_for(lambda: not self._pending(), timeout_s):
+                raise TimeoutError(f"the recording file took over {timeout_s:g} s to write")
+            if self.error is not None:
+                raise self.error
+
+    def close(self, timeout_s: float = 30.0) -> None:
+        """After rerun closed its end (the footer written): copy to the end, fsync, close."""
+        try:
+            with self.cond:
+                if not self.cond.wait_for(lambda: self.eof, timeout_s):
+                    raise TimeoutError(f"the recording file took over {timeout_s:g} s to finish")
+                if self.error is not None:
+                    raise self.error
+                os.fsync(self.file.fileno())
+        finally:
+            if self.eof:
+                os.close(self.r)
+                self.file.close()
+
+
 class Recording:
     """A rerun recording of one test, saved to `path`; `spawn` starts a viewer, `connect` (a
     rerun+http URL) streams to a running one. `recording_id` is the test's, so the segments of
@@ -83,13 +162,17 @@ class Recording:
         self.f = float(frequency_hz)
         self.full_cycles, self.stride = full_cycles, stride
         self.rec = rr.RecordingStream(APP_ID, recording_id=recording_id)
-        sinks: list[Any] = [rr.FileSink(str(path))]
+        self.spool = _Spool(path)
+        sinks: list[Any] = [rr.FileSink(self.spool.sink_path)]
         if spawn:
             self.rec.spawn(connect=False)
             sinks.append(rr.GrpcSink())
         elif connect:
             sinks.append(rr.GrpcSink(connect))
-        self.rec.set_sinks(*sinks, default_blueprint=blueprint())
+        try:
+            self.rec.set_sinks(*sinks, default_blueprint=blueprint())
+        finally:
+            self.spool.sink_opened()
         self.rec.send_recording_name(name)
         for e, (names, _) in {**CYCLE_GROUPS, **SIGNAL_GROUPS}.items():
             self.rec.log(e, rr.SeriesLines(names=names), static=True)
@@ -148,15 +231,26 @@ class Recording:
         self.rec.log("events", self.rr.TextLog(f"{kind}: {detail}" if detail else kind, level=level))
 
     def flush(self) -> None:
-        """Push what was logged to the sinks; a failed file writer (full disk) raises `RecordError`."""
+        """Push what was logged to the sinks and into the file; a file that cannot be written
+        (full disk) raises `RecordError`."""
         from htm.errors import RecordError
 
         try:
             self.rec.flush(timeout_sec=30.0)
-        except RuntimeError as e:
+            self.spool.sync()
+        except (RuntimeError, OSError) as e:
             raise RecordError(f"cannot write the recording: {e}") from None
 
     def close(self) -> None:
-        """Flush everything and write the file's footer."""
-        self.flush()
-        self.rec.disconnect()
+        """Flush everything and write the file's footer; the sinks are closed even when the file
+        failed (the error is raised after)."""
+        from htm.errors import RecordError
+
+        try:
+            self.flush()
+        finally:
+            self.rec.disconnect()
+            try:
+                self.spool.close()
+            except OSError as e:
+                raise RecordError(f"cannot write the recording: {e}") from None
