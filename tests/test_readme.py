@@ -1,5 +1,5 @@
 """Every command in the README runs as written: each fenced `sh` and `python` block is executed in a
-temporary folder (the checkout's examples, benchmarks and environment linked in, `../shared`
+temporary folder (the checkout's examples, benchmarks, data and environment linked in, `../shared`
 beside it) with a temporary test store. A block that cannot run here (an interactive console, a
 server that runs until interrupted, the test suite itself) says so in the line right above it
 ("not run by the README test: why"); its command lines are then checked to parse."""
@@ -46,12 +46,12 @@ def commands(code: str) -> list[str]:
 
 
 def layout(base: Path) -> Path:
-    """A folder laid out like the checkout (.venv, examples, benchmarks, Makefile linked in) with
-    ../shared beside it; returns the checkout folder."""
+    """A folder laid out like the checkout (.venv, examples, benchmarks, data, Makefile linked in)
+    with ../shared beside it; returns the checkout folder."""
     work = base / "checkout"
     work.mkdir(parents=True)
     (work / ".venv").symlink_to(Path(sys.prefix))
-    for name in ("examples", "benchmarks", "Makefile", "python", "crates", "Cargo.toml", "pyproject.toml"):
+    for name in ("examples", "benchmarks", "data", "Makefile", "python", "crates", "Cargo.toml", "pyproject.toml"):
         (work / name).symlink_to(ROOT / name)
     (base / "shared").symlink_to(shared_dir())
     return work
