@@ -142,6 +142,15 @@ class Problem:
         return d + extra * math.log(max(n_all, 2)), math.exp(floor / max(n_all, 1)) - 1.0
 
 
+    def explained(self, before: dict, after: dict) -> float:
+        """The largest share, over the channels, of the validation residual's systematic part
+        (its mean square above the noise) that going from `before` to `after` removes."""
+        s0 = self.channel_ssr(before, self.val_mask)
+        s1 = self.channel_ssr(after, self.val_mask)
+        shares = [(s0[c][0] - s1[c][0]) / n / max(s0[c][0] / n - 1.0, 1e-12) for c, (_, n) in s0.items() if n > 0]
+        return max(shares, default=0.0)
+
+
 def blocks(n_work: int, n: int, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
     """Fit mask over the working window (the even ones of interleaved `BLOCK_S` blocks) and
     validation mask over the whole record (the odd blocks and all beyond the window)."""

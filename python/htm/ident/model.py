@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -173,6 +173,9 @@ class Candidate:
     starts: tuple[float, ...] = ()
     switch: tuple[tuple[str, float], ...] = ()
     fields: tuple[tuple[str, str], ...] = ()  # (effect parameter name, parameter-set key)
+    # The smallest size worth claiming, as a test of the effect's reported parameters (None: any
+    # size that pays off): below it the effect is within what the base model's form can mimic.
+    claimable: Callable[[dict[str, float]], bool] | None = None
 
     def report(self, p: Any) -> dict[str, float]:
         return {name: float(p[key]) for name, key in self.fields}

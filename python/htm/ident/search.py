@@ -16,11 +16,17 @@ from htm.ident.model import Candidate, Model
 SYSTEMATIC = 1.0
 # A refit must cut the held-out weighted cost by this fraction (and win by BIC) to count.
 MIN_GAIN = 0.05
+# ...and remove this share of the systematic residual (above the noise) of at least one channel:
+# a finding that shaves a few percent off a large misfit is bending to the model's form.
+MIN_SHARE = 0.2
 # Evidence a candidate's signature must carry before it is refitted (chi^2 units, fraction).
 SCREEN_CHI2 = 25.0
 SCREEN_FRACTION = 0.01
 # A probe for structure outside the vocabulary must cut the held-out cost by this much.
 PROBE_GAIN = 0.1
+# ...and account for half of some channel's systematic residual: structure outside the
+# vocabulary is a feature that dominates what is left, not a sliver of the model's form.
+PROBE_SHARE = 0.5
 # Candidates refitted per round: those whose screened gain is at least this share of the best.
 REFIT_SHARE = 0.3
 # Least-squares budgets: Jacobians (one simulation per free parameter each, plus 3 trial steps).
@@ -219,7 +225,8 @@ def probe(prob: Problem, res: Result, pool: list[Candidate], rate: float, log: L
         tpred = prob.whole(trial, twork)
         verdict = pays_off(prob, pred, trial, tpred, model, cand)
         log("probe", cand.label, cand.report(trial.params()), verdict)
-        if verdict["ok"] and verdict["dcost"] < -PROBE_GAIN and (best is None or verdict["dbic"] < best[0]):
+        if (verdict["ok"] and verdict["dcost"] < -PROBE_GAIN and verdict["explained"] >= PROBE_SHARE
+                and (best is None or verdict["dbic"] < best[0])):
             best = (verdict["dbic"], finding(prob, cand, model, pred, trial, tpred, verdict, rate))
     return best[1] if best else None
 
@@ -252,13 +259,17 @@ def _scan(prob: Problem, starts: list[Model], cand: Candidate, q: np.ndarray) ->
 def pays_off(prob: Problem, pred0: dict, trial: Model, tpred: dict, before: Model, cand: Candidate) -> dict[str, Any]:
     """Does the effect pay off on the held-out data? It must beat the model without it by the
     information criterion and by MIN_GAIN of the cost, and so must it against its own refit
-    with the effect switched off (else it only helped the base parameters converge)."""
+    with the effect switched off (else it only helped the base parameters converge); and it
+    must remove MIN_SHARE of some channel's systematic residual (its own signature, not a
+    sliver of a misfit it does not account for)."""
     k = max(1, len(cand.frees))
     dbic, dcost = prob.bic_delta(pred0, tpred, k)
     abl = prob.predict([trial.ablated(before, cand).params()], whole=True)[0]
     abic, acost = prob.bic_delta(abl, tpred, k)
-    ok = dbic < 0 and dcost < -MIN_GAIN and abic < 0 and acost < -MIN_GAIN
-    return {"ok": bool(ok), "dbic": dbic, "dcost": dcost, "ablation_dcost": acost}
+    share = prob.explained(pred0, tpred)
+    big = cand.claimable is None or cand.claimable(cand.report(trial.params()))
+    ok = dbic < 0 and dcost < -MIN_GAIN and abic < 0 and acost < -MIN_GAIN and share >= MIN_SHARE and big
+    return {"ok": bool(ok), "dbic": dbic, "dcost": dcost, "ablation_dcost": acost, "explained": share}
 
 
 def screen(prob: Problem, model: Model, work_pred: dict, jac: np.ndarray,

@@ -13,6 +13,9 @@ from htm.ident.model import Candidate, Free, Model, get_value, has_key, lin, log
 from htm.ident.records import Record
 
 # Base-model parameters stated by the metadata (nominal; bounds say how far a rig may be off).
+# Friction asymmetry claimed from this share of the mean Coulomb friction on (EFFECTS.md's
+# effect is a seal that grips harder one way; a few percent is the friction law's form).
+MIN_ASYMMETRY = 0.1
 RIG_FREES = [
     logf("moving_mass_kg", 0.4, 2.5, prior=0.3),
     logf("valve_rated_flow_m3_s", 0.4, 2.5, prior=0.3),
@@ -128,7 +131,7 @@ class ValveFamily:
             cand("supply_pressure_sag", None, (lin("supply_resistance_pa_s_per_m3", 1e9, 0.0, 1e3),), "v"),
             cand("internal_leakage", None, (lin("leakage_coeff_m3_per_s_pa", 1e-12, 0.0, 1e3),), "load pressure"),
             Candidate("friction_asymmetry", None, (lin("friction_coulomb_diff_n", 50.0, -100.0, 100.0),), "sign(v)",
-                      fields=tuple(sim.effect_fields("friction_asymmetry").items())),
+                      fields=tuple(sim.effect_fields("friction_asymmetry").items()), claimable=_asymmetric),
             cand("pressure_dependent_friction", None, (lin("friction_pressure_coeff_n_per_pa", 1e-6, 0.0, 1e3, step=2.0),),
                  "(p_a + p_b) sign(v)"),
             cand("entrained_air", None, (lin("air_fraction", 1e-3, 0.0, 100.0, step=5.0),), "p_a + p_b"),
@@ -163,10 +166,14 @@ class ValveFamily:
         v = np.gradient(y, 1.0 / rate_hz)
         damping_unit = force_unit / max(float(np.nanstd(v)), 1e-4)
         out: list[Candidate] = []
+        # "Part of the stroke": at most a third of the travel the record visits. A force that
+        # varies smoothly over all of it is the model's form (a line, a hose, a spring), not an
+        # effect outside the vocabulary.
+        widest = max(span / 3 / p["friction_bump_width_m"], 0.2)
         for width in (span / 12, span / 4):
             for centre in np.linspace(lo, hi, 7):
                 band = (lin("friction_bump_position_m", span / 20, 0.0, 1e3, step=0.2, origin=0.0),
-                        logf("friction_bump_width_m", 0.1, 40.0, step=0.1))
+                        logf("friction_bump_width_m", 0.1, widest, step=0.1))
                 # the band's centre and width start where placed (the width as a factor of 5 mm)
                 starts = (band[0].coord(float(centre), 0.0), float(np.log(width / p["friction_bump_width_m"])))
                 for effect, key, unit, low in (("position_force", "force_bump_n", force_unit, -1e3),
@@ -183,6 +190,13 @@ class ValveFamily:
                                      fields=(("sin_pa", "supply_ripple_sin_pa"), ("cos_pa", "supply_ripple_cos_pa"),
                                              ("frequency_hz", "supply_ripple_hz"))))
         return [c for c in out if all(has_key(p, f.key) for f in c.frees)]
+
+
+def _asymmetric(p: dict[str, float]) -> bool:
+    """Coulomb friction that differs with direction by MIN_ASYMMETRY of its mean at least (a
+    smaller difference is within what the friction law's form, Stribeck or pre-sliding, mimics)."""
+    pos, neg = p["coulomb_pos_n"], p["coulomb_neg_n"]
+    return abs(pos - neg) >= MIN_ASYMMETRY * 0.5 * (abs(pos) + abs(neg))
 
 
 def _ripple_frequencies(rec: Record, residual: dict[str, np.ndarray], rate_hz: float, top: int = 2) -> list[float]:
