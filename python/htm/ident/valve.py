@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from htm._core import Params
+from htm.ident import features as ft
 from htm.ident import sim
 from htm.ident.model import Candidate, Free, Model, get_value, has_key, lin, logf
 from htm.ident.records import Record
@@ -123,11 +124,20 @@ class ValveFamily:
                 out += [offset, delay]
             else:
                 out += [offset, gain, delay]
+        # A band of the command narrower than the command's own noise is dithered through: it
+        # has no signature of its own (a closed loop's command carries its sensor's noise).
+        u_noise = ft.noise_floor(np.asarray(self.rec.columns["u"], dtype=float)) if "u" in self.rec.columns else 0.0
+
+        def wider_than_noise(q: dict[str, float]) -> bool:
+            return q["half_width_v"] >= u_noise
+
         out += [
             cand("valve_null_bias", None, (lin("valve_null_bias_v", 0.02, -50.0, 50.0),), "small |u|"),
             cand("valve_dynamics", None, (lin("valve_tau_s", 1e-3, 0.0, 100.0, step=2.0),), "du/dt"),
-            cand("valve_deadband", None, (lin("valve_deadband_half_width_v", 0.05, 0.0, 40.0),), "small |u|"),
-            cand("valve_hysteresis", None, (lin("valve_hysteresis_half_width_v", 0.05, 0.0, 40.0),), "sign(du/dt)"),
+            cand("valve_deadband", None, (lin("valve_deadband_half_width_v", 0.05, 0.0, 40.0),), "small |u|",
+                 claimable=wider_than_noise),
+            cand("valve_hysteresis", None, (lin("valve_hysteresis_half_width_v", 0.05, 0.0, 40.0),), "sign(du/dt)",
+                 claimable=wider_than_noise),
             cand("supply_pressure_sag", None, (lin("supply_resistance_pa_s_per_m3", 1e9, 0.0, 1e3),), "v"),
             cand("internal_leakage", None, (lin("leakage_coeff_m3_per_s_pa", 1e-12, 0.0, 1e3),), "load pressure"),
             Candidate("friction_asymmetry", None, (lin("friction_coulomb_diff_n", 50.0, -100.0, 100.0),), "sign(v)",
