@@ -139,3 +139,15 @@ def test_an_open_loop_record_states_its_horizon_and_keeps_rmse_consistent(tmp_pa
         # each horizon's start, integrates the velocity's error in between
         assert value < (10 if c == "y" else 3) * proving.NOISE_STD[c]
     assert report["findings"] == [] and report["unexplained"] is False  # a clean record
+
+
+def test_a_short_rig_without_a_specimen_is_taken_as_declared():
+    """A stroke shorter than the thesis rig's default zero-force position (0.1 m) with no
+    specimen: the metadata is valid (the unused zero-force position sits mid-stroke)."""
+    from htm.ident import sim
+
+    rec, _ = proving.make_record({}, seed=8, duration_s=1)
+    meta = {**rec.meta, "rig": {**rec.meta["rig"], "stroke_m": 0.065}, "specimen": None}
+    p = sim.params_from_meta(meta)
+    assert p["stroke_m"] == 0.065 and p["specimen_zero_force_position_m"] == pytest.approx(0.0325)
+    assert p["specimen_stiffness_n_m"] == 0.0

@@ -152,8 +152,9 @@ def params_from_meta(meta: Mapping[str, Any]) -> Params:
         p["specimen_stiffness_n_m"] = _number(spec["stiffness_n_m"], "specimen.stiffness_n_m")
         p["specimen_zero_force_position_m"] = _number(spec.get("zero_force_position_m", 0.5 * p["stroke_m"]),
                                                       "specimen.zero_force_position_m")
-    else:
+    else:  # no specimen: its (unused) zero-force position mid-stroke, inside any declared stroke
         p["specimen_stiffness_n_m"] = 0.0
+        p["specimen_zero_force_position_m"] = 0.5 * p["stroke_m"]
     try:
         p.validate()
     except Exception as e:
