@@ -102,9 +102,6 @@ class LiveRecorder:
             while True:
                 stopping = self._stop.wait(PERIOD_S)
                 self._drain()
-                if stopping:
-                    self._close("stopped", "session closed")
-                    return
                 lp = self.s.loop
                 if lp is None or lp.test_no != self.test_no:  # the session closed or another test replaced this one
                     self._close("stopped", "replaced by a new test" if lp is not None else "session closed")
@@ -112,10 +109,13 @@ class LiveRecorder:
                 c = lp.ctrl
                 ended = c.state in ("stopped", "idle") and not lp.powered
                 tripped = not lp.powered and lp.safety.latched() == "power_off"
-                if ended or tripped:
+                if ended or tripped:  # checked first: a session closed right after an e-stop keeps its reason
                     self._drain()
                     end = c.end_reason
                     self._close("finished" if end else "stopped", end or self._stop_reason(lp))
+                    return
+                if stopping:
+                    self._close("stopped", "session closed")
                     return
         except (HtmError, OSError) as e:  # the store failed: say so; the loop runs on safely
             self.error = str(e)
