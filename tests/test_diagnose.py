@@ -151,3 +151,21 @@ def test_a_short_rig_without_a_specimen_is_taken_as_declared():
     p = sim.params_from_meta(meta)
     assert p["stroke_m"] == 0.065 and p["specimen_zero_force_position_m"] == pytest.approx(0.0325)
     assert p["specimen_stiffness_n_m"] == 0.0
+
+
+@pytest.mark.parametrize("drop", [(), ("p_a", "p_b"), ("p_s",), ("v",)])
+def test_bad_samples_are_dropped_with_a_warning_and_missing_channels_are_not_needed(drop):
+    """One sample of 1e400 (inf) and one far out of the declared range in a kept channel are
+    dropped, with a warning in the report, and do not change the diagnosis of a valve null bias;
+    a record without pressures, without p_s or without v is diagnosed, not crashed."""
+    rec, truth = proving.make_record({"valve_null_bias": {}}, seed=21, duration_s=20)
+    # without p_s the supply is the declared one: keep the record before the power unit switches
+    n = int(proving.SUPPLY_SWITCH_AT * len(rec.columns["t"])) if "p_s" in drop else None
+    cols = {k: np.array(v[:n], dtype=float) for k, v in rec.columns.items() if k not in drop}
+    bad = "p_a" if "p_a" in cols else "y"
+    cols[bad][100] = float("1e400")
+    cols[bad][200] = 1e9 if bad == "p_a" else 50.0
+    report = diagnose(Record(cols, rec.meta, "bad"))
+    assert any(bad in w for w in report["warnings"]), report.get("warnings")
+    assert not proving.judge(report, truth)
+    assert all(np.isfinite(v) for v in report["final"]["rmse"].values())
