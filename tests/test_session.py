@@ -96,7 +96,7 @@ def test_rig_in_another_process_over_udp_multicast(tmp_path):
     cfg = tmp_path / "rig.toml"
     cfg.write_text(f'[bus]\ninterface = "udp_multicast"\nchannel = "239.74.163.2"\noptions = {{ hop_limit = 0 }}\n'
                    f'[analog]\ndevice = "{tag}"\n[loop]\nmode = "lockstep"\n')
-    proc = subprocess.Popen([sys.executable, "-m", "htm.control.cli", str(cfg), "--seconds", "60"],
+    proc = subprocess.Popen([sys.executable, "-c", "import sys; from htm.cli import main; sys.exit(main())", "rig", "serve", str(cfg), "--seconds", "60"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
     try:
         assert "virtual rig ready" in proc.stdout.readline()

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import signal
-import sys
 import threading
 from typing import Any
 
@@ -45,9 +44,3 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--spec", help="test spec TOML whose specimen is gripped (default: none)")
     s.add_argument("--seconds", type=float, default=None, help="stop after this many seconds (default: run until interrupted)")
     s.set_defaults(func=cmd_serve)
-
-
-if __name__ == "__main__":
-    from htm.cli import main
-
-    sys.exit(main(["rig", "serve", *sys.argv[1:]]))

@@ -34,6 +34,13 @@ def _columns(rows: list[dict[str, Any]], keys: dict[str, str] | None = None) -> 
     return cols
 
 
+
+def cfg_for_store(spec) -> dict[str, Any]:
+    """The spec as plain data for the store's catalogue (the rig parameters by name)."""
+    cfg = spec.to_config()
+    cfg["params"] = cfg["params"].to_dict()
+    return cfg
+
 class LiveRecorder:
     """Drains a `Session`'s loop into a new test of the store at `store_root` until the test ends
     or `stop()`. The store and its writer live on the recorder's own thread (SQLite connections
@@ -41,7 +48,6 @@ class LiveRecorder:
 
     def __init__(self, session: Any, store_root: Any, spec: Any, test_no: int, first_event: int, *,
                  recording: bool = True) -> None:
-        from htm.control.session import cfg_for_store
         from htm.record import Store, TestWriter
         from htm.record.writer import spec_json
 

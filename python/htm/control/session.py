@@ -47,13 +47,6 @@ SUPPLY_TIMEOUT_S = 3.0
 FIRST_READING_S = 2.0
 
 
-def cfg_for_store(spec) -> dict[str, Any]:
-    """The spec as plain data for the store's catalogue (the rig parameters by name)."""
-    cfg = spec.to_config()
-    cfg["params"] = cfg["params"].to_dict()
-    return cfg
-
-
 def specimen_of(spec) -> dict[str, Any]:
     """The virtual rig's specimen dict for a `TestSpec`."""
     return {"geometry": spec.geometry, "width_m": spec.width_m, "thickness_m": spec.thickness_m, "a0_m": spec.a0_m,
