@@ -108,7 +108,7 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
             + " at its bound and still misses " + ", ".join(f"{c} by {form[c]:.0f}x its noise floor" for c in gross)
             + "; check the `rig` metadata (geometry, valve rating, mass)")
     outside = None
-    if left and not gross and hasattr(family, "probes"):
+    if left and hasattr(family, "probes"):
         # Structure left: is it of a kind outside the vocabulary (a force over part of the stroke,
         # a pump's ripple...)? Only a probe that pays off well makes it unexplained; what no probe
         # reproduces either is the model's form, not an effect it lacks.
