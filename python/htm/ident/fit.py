@@ -141,7 +141,6 @@ class Problem:
         floor = sum(n * math.log(max(s1[c][0] / max(n, 1), 1.0) / max(s0[c][0] / max(n, 1), 1.0)) for c, (_, n) in s0.items())
         return d + extra * math.log(max(n_all, 2)), math.exp(floor / max(n_all, 1)) - 1.0
 
-
     def explained(self, before: dict, after: dict) -> float:
         """The largest share, over the channels, of the validation residual's systematic part
         (its mean square above the noise) that going from `before` to `after` removes."""

@@ -13,10 +13,10 @@ from htm.ident import sim
 from htm.ident.model import Candidate, Free, Model, get_value, has_key, lin, logf
 from htm.ident.records import Record
 
-# Base-model parameters stated by the metadata (nominal; bounds say how far a rig may be off).
 # Friction asymmetry claimed from this share of the mean Coulomb friction on (EFFECTS.md's
 # effect is a seal that grips harder one way; a few percent is the friction law's form).
 MIN_ASYMMETRY = 0.1
+# Base-model parameters stated by the metadata (nominal; bounds say how far a rig may be off).
 RIG_FREES = [
     logf("moving_mass_kg", 0.4, 2.5, prior=0.3),
     logf("valve_rated_flow_m3_s", 0.4, 2.5, prior=0.3),
