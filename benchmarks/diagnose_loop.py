@@ -13,16 +13,11 @@ Run: .venv/bin/python benchmarks/diagnose_loop.py   (prints one JSON object)
 from __future__ import annotations
 
 import json
-import re
-import subprocess
-import sys
-import tempfile
 import time
-from pathlib import Path
 
+from diagnose import run_cli  # benchmarks/diagnose.py, beside this file
 from htm.ident import loop
 from htm.ident.loop_proving import make_loop_record
-from htm.ident.records import write_record
 
 BUDGET_S = 30.0
 EFFECT = {"valve_dynamics": {"tau_s": 0.015}}
@@ -37,22 +32,13 @@ def main() -> None:
     t0 = time.perf_counter()
     loop.simulate([p] * 16, rec)
     batch = time.perf_counter() - t0
-    with tempfile.TemporaryDirectory() as tmp:
-        table, _ = write_record(rec, Path(tmp) / "loop60")
-        out = Path(tmp) / "out"
-        t0 = time.perf_counter()
-        res = subprocess.run([sys.executable, "-m", "htm.cli", "diagnose", str(table), "--out", str(out)],
-                             capture_output=True, text=True)
-        wall = time.perf_counter() - t0
-        if res.returncode != 0:
-            raise SystemExit(f"htm diagnose failed after {wall:.1f} s (exit {res.returncode}): {res.stderr.strip()}")
-        report = json.loads((out / "report.json").read_text())
+    wall, simulations, report = run_cli(rec)  # the CLI as a user runs it, as benchmarks/diagnose.py does
     print(json.dumps({
         "benchmark": "htm diagnose, 60 s machine_position record at 1 kHz (y_ref, y, f), one effect",
         "seconds": round(wall, 2),
         "budget_s": BUDGET_S,
         "within_budget": wall <= BUDGET_S,
-        "simulations": int(re.search(r"(\d+) simulations", res.stdout).group(1)),
+        "simulations": simulations,
         "one_60s_simulation_s": round(one, 4),
         "batch_of_16_60s_simulations_s": round(batch, 4),
         "found": [{"effect": f["effect"], "channel": f["channel"], "params": f["params"]} for f in report["findings"]],

@@ -165,6 +165,20 @@ pub fn corrupt(r: &mut [f64; NC], c: &Corruption<'_>, k: usize) {
     }
 }
 
+/// A recorded column with dropped samples (NaN) replaced by the previous value (the first
+/// finite one at the start).
+pub fn held(x: &[f64]) -> Vec<f64> {
+    let mut last = x.iter().copied().find(|v| v.is_finite()).unwrap_or(0.0);
+    x.iter()
+        .map(|&v| {
+            if v.is_finite() {
+                last = v;
+            }
+            last
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -37,6 +37,7 @@
 use crate::error::{Error, Result};
 use crate::hydraulics::smooth_opening;
 use crate::machine::CLOSURE_SMOOTHING_M;
+use crate::measure::held;
 use crate::params::Field;
 
 macro_rules! define_loop_params {
@@ -210,19 +211,6 @@ fn dead_zone(x: f64, half: f64) -> f64 {
     } else {
         x.signum() * (x.abs() - half).max(0.0)
     }
-}
-
-/// Dropped samples (NaN) replaced by the previous value (the first finite one at the start).
-fn held(x: &[f64]) -> Vec<f64> {
-    let mut last = x.iter().copied().find(|v| v.is_finite()).unwrap_or(0.0);
-    x.iter()
-        .map(|&v| {
-            if v.is_finite() {
-                last = v;
-            }
-            last
-        })
-        .collect()
 }
 
 /// Samples per update of the command the machine sees (at least 1).

@@ -7,7 +7,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use crate::control::Controller;
 use crate::error::{Error, Result};
 use crate::machine::{Machine, PA, PB, V, Y};
-use crate::measure::{as_outputs, corrupt, Corruption, Probe, Sensors, NC};
+use crate::measure::{as_outputs, corrupt, held, Corruption, Probe, Sensors, NC};
 use crate::params::Params;
 use crate::solver::Stats;
 
@@ -335,20 +335,6 @@ fn push(out: &mut Replayed, rd: &[f64; NC], u: f64) {
         v.push(*r);
     }
     out.u.push(u);
-}
-
-/// A copy with dropped samples (NaN) replaced by the previous value (the first finite one at
-/// the start).
-fn held(x: &[f64]) -> Vec<f64> {
-    let mut last = x.iter().copied().find(|v| v.is_finite()).unwrap_or(0.0);
-    x.iter()
-        .map(|&v| {
-            if v.is_finite() {
-                last = v;
-            }
-            last
-        })
-        .collect()
 }
 
 #[cfg(test)]

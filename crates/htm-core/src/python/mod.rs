@@ -7,7 +7,7 @@ use pyo3::types::{PyDict, PyList};
 
 use crate::control::Controller;
 use crate::machine::{Machine, Outputs, NX};
-use crate::params::{Params, FIELDS};
+use crate::params::{Field, Params, FIELDS};
 use crate::run::{self, Trace};
 use crate::solver::{OdeSystem, Stats};
 use crate::Error;
@@ -41,6 +41,32 @@ fn py_err(e: Error) -> PyErr {
         Error::Input(_) => InputError::new_err(e.to_string()),
         Error::Solver(_) => SolverError::new_err(e.to_string()),
     }
+}
+
+/// `{name: value}` of a parameter set's fields (both parameter bindings).
+pub(crate) fn values_dict<'py>(py: Python<'py>, fields: &[Field], get: impl Fn(&str) -> Option<f64>) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    for f in fields {
+        d.set_item(f.name, get(f.name))?;
+    }
+    Ok(d)
+}
+
+/// Name, unit, documentation and allowed range of each field (both parameter bindings).
+pub(crate) fn field_table<'py>(py: Python<'py>, fields: &[Field]) -> PyResult<Bound<'py, PyList>> {
+    let out = PyList::empty(py);
+    for f in fields {
+        let d = PyDict::new(py);
+        d.set_item("name", f.name)?;
+        d.set_item("unit", f.unit)?;
+        d.set_item("doc", f.doc.trim())?;
+        d.set_item("min", f.min)?;
+        d.set_item("max", f.max)?;
+        d.set_item("min_open", f.min_open)?;
+        d.set_item("allowed", f.allowed())?;
+        out.append(d)?;
+    }
+    Ok(out)
 }
 
 /// Machine parameters (SI); `Params()` is the thesis rig, `Params("base")` the same rig with
@@ -93,29 +119,13 @@ impl PyParams {
     }
 
     fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let d = PyDict::new(py);
-        for f in FIELDS {
-            d.set_item(f.name, self.inner.get(f.name).unwrap())?;
-        }
-        Ok(d)
+        values_dict(py, FIELDS, |name| self.inner.get(name))
     }
 
     /// Name, unit, documentation and allowed range of every scalar field.
     #[staticmethod]
     fn fields<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
-        let out = PyList::empty(py);
-        for f in FIELDS {
-            let d = PyDict::new(py);
-            d.set_item("name", f.name)?;
-            d.set_item("unit", f.unit)?;
-            d.set_item("doc", f.doc.trim())?;
-            d.set_item("min", f.min)?;
-            d.set_item("max", f.max)?;
-            d.set_item("min_open", f.min_open)?;
-            d.set_item("allowed", f.allowed())?;
-            out.append(d)?;
-        }
-        Ok(out)
+        field_table(py, FIELDS)
     }
 
     /// Command-to-spool knots (command after bias [V], spool [V]); empty lists = linear.

@@ -5,7 +5,7 @@ use pyo3::exceptions::PyKeyError;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
-use super::{py_err, InputError};
+use super::{field_table, py_err, values_dict, InputError};
 use crate::outer_loop::{simulate_batch, validate_input, LoopOutput, LoopParams, LOOP_FIELDS, STALL_FORCE_KEY};
 
 /// Parameters of a machine's closed displacement loop (SI); `LoopParams()` has every effect off.
@@ -52,29 +52,13 @@ impl PyLoopParams {
     }
 
     fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let d = PyDict::new(py);
-        for f in LOOP_FIELDS {
-            d.set_item(f.name, self.inner.get(f.name).unwrap())?;
-        }
-        Ok(d)
+        values_dict(py, LOOP_FIELDS, |name| self.inner.get(name))
     }
 
     /// Name, unit, documentation and allowed range of every field.
     #[staticmethod]
     fn fields<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
-        let out = PyList::empty(py);
-        for f in LOOP_FIELDS {
-            let d = PyDict::new(py);
-            d.set_item("name", f.name)?;
-            d.set_item("unit", f.unit)?;
-            d.set_item("doc", f.doc.trim())?;
-            d.set_item("min", f.min)?;
-            d.set_item("max", f.max)?;
-            d.set_item("min_open", f.min_open)?;
-            d.set_item("allowed", f.allowed())?;
-            out.append(d)?;
-        }
-        Ok(out)
+        field_table(py, LOOP_FIELDS)
     }
 
     #[classattr]
