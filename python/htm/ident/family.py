@@ -24,7 +24,8 @@ class Family(Protocol):
     closed_loop: bool  # sensor noise acts inside a loop the model re-simulates
     has_command: bool  # a recorded command the model can be driven with instead of its loop
     # Optional `whole_record: bool`: fit on the whole record, not only the caller's first
-    # `work_s` seconds (a family whose simulation is cheap; absent = False).
+    # `work_s` seconds (a family whose simulation is cheap; absent = False). Optional
+    # `first_stage: frozenset[str]`: details held while the gross parameters are first fitted.
 
     def start(self, base: Model) -> np.ndarray: ...  # the coordinates a fit starts from
 

@@ -103,13 +103,18 @@ class Model:
         """Keys of the (first `n`) free parameters that sit at a bound."""
         return [f.key for f, x in zip(self.frees[:n], self.x[:n]) if f.pinned(x)]
 
-    def unpinned(self, start: np.ndarray) -> "Model":
+    def unpinned(self, start: np.ndarray, nominal: np.ndarray | None = None) -> "Model":
         """This model with parameters that sit at a bound moved back to `start`: a base parameter
-        pinned at its bound was standing in for an effect the model lacked."""
+        pinned at its bound was standing in for an effect the model lacked. One that started at
+        a bound (a spool started static) stays there if it never left it, else goes to `nominal`."""
         x = self.x.copy()
         for i, f in enumerate(self.frees[: len(start)]):
-            if f.pinned(x[i]):
+            if not f.pinned(x[i]):
+                continue
+            if not f.pinned(start[i]):
                 x[i] = start[i]
+            elif nominal is not None and abs(x[i] - start[i]) > 2 * PIN:
+                x[i] = nominal[i]
         return self.at(x)
 
     def with_candidate(self, cand: "Candidate", x0: float | None = None) -> "Model":

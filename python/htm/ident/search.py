@@ -27,6 +27,8 @@ PROBE_GAIN = 0.1
 # ...and account for half of some channel's systematic residual: structure outside the
 # vocabulary is a feature that dominates what is left, not a sliver of the model's form.
 PROBE_SHARE = 0.5
+# An offset and a gain of one sensor screened within this share of each other are twins.
+TWIN = 0.02
 # Candidates refitted per round: those whose screened gain is at least this share of the best.
 REFIT_SHARE = 0.3
 # Least-squares budgets: Jacobians (one simulation per free parameter each, plus 3 trial steps).
@@ -89,6 +91,9 @@ def search(prob: Problem, base: Model, nominal: Any, pool: list[Candidate], rate
     details of a real rig — its spool, return line, orifice shape — that would otherwise wander
     into a wrong basin while the gross parameters are far off), then with all free."""
     x0 = base.x.copy()
+    # The nominal values (the spool at its typical value, not static as the fit starts it):
+    # where a parameter pinned at the bound it started from goes back to (Model.unpinned).
+    xn = base.start()
     if first:
         base, _, _ = fit(prob, base, iters=BASE_ITERS, hold=first)
         log("first stage", {k: f"{v:.4g}" for k, v in base.values().items()})
@@ -113,7 +118,7 @@ def search(prob: Problem, base: Model, nominal: Any, pool: list[Candidate], rate
         log("refit without effect", {c: round(v, 2) for c, v in ratios.items()})
         if max(ratios.values()) <= SYSTEMATIC:
             break
-        ranked = screen(prob, model, work_pred, jac, pool)
+        ranked = _untwinned(screen(prob, model, work_pred, jac, pool))
         q = np.linalg.qr(jac)[0]  # what the base parameters can absorb, to first order
         log("screen", [(c.effect, c.channel, round(g, 3)) for c, g, _ in ranked[:6]])
         good: list[tuple[Candidate, dict, Model, dict]] = []
@@ -124,9 +129,7 @@ def search(prob: Problem, base: Model, nominal: Any, pool: list[Candidate], rate
             # Refit from the current fit and from the nominal base parameters (the current fit may
             # have bent them to stand in for this very effect), each at the best size of the
             # candidate's parameter; keep the better fit.
-            restart = model.x.copy()
-            restart[: len(x0)] = x0
-            starts = [start.with_candidate(cand, step) for start in (model.unpinned(x0), model.at(restart))]
+            starts = [start.with_candidate(cand, step) for start in _restarts(model, x0, xn)]
             trial, twork, tjac = fit(prob, _scan(prob, starts, cand, q), iters=REFIT_ITERS)
             tpred = prob.whole(trial, twork)
             verdict = pays_off(prob, pred, trial, tpred, model, cand)
@@ -153,7 +156,7 @@ def search(prob: Problem, base: Model, nominal: Any, pool: list[Candidate], rate
         polished = []
         for cand, _, trial, twork in contenders:
             trial, twork, tjac = fit(prob, trial, iters=POLISH_ITERS, pred0=twork)
-            again = trial.unpinned(x0)
+            again = trial.unpinned(x0, xn)
             if not np.array_equal(again.x, trial.x):
                 # Stuck with base parameters at a bound: polish once more from their nominal values.
                 retry = fit(prob, again, iters=POLISH_ITERS)
@@ -229,6 +232,33 @@ def probe(prob: Problem, res: Result, pool: list[Candidate], rate: float, log: L
                 and (best is None or verdict["dbic"] < best[0])):
             best = (verdict["dbic"], finding(prob, cand, model, pred, trial, tpred, verdict, rate))
     return best[1] if best else None
+
+
+def _untwinned(ranked: list[tuple[Candidate, float, float | None]]) -> list[tuple[Candidate, float, float | None]]:
+    """The screen's ranking with one of each pair of twins: an offset and a gain of one sensor
+    that explain the residual alike (TWIN) — a channel that barely moves, like a supply gauge —
+    are one candidate; the more common (PREFERENCE) is refitted and the slot goes to the next."""
+    out: list[tuple[Candidate, float, float | None]] = []
+    for entry in ranked:
+        c, g = entry[0], entry[1]
+        twin = next((i for i, (o, go, _) in enumerate(out) if o.channel == c.channel and o.channel is not None
+                     and {o.effect, c.effect} == {"sensor_offset", "sensor_gain"} and abs(g - go) <= TWIN * go), None)
+        if twin is None:
+            out.append(entry)
+        elif PREFERENCE.index(c.effect) < PREFERENCE.index(out[twin][0].effect):
+            out[twin] = entry
+    return out
+
+
+def _restarts(model: Model, x0: np.ndarray, xn: np.ndarray) -> list[Model]:
+    """Where a refit with a new effect starts: the current fit with its pinned parameters sent
+    back (to where the search started them, or to nominal where that start was itself a bound:
+    a spool the fit pinned slow to stand in for a lag goes to its typical 150 Hz, not back to
+    static, from where the flat cost between them would never lead it), and the base
+    parameters anew from where the search started them."""
+    restart = model.x.copy()
+    restart[: len(x0)] = x0
+    return [model.unpinned(x0, xn), model.at(restart)]
 
 
 def _scan(prob: Problem, starts: list[Model], cand: Candidate, q: np.ndarray) -> Model:

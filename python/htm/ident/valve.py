@@ -16,6 +16,8 @@ from htm.ident.records import Record
 # Friction asymmetry claimed from this share of the mean Coulomb friction on (EFFECTS.md's
 # effect is a seal that grips harder one way; a few percent is the friction law's form).
 MIN_ASYMMETRY = 0.1
+# A sensor's gain claimed off from this relative error (transducers are calibrated to ±0.1-0.5 %).
+MIN_GAIN_ERROR = 0.01
 # Base-model parameters stated by the metadata (nominal; bounds say how far a rig may be off).
 RIG_FREES = [
     logf("moving_mass_kg", 0.4, 2.5, prior=0.3),
@@ -42,7 +44,8 @@ OTHER_FREES = [
     logf("valve_natural_hz", 0.4, 60.0, step=0.05, prior=1.0),
     logf("valve_damping", 0.5, 1.6, step=0.05, prior=0.3),
     lin("tank_pressure_pa", 1e5, 0.0, 10.0, step=0.1),
-    lin("bulk_modulus_slope", 1.0, 0.0, 20.0, step=0.5, prior=10.0),
+    # The tangent modulus of a mineral oil rises by 8-12 Pa per Pa (K'); a steeper rise is air.
+    lin("bulk_modulus_slope", 1.0, 0.0, 12.0, step=0.5, prior=10.0),
 ]
 # Typical values of what the metadata leaves out (a servo-valve's spool).
 SPOOL_HZ, SPOOL_DAMPING = 150.0, 0.7
@@ -111,7 +114,8 @@ class ValveFamily:
 
         for c in channels:
             offset = cand("sensor_offset", c, (lin(f"sensor_offset_{c}", scales[c], -1e3, 1e3),), "constant")
-            gain = cand("sensor_gain", c, (lin(f"sensor_gain_{c}", 0.01, -50.0, 50.0, origin=1.0),), f"predicted {c}")
+            gain = cand("sensor_gain", c, (lin(f"sensor_gain_{c}", 0.01, -50.0, 50.0, origin=1.0),), f"predicted {c}",
+                        claimable=_calibrated_off)
             delay = cand("sensor_delay", c, (lin(f"sensor_delay_{c}_s", dt, 0.0, 100.0),), f"d(predicted {c})/dt")
             # The loop regulates what its own sensor reads: an offset or gain of that sensor only
             # moves the true state, which nothing else measures — unless a specimen ties position
@@ -200,6 +204,12 @@ class ValveFamily:
                                      fields=(("sin_pa", "supply_ripple_sin_pa"), ("cos_pa", "supply_ripple_cos_pa"),
                                              ("frequency_hz", "supply_ripple_hz"))))
         return [c for c in out if all(has_key(p, f.key) for f in c.frees)]
+
+
+def _calibrated_off(p: dict[str, float]) -> bool:
+    """A gain off by MIN_GAIN_ERROR at least: within it a transducer is inside its calibration
+    tolerance, and a fit's gain there is taking up the model's form, not a fault."""
+    return abs(p["gain"] - 1.0) >= MIN_GAIN_ERROR
 
 
 def _asymmetric(p: dict[str, float]) -> bool:
