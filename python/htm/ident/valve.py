@@ -44,8 +44,7 @@ OTHER_FREES = [
     logf("valve_natural_hz", 0.4, 60.0, step=0.05, prior=1.0),
     logf("valve_damping", 0.5, 1.6, step=0.05, prior=0.3),
     lin("tank_pressure_pa", 1e5, 0.0, 10.0, step=0.1),
-    # The tangent modulus of a mineral oil rises by 8-12 Pa per Pa (K'); a steeper rise is air.
-    lin("bulk_modulus_slope", 1.0, 0.0, 12.0, step=0.5, prior=10.0),
+    lin("bulk_modulus_slope", 1.0, 0.0, 20.0, step=0.5, prior=10.0),
 ]
 # Typical values of what the metadata leaves out (a servo-valve's spool).
 SPOOL_HZ, SPOOL_DAMPING = 150.0, 0.7
