@@ -1,7 +1,6 @@
 """The fatigue test engine: thesis reproductions (chapter 4), ΔK control, bad specs, `htm run`."""
 from __future__ import annotations
 
-import copy
 import json
 import tomllib
 from pathlib import Path

@@ -81,7 +81,8 @@ def test_diagnosis_finds_nothing_in_pure_paris_data():
 
 def test_virkler_subset_shows_curvature_that_the_refit_reduces():
     src = shared_dir() / "data" / "virkler_2024t3" / "virkler_a_vs_n_specimens_1_40.csv"
-    import tempfile, pathlib
+    import pathlib
+    import tempfile
     with tempfile.TemporaryDirectory() as t:
         p = pathlib.Path(t) / "v.csv"
         p.write_text(src.read_text().replace("a_half_crack_mm", "a_mm", 1))

@@ -3,7 +3,6 @@ corrupted files, a full disk."""
 from __future__ import annotations
 
 import errno
-import os
 import random
 import resource
 import signal

@@ -2,7 +2,7 @@
 `rig` metadata block."""
 from __future__ import annotations
 
-from typing import Mapping
+from collections.abc import Mapping
 
 from htm._core import Params
 from htm.errors import ParameterError

@@ -18,7 +18,6 @@ from htm.errors import HtmError
 from htm.spec import TestSpec, load, parse
 
 
-
 def run_spec(spec: TestSpec, mode: str | None = None, progress: bool = False) -> tuple[dict[str, Any], float]:
     """Run `spec` in `mode` (default: the spec's); returns (engine result, wall seconds)."""
     cfg = spec.to_config()
@@ -237,7 +236,8 @@ def cmd_run(args: argparse.Namespace) -> int:
             if s["report"] and not s["report"].startswith("not"):
                 store.add_file(test_id, "report", Path(s["report"]))
     print(summary_text(spec, s))
-    print(f"outputs: {out_dir}/summary.json, cycles.parquet, summary.txt" + (f", {Path(s['report']).name}" if s["report"] and not s["report"].startswith("not") else ""))
+    report = f", {Path(s['report']).name}" if s["report"] and not s["report"].startswith("not") else ""
+    print(f"outputs: {out_dir}/summary.json, cycles.parquet, summary.txt{report}")
     return 0
 
 

@@ -8,7 +8,8 @@ import math
 import os
 import time
 from collections import deque
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from htm import _core
 from htm.control.safety import CH, FRACTURE_STATES, EventLog, FractureWatch, Safety

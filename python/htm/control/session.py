@@ -26,9 +26,10 @@ import math
 import sys
 import threading
 import time
+from collections.abc import Callable
 from concurrent.futures import Future
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from htm import _core
 from htm.control.loop import ControlLoop
@@ -70,7 +71,7 @@ class Session:
     # -- life cycle ---------------------------------------------------------------------------------
     def open(self, config: RigConfig | str | Path | None = None, *, virtual: bool | None = None,
              specimen: dict[str, Any] | None = None, thread: bool = True, mode: str | None = None,
-             paced: bool = False) -> "Session":
+             paced: bool = False) -> Session:
         """Validate the configuration, open the bus and the DAQ, check the transducer over SDO, start
         it (NMT) and the loop. `None` = an in-process virtual rig; `virtual=True` puts one behind
         any config. `paced=True` with a lock-step in-process rig keeps the deterministic device path
@@ -195,7 +196,7 @@ class Session:
             self.rig = None
         self.loop = None
 
-    def __enter__(self) -> "Session":
+    def __enter__(self) -> Session:
         return self
 
     def __exit__(self, *exc: Any) -> None:
@@ -229,7 +230,7 @@ class Session:
 
     def _supply_min_pa(self) -> float:
         """The lowest supply pressure the detectors accept [Pa] (0 without a supply limit)."""
-        return max((l.lo for l in self.cfg.limits if l.channel == "p_s_pa" and l.action != "indicate"), default=0.0)
+        return max((lim.lo for lim in self.cfg.limits if lim.channel == "p_s_pa" and lim.action != "indicate"), default=0.0)
 
     def _load_supply(self) -> None:
         """Load the supply and wait until its pressure is within its detector's range, before

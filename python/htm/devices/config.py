@@ -10,8 +10,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import canopen
 import can
+import canopen
 
 from htm.devices.calibration import Channel, load_calibration
 from htm.errors import DeviceError
@@ -134,8 +134,8 @@ class RigConfig:
 
     def detector_specs(self) -> list[dict[str, Any]]:
         """The limits as `htm._core.Detectors` items."""
-        return [{"name": l.name, "channel": CHANNELS.index(l.channel), "lo": l.lo, "hi": l.hi, "action": l.action,
-                 "persist": l.persist} for l in self.limits]
+        return [{"name": lim.name, "channel": CHANNELS.index(lim.channel), "lo": lim.lo, "hi": lim.hi, "action": lim.action,
+                 "persist": lim.persist} for lim in self.limits]
 
 
 def _err(msg: str) -> DeviceError:

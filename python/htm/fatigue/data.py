@@ -51,7 +51,7 @@ class Setup:
     @classmethod
     def from_loads(cls, geometry: str, width_m: float, thickness_m: float, *, r_ratio: float,
                    delta_p_n: float | None = None, pmax_n: float | None = None,
-                   yield_strength_pa: float | None = None) -> "Setup":
+                   yield_strength_pa: float | None = None) -> Setup:
         """Build from ΔP [N] or Pmax [N] (exactly one) and R."""
         if (delta_p_n is None) == (pmax_n is None):
             raise SpecError("give exactly one of delta_p_n (force range) or pmax_n (maximum force)")

@@ -8,7 +8,6 @@ use super::fatigue::law_from;
 use super::{py_err, InputError, PyParams};
 use crate::control::limits::{Action, Detector, Detectors};
 use crate::cyclic::{Cyclic, CycleResult, PositionGains};
-use crate::params::Params;
 use crate::rig::{CrackingSpecimen, RigPlant};
 use crate::specimen::{Geometry, Material, Specimen};
 
@@ -256,7 +255,7 @@ impl PyRigPlant {
     #[new]
     #[pyo3(signature = (params = None, specimen = None, rtol = 1e-4))]
     fn new(params: Option<PyParams>, specimen: Option<&Bound<'_, PyDict>>, rtol: f64) -> PyResult<Self> {
-        let p = params.map(|p| p.inner).unwrap_or_else(Params::default);
+        let p = params.map(|p| p.inner).unwrap_or_default();
         let spec = match specimen {
             None => None,
             Some(d) => {

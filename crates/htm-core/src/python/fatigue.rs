@@ -69,9 +69,11 @@ fn stress_intensity<'py>(py: Python<'py>, geometry: &str, width_m: f64, thicknes
     Ok(PyArray1::from_vec(py, v))
 }
 
+type Array<'py> = Bound<'py, PyArray1<f64>>;
+
 /// E647 size criterion at each crack size: (ligament [m], required ligament [m]).
 #[pyfunction]
-fn size_criterion<'py>(py: Python<'py>, geometry: &str, width_m: f64, thickness_m: f64, a_m: PyReadonlyArray1<'py, f64>, pmax_n: f64, yield_strength_pa: f64) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>)> {
+fn size_criterion<'py>(py: Python<'py>, geometry: &str, width_m: f64, thickness_m: f64, a_m: PyReadonlyArray1<'py, f64>, pmax_n: f64, yield_strength_pa: f64) -> PyResult<(Array<'py>, Array<'py>)> {
     let s = spec(geometry, width_m, thickness_m)?;
     let a = a_m.as_slice()?;
     let pairs: Vec<(f64, f64)> = py.detach(|| a.iter().map(|&x| s.size_criterion(x, pmax_n, yield_strength_pa)).collect::<Result<_>>()).map_err(py_err)?;

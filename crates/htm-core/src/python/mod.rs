@@ -1,5 +1,5 @@
 //! Thin pyo3 bindings: convert, release the GIL, map errors. No numerics here.
-use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray1};
+use numpy::{PyArray1, PyReadonlyArray1};
 use pyo3::create_exception;
 use pyo3::exceptions::{PyException, PyKeyError};
 use pyo3::prelude::*;
@@ -9,7 +9,7 @@ use crate::control::Controller;
 use crate::machine::{Machine, Outputs, NX};
 use crate::params::{Field, Params, FIELDS};
 use crate::run::{self, Trace};
-use crate::solver::{OdeSystem, Stats};
+use crate::solver::Stats;
 use crate::Error;
 
 mod control;
