@@ -241,6 +241,20 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_resume(args: argparse.Namespace) -> int:
+    from htm.record.store import Store
+
+    with Store(args.store) as store:
+        test_id, spec, mode, out, wall = resume_recorded(store, args.id, progress=not args.quiet, recording=not args.no_recording,
+                                                         spawn=args.spawn, connect=args.connect)
+        t = store.get(test_id)
+    print(f"test {test_id}: {t['status']}, {t['end_reason']} after {t['cycles']:,} cycles")
+    if args.out and "cycles" in out:
+        s = write_outputs(Path(args.out), spec, out, wall, mode)
+        print(summary_text(spec, s))
+    return 0
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("run", help="run a fatigue crack growth test spec (TOML) on the simulated rig",
                        description="Run a whole fatigue crack growth test (plant, controller, specimen, crack growth) "
@@ -252,6 +266,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_store_args(p)
     p.add_argument("--no-store", action="store_true", help="do not record into the store (no journal, no resume, no recording)")
     p.set_defaults(func=cmd_run)
+
+    r = sub.add_parser("resume", help="continue a simulated test after a crash or a stop",
+                       description="Continue a test from its journal: the engine state of the last block written "
+                                   "(cycle count, crack length, controller, waveform), into the same store and recording.")
+    r.add_argument("id")
+    r.add_argument("--out", help="also write summary.json, cycles.parquet and the report here")
+    r.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_store_args(r)
+    r.set_defaults(func=cmd_resume)
 
 
 def writable(out_dir: Path) -> None:

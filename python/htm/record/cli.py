@@ -1,4 +1,4 @@
-"""`htm db list | show ID | export ID | delete ID` and `htm resume ID`: the test store from the shell."""
+"""`htm db list | show ID | export ID | delete ID`: the test store from the shell (`htm resume ID` is htm.run's)."""
 from __future__ import annotations
 
 import argparse
@@ -128,23 +128,7 @@ def cmd_delete(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_resume(args: argparse.Namespace) -> int:
-    from htm.run import resume_recorded, summary_text, write_outputs
-
-    with Store(args.store) as store:
-        test_id, spec, mode, out, wall = resume_recorded(store, args.id, progress=not args.quiet, recording=not args.no_recording,
-                                                         spawn=args.spawn, connect=args.connect)
-        t = store.get(test_id)
-    print(f"test {test_id}: {t['status']}, {t['end_reason']} after {t['cycles']:,} cycles")
-    if args.out and "cycles" in out:
-        s = write_outputs(Path(args.out), spec, out, wall, mode)
-        print(summary_text(spec, s))
-    return 0
-
-
 def register(sub: argparse._SubParsersAction) -> None:
-    from htm.run import add_store_args
-
     db = sub.add_parser("db", help="the test store: list, show, export, delete tests",
                         description="Query the test store (SQLite catalogue + Parquet tables + rerun recordings).")
     dsub = db.add_subparsers(dest="db_command", required=True, metavar="ACTION")
@@ -167,12 +151,3 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_delete)
     for q in dsub.choices.values():
         q.add_argument("--store", help="test store folder (default $HTM_STORE or ~/.local/share/htm/store)")
-
-    r = sub.add_parser("resume", help="continue a simulated test after a crash or a stop",
-                       description="Continue a test from its journal: the engine state of the last block written "
-                                   "(cycle count, crack length, controller, waveform), into the same store and recording.")
-    r.add_argument("id")
-    r.add_argument("--out", help="also write summary.json, cycles.parquet and the report here")
-    r.add_argument("--quiet", action="store_true", help="no progress bar")
-    add_store_args(r)
-    r.set_defaults(func=cmd_resume)
