@@ -48,6 +48,32 @@ def run_spec(spec: TestSpec, mode: str | None = None, progress: bool = False) ->
     return box["out"], wall
 
 
+def run_test(spec: TestSpec | str | Path, mode: str | None = None, *, progress: bool = False) -> dict[str, Any]:
+    """Run a whole fatigue crack growth test on the simulated rig (plant, controller, specimen,
+    crack growth in the Rust core), without recording it into the store.
+
+    Parameters
+    ----------
+    spec : TestSpec or str or Path
+        The test, or the path of its TOML spec.
+    mode : str, optional
+        ``"full"`` (every cycle through the plant) or ``"jump"`` (cycle-jump); default the spec's.
+    progress : bool
+        Draw a progress bar on stderr.
+
+    Returns
+    -------
+    dict
+        ``end_reason``, ``cycles``, final crack size ``a_end_m`` [m] and the per-cycle table
+        ``table`` (SI columns: ``a_m`` [m], ``delta_k_pa_sqrt_m`` [Pa·√m], measured peaks and
+        valleys [N], errors [%], ``events``).
+    """
+    if not isinstance(spec, TestSpec):
+        spec = load(spec)
+    out, _ = run_spec(spec, mode, progress)
+    return out
+
+
 # raw high-rate windows of a simulated test: the first 30 cycles (start-up), 2 cycles from each
 # decade, 2 cycles before and after each event
 RAW_POLICY = {"first_cycles": 30, "decade_cycles": 2, "pre_cycles": 2, "post_cycles": 2}

@@ -73,7 +73,22 @@ def _now() -> str:
 
 
 class Store:
-    """A store at `root` (created when missing). Catalogue errors raise `RecordError`."""
+    """The test store: a SQLite catalogue of tests with their per-cycle tables (Parquet), events,
+    specs and files.
+
+    Parameters
+    ----------
+    root : str or Path, optional
+        The store's folder, created when missing (default ``$HTM_STORE``, else
+        ``~/.local/share/htm/store``).
+
+    Notes
+    -----
+    Tables hold SI columns (``a_m`` [m], ``delta_k_pa_sqrt_m`` [Pa·√m], forces [N], times [s]).
+    ``list()`` gives every test, ``get(id)`` one test's catalogue row, ``cycles(id)`` its
+    per-cycle table as numpy arrays. Use it as a context manager to close the catalogue.
+    Catalogue errors raise RecordError.
+    """
 
     def __init__(self, root: Path | str | None = None):
         self.root = Path(root) if root is not None else default_root()
