@@ -8,7 +8,7 @@ __all__ = [
     "HtmError", "InputError", "ParameterError", "SolverError", "__version__",
     "Params", "Machine", "g_ct", "h_ct", "a_range", "stress_intensity", "size_criterion", "compliance_ct", "stiffness_ct",
     "crack_length_from_compliance_ct", "growth_rate", "newman_f", "life", "life_curve", "crack_after", "pmax_from_delta_p",
-    "CyclicController", "Detectors", "RigPlant", "Progress", "run_test", "validate_test", "run_batch", "TestRun",
+    "CyclicController", "Detectors", "RigPlant", "Progress", "EVENTS", "run_test", "validate_test", "run_batch", "TestRun",
     "friction_force", "LoopParams", "loop_simulate", "replay",
 ]
 
@@ -77,6 +77,9 @@ def life_curve(law: dict, geometry: str, width_m: float, thickness_m: float, pma
 def crack_after(law: dict, geometry: str, width_m: float, thickness_m: float, pmax_n: float, r_ratio: float, a0_m: float, cycles: float) -> dict: ...
 def pmax_from_delta_p(delta_p_n: float, r_ratio: float) -> float: ...
 # --- fatigue test engine (crates/htm-core/src/engine.rs); config dicts come from htm.spec ---
+
+# event bits of the engine's per-cycle `events` column, by name (engine.rs `events`)
+EVENTS: dict[str, int]
 
 @final
 class Progress:

@@ -167,7 +167,7 @@ def resume_recorded(store: Any, test_id: str, progress: bool = False, *, recordi
     chunks = [r for r in records if r.kind == journal.CHUNK]
     closed = [r for r in records if r.kind == journal.CLOSE]
     if closed or (chunks and not chunks[-1].blob and len(chunks[-1].arrays.get("events", []))
-                  and int(chunks[-1].arrays["events"][-1]) & 256):
+                  and int(chunks[-1].arrays["events"][-1]) & _core.EVENTS["end"]):
         # the run had ended (its last rows are in): only the closing was cut short
         m = closed[-1].meta if closed else {}
         writer.event("resumed", "closing a test that had ended")
