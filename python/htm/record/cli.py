@@ -2,10 +2,7 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
-
-import numpy as np
 
 from htm.errors import RecordError
 from htm.record.store import Store
@@ -69,53 +66,10 @@ def resume_hint(t: dict) -> str:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    import pyarrow as pa
-    import pyarrow.csv as pacsv
-    import pyarrow.parquet as pq
-
-    out = Path(args.out)
-    if out.exists() and any(out.iterdir()):
-        raise RecordError(f"{out} is not empty; nothing was overwritten")
     with Store(args.store) as store:
-        t = store.get(args.id)
-        out.mkdir(parents=True, exist_ok=True)
-        written = []
-        for name, table in (("cycles", store.cycles(args.id)), ("raw", store.raw(args.id))):
-            if not table:
-                continue
-            tab = pa.table({k: np.asarray(v) for k, v in table.items()})
-            path = out / f"{name}.{args.format}"
-            if args.format == "csv":
-                pacsv.write_csv(tab, path)
-            else:
-                pq.write_table(tab, path, compression="zstd")
-            written.append(path)
-        written += _copy_files(t, out)
-        meta = {k: t[k] for k in ("id", "name", "kind", "mode", "status", "end_reason", "cycles", "a_end_m",
-                                  "created_utc", "updated_utc", "results", "events")}
-        (out / "test.json").write_text(json.dumps(meta, indent=1, default=float))
-        (out / f"spec.{t['spec_format']}").write_text(t["spec"])
-        print("exported: " + ", ".join(str(p) for p in [*written, out / "test.json"]))
+        written = store.export(args.id, Path(args.out), args.format)
+    print("exported: " + ", ".join(str(p) for p in written))
     return 0
-
-
-def _copy_files(t: dict, out: Path) -> list[Path]:
-    """The test's other files (recording, report with its plots, summary) into `out`."""
-    import shutil
-
-    copied = []
-    for role, f in sorted(t["files"].items()):
-        src = Path(f["path"])
-        if role in ("cycles", "raw") or not src.exists():
-            continue
-        group = [src]
-        if role == "report":  # the report's plots and tables sit beside it
-            group += [p for p in src.parent.iterdir() if p.suffix in (".png", ".html") or p.name == "reduced.csv"]
-        for p in dict.fromkeys(group):
-            if not (out / p.name).exists():
-                shutil.copy2(p, out / p.name)
-                copied.append(out / p.name)
-    return copied
 
 
 def cmd_delete(args: argparse.Namespace) -> int:
