@@ -29,5 +29,13 @@ bench: setup
 	$(PY) benchmarks/million_cycles.py
 	$(PY) benchmarks/recording.py
 
+# ruff and the layers contract (pyproject.toml), clippy on the crate with its bindings, the stubs
+# against the built extension
+lint: setup
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/lint-imports
+	cargo clippy --release --all-targets --features python -- -D warnings
+	$(PY) -m mypy.stubtest htm._core
+
 clean:
 	rm -rf $(VENV) target out

@@ -16,6 +16,7 @@ import json
 import time
 
 from diagnose import run_cli  # benchmarks/diagnose.py, beside this file
+
 from htm.ident import loop
 from htm.ident.loop_proving import make_loop_record
 

@@ -12,7 +12,6 @@ Run: .venv/bin/python benchmarks/million_cycles.py   (prints one JSON object; ~2
 """
 from __future__ import annotations
 
-import copy
 import json
 import resource
 import subprocess

@@ -64,7 +64,7 @@ def scipy_run(p, ref, y_start):
     for k, r in enumerate(ref):
         f[k] = K_SPECIMEN * (x[2] - y0)
         u = float(np.clip(KP * (r - f[k]), -10.0, 10.0))
-        sol = solve_ivp(lambda _t, s: m.rhs(s, u), (0.0, DT), x, method="LSODA", rtol=1e-6, atol=atol)
+        sol = solve_ivp(lambda _t, s, u=u: m.rhs(s, u), (0.0, DT), x, method="LSODA", rtol=1e-6, atol=atol)
         x = sol.y[:, -1]
     return f, time.perf_counter() - t0
 

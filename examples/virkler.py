@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from htm.fatigue.data import Setup, read_a_n, shared_dir
+from htm.fatigue.data import Setup, read_a_n
 from htm.fatigue.laws import Points, log_residual
 from htm.fatigue.loop import analyse
 from htm.fatigue.report import markdown_to_html, md_table, plot_a_n, plot_dadn_dk, plot_residual
@@ -25,7 +25,7 @@ def main() -> int:
     t0 = time.perf_counter()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    src = shared_dir() / "data" / "virkler_2024t3" / "virkler_a_vs_n_specimens_1_40.csv"
+    src = Path(__file__).resolve().parents[1] / "data" / "virkler_2024t3" / "virkler_a_vs_n_specimens_1_40.csv"
     # the file's crack column is `a_half_crack_mm`: map it to the a–N reader's `a_mm`
     tmp = out / "virkler_a_n.csv"
     tmp.write_text(src.read_text().replace("a_half_crack_mm", "a_mm", 1))

@@ -1,6 +1,8 @@
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 # examples/ and benchmarks/ are scripts, importable by tests that check them
 for sub in ("examples", "benchmarks"):
@@ -8,8 +10,6 @@ for sub in ("examples", "benchmarks"):
     if p not in sys.path:
         sys.path.insert(0, p)
 
-
-import pytest
 
 
 @pytest.fixture(autouse=True)

@@ -1,11 +1,9 @@
 """Device layer on the real python-can and canopen stacks: two Networks on one virtual channel
 (the transducer as a LocalNode, the master as a RemoteNode), configuration refused at start-up,
 calibration, the nidaqmx backend (mocked: the hardware cannot exist here)."""
-import shutil
 import sys
 import types
 
-import can
 import canopen
 import pytest
 

@@ -11,8 +11,8 @@ import pytest
 from htm.cli import main
 from htm.ident import proving
 from htm.ident.diagnose import IdentificationError, diagnose
-from htm.ident.report import read_predictions
 from htm.ident.records import Record, write_record
+from htm.ident.report import read_predictions
 
 REPORT_KEYS = {"format", "record", "baseline", "findings", "final", "unexplained", "predictions"}
 FINDING_KEYS = {"effect", "channel", "params", "rmse_before", "rmse_after", "evidence"}

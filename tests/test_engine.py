@@ -1,7 +1,6 @@
 """The fatigue test engine: thesis reproductions (chapter 4), ΔK control, bad specs, `htm run`."""
 from __future__ import annotations
 
-import copy
 import json
 import tomllib
 from pathlib import Path
@@ -16,7 +15,8 @@ from htm.spec import load, parse
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "ct_constant_force.toml"
-START, STOP = 1, 128
+EV = _core.EVENTS
+START, STOP = EV["start"], EV["stop"]
 
 
 def base_doc() -> dict:
@@ -112,7 +112,7 @@ def test_demod_recovers_from_stiffness_steps_to_80_60_50_percent():
     judged = in_test(t)
     for step, factor in [(200, 0.8), (400, 0.6), (600, 0.5)]:
         i = np.searchsorted(cyc, step)
-        assert (t["events"][i] & 32) and t["k_sp_n_m"][i] / t["k_sp_n_m"][0] == pytest.approx(factor, rel=1e-6)
+        assert (t["events"][i] & EV["stiffness_step"]) and t["k_sp_n_m"][i] / t["k_sp_n_m"][0] == pytest.approx(factor, rel=1e-6)
         assert max(abs(amp_err[i:i + 2]).max(), abs(mean_err[i:i + 2]).max()) < 5.0, "bounded inside the window"
         judged[i:i + 2] = False
     assert abs(amp_err[judged]).max() < 2.0 and abs(mean_err[judged]).max() < 2.0
@@ -147,7 +147,7 @@ def test_precrack_phase_then_test_phase():
     d["law"]["c"] *= 20
     d["end"]["a_over_w"] = 0.4
     t = run(d)["table"]
-    change = np.nonzero(t["events"] & 64)[0]
+    change = np.nonzero(t["events"] & EV["phase_change"])[0]
     assert len(change) == 1
     assert np.all(t["phase"][:change[0] + 1] == 0) and np.all(t["phase"][change[0] + 1:] == 1)
     assert t["fmax_target_n"][0] == pytest.approx(5000 / 0.9) and t["fmax_target_n"][-1] == pytest.approx(4450 / 0.9)
@@ -305,7 +305,7 @@ def test_negative_r_runs_with_delta_k_equal_to_kmax():
     d["law"]["c"] *= 10
     o = run(d, "jump")
     t = o["table"]
-    sel = in_test(t) & ((t["events"] & 16) == 0)
+    sel = in_test(t) & ((t["events"] & EV["jump"]) == 0)
     assert o["end_reason"] == "target_crack_length" and o["max_abs_df_err_pct"] < 2.0
     assert np.allclose(t["fmin_target_n"][sel], -0.5 * t["fmax_target_n"][sel])
     assert np.all(t["fmin_n"][sel] < 0), "the valley is compressive"

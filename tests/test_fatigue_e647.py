@@ -1,14 +1,15 @@
 """E647 reduction: Table B.1 reproduction, synthetic Paris recovery, validity flags."""
 import csv
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from htm.fatigue.data import CrackData, Setup, shared_dir
+from htm.fatigue.data import CrackData, Setup
 from htm.fatigue.e647 import paris_region_ii, reduce, resolution_of, threshold
 from htm.fatigue.laws import Model
 
-B1 = shared_dir() / "data" / "astm_e647_x1_2" / "table_b1_as_printed.csv"
+B1 = Path(__file__).resolve().parents[1] / "data" / "astm_e647_x1_2" / "table_b1_as_printed.csv"
 
 
 def _b1():

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from htm import _core
-from htm.fatigue.data import CrackData, Setup, read_a_n, shared_dir
+from htm.fatigue.data import CrackData, Setup, read_a_n
 from htm.fatigue.e647 import reduce
 from htm.fatigue.laws import Model, Points, fit_life, fit_rate, life_errors, scatter
 from htm.fatigue.loop import analyse, diagnose
@@ -80,8 +80,10 @@ def test_diagnosis_finds_nothing_in_pure_paris_data():
 
 
 def test_virkler_subset_shows_curvature_that_the_refit_reduces():
-    src = shared_dir() / "data" / "virkler_2024t3" / "virkler_a_vs_n_specimens_1_40.csv"
-    import tempfile, pathlib
+    import pathlib
+    import tempfile
+
+    src = pathlib.Path(__file__).resolve().parents[1] / "data" / "virkler_2024t3" / "virkler_a_vs_n_specimens_1_40.csv"
     with tempfile.TemporaryDirectory() as t:
         p = pathlib.Path(t) / "v.csv"
         p.write_text(src.read_text().replace("a_half_crack_mm", "a_mm", 1))

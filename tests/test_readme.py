@@ -1,6 +1,6 @@
 """Every command in the README runs as written: each fenced `sh` and `python` block is executed in a
-temporary folder (the checkout's examples, benchmarks, data and environment linked in, `../shared`
-beside it) with a temporary test store. A block that cannot run here (an interactive console, a
+temporary folder (the checkout's examples, benchmarks, data and environment linked in) with a
+temporary test store. A block that cannot run here (an interactive console, a
 server that runs until interrupted, the test suite itself) says so in the line right above it
 ("not run by the README test: why"); its command lines are then checked to parse."""
 from __future__ import annotations
@@ -14,8 +14,6 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
-
-from htm.fatigue.data import shared_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
@@ -46,19 +44,18 @@ def commands(code: str) -> list[str]:
 
 
 def layout(base: Path) -> Path:
-    """A folder laid out like the checkout (.venv, examples, benchmarks, data, Makefile linked in)
-    with ../shared beside it; returns the checkout folder."""
+    """A folder laid out like the checkout (.venv, examples, benchmarks, data, Makefile linked in);
+    returns the checkout folder."""
     work = base / "checkout"
     work.mkdir(parents=True)
     (work / ".venv").symlink_to(Path(sys.prefix))
     for name in ("examples", "benchmarks", "data", "Makefile", "python", "crates", "Cargo.toml", "pyproject.toml"):
         (work / name).symlink_to(ROOT / name)
-    (base / "shared").symlink_to(shared_dir())
     return work
 
 
 def env_for(work: Path) -> dict[str, str]:
-    env = dict(os.environ, HTM_STORE=str(work / "store"), HTM_SHARED=str(work.parent / "shared"))
+    env = dict(os.environ, HTM_STORE=str(work / "store"))
     env["MAKEFLAGS"] = "-o .venv/.installed"  # `make run` uses the environment as set up, never rebuilds it
     return env
 

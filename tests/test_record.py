@@ -3,7 +3,6 @@ corrupted files, a full disk."""
 from __future__ import annotations
 
 import errno
-import os
 import random
 import resource
 import signal
@@ -190,6 +189,20 @@ def test_catalogue_migrates_from_version_1_and_refuses_newer_or_garbage(tmp_path
     assert main(["db", "list", "--store", str(root)]) == 2
 
 
+def test_two_processes_opening_a_new_store_at_once_both_open_it(tmp_path):
+    # the first to take the write lock migrates; the other, which read the old version before,
+    # finds the new one under the lock and leaves it (it used to re-apply the migration and fail)
+    with Store(tmp_path / "s") as first:
+        assert first.db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION
+        for v in range(SCHEMA_VERSION):
+            first._migrate(v)  # as a late second opener would, having read version v
+        assert first.db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION
+        codes = [subprocess.Popen([sys.executable, "-c", "import sys; from htm.cli import main; "
+                                   f"sys.exit(main(['db', 'list', '--store', {str(tmp_path / 'new')!r}]))"])
+                 for _ in range(4)]
+        assert [p.wait(60) for p in codes] == [0, 0, 0, 0]
+
+
 # ---- a recorded run, read back -------------------------------------------------------------------
 
 def _rrd(path: Path) -> dict[str, dict[str, np.ndarray]]:
@@ -349,7 +362,7 @@ def test_sigkill_at_20_random_moments_then_resume_loses_and_doubles_nothing(tmp_
     assert np.array_equal(np.column_stack([raw[k] for k in _core.TestRun.raw_columns()]), ref_raw)
     ents = _rrd(Path(t["files"]["recording"]["path"]))
     f = np.array(ents["/cycle/force_n"]["cycle"])
-    assert np.array_equal(f, c[(c <= 10_000) | (c % 10 == 0) | (table["events"] & ~np.uint32(1) != 0)]), \
+    assert np.array_equal(f, c[(c <= 10_000) | (c % 10 == 0) | (table["events"] & ~np.uint32(_core.EVENTS["start"]) != 0)]), \
         "the recording: each cycle it shows, once"
 
 
@@ -445,6 +458,6 @@ def test_summary_and_store_name_the_same_size_criterion_cycle_in_jump_mode(tmp_p
         table = s.cycles(t["id"])
     assert first is not None and ev == [first]
     # jump mode: one row per cycle run through the plant and one per jump (the README says so)
-    c, jump = table["cycle"], (table["events"] & 16) != 0
+    c, jump = table["cycle"], (table["events"] & _core.EVENTS["jump"]) != 0
     gaps = np.flatnonzero(np.diff(c) > 1) + 1
     assert len(gaps) > 10 and jump[gaps].all(), "every gap in the cycle column closes on a jump row"

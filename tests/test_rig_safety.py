@@ -3,15 +3,15 @@ every injected fault trips the right action within 2 control periods and no valv
 the safe value is written afterwards; no false trip in 10⁴ nominal cycles; the demodulation
 controller holds ±2 % over 10⁵ periods."""
 import math
+import tomllib
+from pathlib import Path
 
 import pytest
 
 from htm.control import Session
 from htm.control.session import specimen_of
 from htm.devices.config import virtual_config
-from htm.spec import load, parse
-import tomllib
-from pathlib import Path
+from htm.spec import parse
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "ct_constant_force.toml"
 SAFE_V = 1.0
@@ -191,7 +191,7 @@ def test_fracture_watch_catches_a_break_on_either_side_and_ignores_a_loaded_ring
     period; a speed spike with the force loaded (a valve ringing the piston) does not count."""
     from htm.control.safety import FractureWatch
 
-    lim = next(l for l in virtual_config("lockstep").limits if l.name == "fracture").hi
+    lim = next(x for x in virtual_config("lockstep").limits if x.name == "fracture").hi
     fw = FractureWatch(0.002, 1e-4)
     fw.new_test(object(), 50)
     k, vals = _spring_cycles(fw, 5, mean_n=mean_n)

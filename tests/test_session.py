@@ -141,7 +141,7 @@ def test_every_test_of_a_session_is_recorded_with_its_own_rows_report_and_end_re
             s.stop()
             s.step(50 * 5)
             rec = s.recorder
-            _wait(lambda: rec.status is not None)
+            _wait(lambda rec=rec: rec.status is not None)
             ids.append(rec.test_id)
         events = s.events_since(0)
     finally:

@@ -27,7 +27,7 @@ def main() -> None:
 
     cmd, spool = [0.0], [0.0]
     for c, target in KNOTS:
-        s = brentq(lambda x: speed(x) - target, 1e-4, 10.0, xtol=1e-6)
+        s = brentq(lambda x, target=target: speed(x) - target, 1e-4, 10.0, xtol=1e-6)
         cmd.append(c)
         spool.append(round(s, 6))
         print(f"c = {c:5.2f} V  target {target * 1e3:6.1f} mm/s  spool {s:.6f} V")

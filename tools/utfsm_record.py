@@ -3,7 +3,7 @@ F_N`, the authors' scaled channels) into DATA_FORMAT.md `machine_position` recor
 `t, y_ref, y, f`, metadata declaring a machine that closes its own loop, with the source's
 attribution.
 
-    .venv/bin/python tools/utfsm_record.py ../shared/data/utfsm_mts_chirp/chirp_MRcurrent_0A.csv \\
+    .venv/bin/python tools/utfsm_record.py SOURCE/chirp_MRcurrent_0A.csv \\
         --current-a 0 --out data/utfsm/utfsm_chirp_0A
 
 writes `data/utfsm/utfsm_chirp_0A.csv.gz` and `.json` (refuses to overwrite).

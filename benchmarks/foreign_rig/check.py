@@ -32,7 +32,6 @@ def noise_level(s):
 
 def diagnose_sim(b, sim):
     st = sim["states"]
-    n = sim["n_done"]
     d = {"ok": sim["ok"], "secs": round(sim["secs"], 1)}
     if not sim["ok"]:
         return d

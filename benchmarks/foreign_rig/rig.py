@@ -486,7 +486,7 @@ def _simulate(p, x0, sc, act, nsub, jac_every, n_pre, ref, sup, ctrl_type, kp, k
                 # a stale Jacobian or a hard transient: redo the step as 4 steps, fresh Jacobian each
                 for i in range(N_S):
                     X[i] = Xsave[i]
-                for jj in range(4):
+                for _ in range(4):
                     _ros2_step(X, 0.25 * h, ue, p, sc, act, W, piv, f0, f1, fp, k1, k2, Xt, tmp, True)
                 force_jac = True
                 n_retry += 1

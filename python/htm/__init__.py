@@ -1,8 +1,19 @@
 """htm — open software for servo-hydraulic fatigue testing machines.
 
-`import htm` gives the plant (`Machine`, `Params`), open- and closed-loop simulation, command
-profiles, measurement records, and the error hierarchy. All quantities are SI.
+`import htm` is all a script needs; every quantity is SI (m, N, Pa, s, V; ΔK in Pa·√m).
+
+- the machine: `Machine`, `Params`, `thesis_rig`, `simulate`, `track`
+- a fatigue test: `TestSpec`, `load_spec`, `run_test` (simulated), `Session` with `virtual_config`
+  (the live or virtual rig), `Store` (every recorded test)
+- fatigue data: `read_a_n`, `CrackData`, `Setup`, `e647` (ASTM E647 reduction)
+- measurement records: `read_record`, `Record`, `diagnose`
+- errors: `HtmError` and its subclasses
+
+The names below the machine's are imported on first use, so `import htm` stays cheap.
 """
+from importlib import import_module
+from typing import Any
+
 from htm._core import Machine, Params, __version__
 from htm.errors import (
     DeviceError,
@@ -14,13 +25,33 @@ from htm.errors import (
     SolverError,
     SpecError,
 )
+from htm.params import thesis_rig
 from htm.simulate import simulate, track
+
+# public name → (module, name there): loaded by __getattr__ on first use
+_LAZY = {
+    "TestSpec": ("htm.spec", "TestSpec"),
+    "load_spec": ("htm.spec", "load"),
+    "run_test": ("htm.run", "run_test"),
+    "Store": ("htm.record.store", "Store"),
+    "Session": ("htm.control.session", "Session"),
+    "virtual_config": ("htm.devices.config", "virtual_config"),
+    "read_a_n": ("htm.fatigue.data", "read_a_n"),
+    "CrackData": ("htm.fatigue.data", "CrackData"),
+    "Setup": ("htm.fatigue.data", "Setup"),
+    "e647": ("htm.fatigue.e647", "reduce"),
+    "read_record": ("htm.ident.records", "read_record"),
+    "Record": ("htm.ident.records", "Record"),
+    "diagnose": ("htm.ident.diagnose", "diagnose"),
+}
 
 __all__ = [
     "Machine",
     "Params",
+    "thesis_rig",
     "simulate",
     "track",
+    *_LAZY,
     "HtmError",
     "ParameterError",
     "InputError",
@@ -31,3 +62,16 @@ __all__ = [
     "InterlockTripped",
     "__version__",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _LAZY:
+        raise AttributeError(f"module 'htm' has no attribute {name!r}")
+    module, attr = _LAZY[name]
+    value = getattr(import_module(module), attr)
+    globals()[name] = value  # later look-ups skip this function
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))

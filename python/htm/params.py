@@ -2,15 +2,29 @@
 `rig` metadata block."""
 from __future__ import annotations
 
-from typing import Mapping
+from collections.abc import Mapping
 
 from htm._core import Params
 from htm.errors import ParameterError
 
 
 def thesis_rig(**overrides: float) -> Params:
-    """The rig of Dias (2014), Appendix A with the errata of NOTES.md, plus the measured valve
-    characteristic of Table 3.3. Keyword overrides by field name (SI)."""
+    """The machine parameters of the reference thesis's rig.
+
+    Dias (2014), Appendix A with the errata of docs/thesis_notes.md, plus the measured valve
+    characteristic of Table 3.3.
+
+    Parameters
+    ----------
+    **overrides : float
+        Fields to replace, by name, in SI units (e.g. ``specimen_stiffness_n_m=1.04e8`` [N/m]);
+        ``htm params`` lists every name with its unit.
+
+    Returns
+    -------
+    Params
+        A validated copy; an unknown name or a value out of range raises ParameterError.
+    """
     return with_overrides(Params(), overrides)
 
 

@@ -18,7 +18,6 @@ from htm.errors import HtmError
 from htm.spec import TestSpec, load, parse
 
 
-
 def run_spec(spec: TestSpec, mode: str | None = None, progress: bool = False) -> tuple[dict[str, Any], float]:
     """Run `spec` in `mode` (default: the spec's); returns (engine result, wall seconds)."""
     cfg = spec.to_config()
@@ -47,6 +46,32 @@ def run_spec(spec: TestSpec, mode: str | None = None, progress: bool = False) ->
     if "err" in box:
         raise box["err"]
     return box["out"], wall
+
+
+def run_test(spec: TestSpec | str | Path, mode: str | None = None, *, progress: bool = False) -> dict[str, Any]:
+    """Run a whole fatigue crack growth test on the simulated rig (plant, controller, specimen,
+    crack growth in the Rust core), without recording it into the store.
+
+    Parameters
+    ----------
+    spec : TestSpec or str or Path
+        The test, or the path of its TOML spec.
+    mode : str, optional
+        ``"full"`` (every cycle through the plant) or ``"jump"`` (cycle-jump); default the spec's.
+    progress : bool
+        Draw a progress bar on stderr.
+
+    Returns
+    -------
+    dict
+        ``end_reason``, ``cycles``, final crack size ``a_end_m`` [m] and the per-cycle table
+        ``table`` (SI columns: ``a_m`` [m], ``delta_k_pa_sqrt_m`` [Pa·√m], measured peaks and
+        valleys [N], errors [%], ``events``).
+    """
+    if not isinstance(spec, TestSpec):
+        spec = load(spec)
+    out, _ = run_spec(spec, mode, progress)
+    return out
 
 
 # raw high-rate windows of a simulated test: the first 30 cycles (start-up), 2 cycles from each
@@ -142,7 +167,7 @@ def resume_recorded(store: Any, test_id: str, progress: bool = False, *, recordi
     chunks = [r for r in records if r.kind == journal.CHUNK]
     closed = [r for r in records if r.kind == journal.CLOSE]
     if closed or (chunks and not chunks[-1].blob and len(chunks[-1].arrays.get("events", []))
-                  and int(chunks[-1].arrays["events"][-1]) & 256):
+                  and int(chunks[-1].arrays["events"][-1]) & _core.EVENTS["end"]):
         # the run had ended (its last rows are in): only the closing was cut short
         m = closed[-1].meta if closed else {}
         writer.event("resumed", "closing a test that had ended")
@@ -237,7 +262,22 @@ def cmd_run(args: argparse.Namespace) -> int:
             if s["report"] and not s["report"].startswith("not"):
                 store.add_file(test_id, "report", Path(s["report"]))
     print(summary_text(spec, s))
-    print(f"outputs: {out_dir}/summary.json, cycles.parquet, summary.txt" + (f", {Path(s['report']).name}" if s["report"] and not s["report"].startswith("not") else ""))
+    report = f", {Path(s['report']).name}" if s["report"] and not s["report"].startswith("not") else ""
+    print(f"outputs: {out_dir}/summary.json, cycles.parquet, summary.txt{report}")
+    return 0
+
+
+def cmd_resume(args: argparse.Namespace) -> int:
+    from htm.record.store import Store
+
+    with Store(args.store) as store:
+        test_id, spec, mode, out, wall = resume_recorded(store, args.id, progress=not args.quiet, recording=not args.no_recording,
+                                                         spawn=args.spawn, connect=args.connect)
+        t = store.get(test_id)
+    print(f"test {test_id}: {t['status']}, {t['end_reason']} after {t['cycles']:,} cycles")
+    if args.out and "cycles" in out:
+        s = write_outputs(Path(args.out), spec, out, wall, mode)
+        print(summary_text(spec, s))
     return 0
 
 
@@ -252,6 +292,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_store_args(p)
     p.add_argument("--no-store", action="store_true", help="do not record into the store (no journal, no resume, no recording)")
     p.set_defaults(func=cmd_run)
+
+    r = sub.add_parser("resume", help="continue a simulated test after a crash or a stop",
+                       description="Continue a test from its journal: the engine state of the last block written "
+                                   "(cycle count, crack length, controller, waveform), into the same store and recording.")
+    r.add_argument("id")
+    r.add_argument("--out", help="also write summary.json, cycles.parquet and the report here")
+    r.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_store_args(r)
+    r.set_defaults(func=cmd_resume)
 
 
 def writable(out_dir: Path) -> None:

@@ -1,7 +1,8 @@
 """Whole-run simulation helpers over the Rust plant: numpy in, numpy out, GIL released inside."""
 from __future__ import annotations
 
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 

@@ -36,7 +36,33 @@ class Loading:
 
 @dataclass
 class TestSpec:
-    """A whole fatigue crack growth test (see examples/ct_constant_force.toml)."""
+    """A whole fatigue crack growth test, validated (see examples/ct_constant_force.toml).
+
+    Made by `load_spec` from a TOML file (or `htm.spec.parse` from a dict); every field is SI.
+
+    Attributes
+    ----------
+    name : str
+        The test's name (the TOML file's stem).
+    geometry : str
+        Specimen type, ``"ct"`` or ``"mt"``.
+    width_m, thickness_m, a0_m : float
+        Specimen width W, thickness B and initial crack size a0 [m].
+    material : dict of str to float
+        Young's modulus [Pa], Poisson's ratio [-], yield strength [Pa], fracture toughness [Pa·√m].
+    law : dict
+        Crack-growth law (Paris, Forman or NASGRO) with its coefficients, SI (da/dN in m/cycle,
+        ΔK in Pa·√m).
+    waveform : str
+        Load waveform (``"sine"``, ...); `frequency_hz` its frequency [Hz], `control_rate_hz`
+        the controller's sample rate [Hz].
+    phases : list of Loading
+        Loading phases: constant ΔF [N] or a ΔK schedule [Pa·√m], stress ratio R, end crack size [m].
+    controller, end, start : dict
+        Force controller, end conditions (``max_cycles``, ...) and ramp-in (cycles).
+    mode : str
+        ``"full"`` (every cycle through the plant) or ``"jump"`` (cycle-jump).
+    """
 
     name: str
     geometry: str
@@ -287,7 +313,18 @@ def _explain(msg: str) -> str:
 
 
 def load(path: str | Path) -> TestSpec:
-    """Read and validate a TOML test spec."""
+    """Read and validate a TOML test spec.
+
+    Parameters
+    ----------
+    path : str or Path
+        The spec file (e.g. ``examples/ct_constant_force.toml``); its values are SI.
+
+    Returns
+    -------
+    TestSpec
+        The validated spec; a bad file or value raises SpecError naming the field and its range.
+    """
     p = Path(path)
     try:
         doc = tomllib.loads(p.read_text())

@@ -45,6 +45,7 @@ impl Controller {
 /// (mean, amplitude, waveform phase) and the measured force.
 #[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
 #[derive(Debug, Clone)]
+#[allow(clippy::large_enum_variant)] // one per test, never in a collection: boxing Demod would only add an indirection per sample
 pub enum ForceLoop {
     /// Fixed-gain force P (thesis 4.1, Fig. 4.6–4.8): u = kp·(r − f) + u_offset, where r is the
     /// waveform setpoint and `u_offset_v` an optional fixed null compensation (the thesis's
@@ -142,6 +143,7 @@ impl DemodGains {
     ///   null offset, it leaves u_null/k2). Below ω_c the inner loop makes the plant from u2 to
     ///   the mean a gain g/ω_c, so ki2 = ω2·ω_c/g puts the crossover at ω2 = `c2`·f (c2 = 0.5).
     ///   A feed-forward of the mean setpoint's rate (ṁ/g) removes the ramp lag of the smooth start.
+    ///
     /// Both loops compare the force's estimates with the reference's through the same filters, and
     /// `PeakValley` corrects the setpoint once per cycle so that peaks and valleys, not only the
     /// fundamental and mean, meet ISO 12108's ±2 %.

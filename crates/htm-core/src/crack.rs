@@ -116,7 +116,7 @@ impl Law {
 /// Newman's crack-opening function f(R, Smax/σ0, α) as used by NASGRO (R ≥ 0 branch; for R < 0
 /// the R = 0 value A0 + ... is used with A2 = A3 = 0 per NASGRO). `alpha_c` is the constraint factor.
 pub fn newman_f(r: f64, smax_over_flow: f64, alpha_c: f64) -> Result<f64> {
-    if !(r.is_finite() && r < 1.0 && r >= -2.0) {
+    if !(-2.0..1.0).contains(&r) {
         return Err(param("r_ratio", r, "[-2, 1)"));
     }
     if !(smax_over_flow.is_finite() && smax_over_flow > 0.0 && smax_over_flow < 1.0) {

@@ -638,8 +638,7 @@ mod tests {
 
     #[test]
     fn position_mode_moves_and_protects_the_specimen() {
-        let mut p = crate::params::Params::default();
-        p.specimen_stiffness_n_m = 1.0e8;
+        let p = crate::params::Params { specimen_stiffness_n_m: 1.0e8, ..Default::default() };
         let mut m = Machine::new(p).unwrap();
         let g = PositionGains { protect_force_n: 2000.0, ..PositionGains::default() };
         let mut c = Cyclic::new(500.0, g).unwrap();

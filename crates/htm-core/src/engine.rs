@@ -141,7 +141,7 @@ impl EndReason {
     }
 }
 
-/// Event bits of the per-cycle table.
+/// Event bits of the per-cycle table (exported to Python by name as `htm._core.EVENTS`).
 pub mod events {
     pub const START: u32 = 1;
     pub const OUT_OF_TOLERANCE: u32 = 2;
@@ -152,6 +152,19 @@ pub mod events {
     pub const PHASE_CHANGE: u32 = 64;
     pub const STOP: u32 = 128;
     pub const END: u32 = 256;
+
+    /// Every bit by its name, the one list the bindings export.
+    pub const NAMED: [(&str, u32); 9] = [
+        ("start", START),
+        ("out_of_tolerance", OUT_OF_TOLERANCE),
+        ("tolerance_exceeded", TOLERANCE_EXCEEDED),
+        ("size_criterion", SIZE_CRITERION),
+        ("jump", JUMP),
+        ("stiffness_step", STIFFNESS_STEP),
+        ("phase_change", PHASE_CHANGE),
+        ("stop", STOP),
+        ("end", END),
+    ];
 }
 
 /// The per-cycle table (struct of columns). Rows with `JUMP` summarise a jump (forces predicted

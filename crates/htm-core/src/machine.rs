@@ -257,6 +257,8 @@ impl Plant {
             }
             x
         };
+        // column c of the spool block: its response to unit state c (c = 3: unit command)
+        #[allow(clippy::needless_range_loop)] // writes column c of three rows: an index reads as the maths
         for c in 0..4 {
             let (d0, d1, d2) = self.spool_rates(&unit(c), if c == 3 { 1.0 } else { 0.0 });
             a[0][c] = d0 * dt;
@@ -645,8 +647,7 @@ mod tests {
             [1.8e7, 2e5, 0.19, 0.45, 4.0, 0.0, 3.0],
             [5e4, 1.85e7, 0.01, -2e-4, -0.01, 5.0, 0.0],
         ];
-        let mut p = Params::default();
-        p.specimen_stiffness_n_m = 1.04e8;
+        let mut p = Params { specimen_stiffness_n_m: 1.04e8, ..Default::default() };
         check(p.clone(), &states, 0.3);
         p.valve_tau_s = 0.005;
         p.leakage_coeff_m3_per_s_pa = 1e-11;

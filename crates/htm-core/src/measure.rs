@@ -155,12 +155,12 @@ pub fn lowpass_step(y0: f64, x0: f64, x1: f64, ah: f64) -> f64 {
 /// Apply noise sample `k` and quantization to noise-free readings.
 #[inline]
 pub fn corrupt(r: &mut [f64; NC], c: &Corruption<'_>, k: usize) {
-    for i in 0..NC {
-        if let Some(n) = c.noise[i] {
-            r[i] += n[k];
+    for ((ri, noise), &q) in r.iter_mut().zip(&c.noise).zip(&c.quantum) {
+        if let Some(n) = noise {
+            *ri += n[k];
         }
-        if c.quantum[i] > 0.0 {
-            r[i] = (r[i] / c.quantum[i]).round() * c.quantum[i];
+        if q > 0.0 {
+            *ri = (*ri / q).round() * q;
         }
     }
 }

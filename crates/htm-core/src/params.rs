@@ -331,11 +331,9 @@ mod tests {
         p.set("area_a_m2", -1.0).unwrap();
         let e = p.validate().unwrap_err().to_string();
         assert!(e.contains("area_a_m2") && e.contains("(0, 1]"), "{e}");
-        let mut p = Params::default();
-        p.moving_mass_kg = 0.0;
+        let p = Params { moving_mass_kg: 0.0, ..Default::default() };
         assert!(p.validate().unwrap_err().to_string().contains("moving_mass_kg"));
-        let mut p = Params::default();
-        p.stroke_m = f64::NAN;
+        let p = Params { stroke_m: f64::NAN, ..Default::default() };
         assert!(p.validate().unwrap_err().to_string().contains("stroke_m"));
     }
 

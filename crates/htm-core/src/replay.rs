@@ -387,8 +387,8 @@ mod tests {
         let mask: Vec<bool> = (0..r.len()).map(|k| (k / 50) % 4 == 1).collect();
         ol.active = Some(&mask);
         let part = ol.run(&p).unwrap();
-        for k in 0..r.len() {
-            if mask[k] {
+        for (k, &reported) in mask.iter().enumerate() {
+            if reported {
                 for c in 0..4 {
                     let (a, b) = (part.readings[c][k], whole.readings[c][k]);
                     assert!((a - b).abs() <= 1e-3 * b.abs().max(1e-3), "channel {c} sample {k}: {a} vs {b}");

@@ -5,16 +5,17 @@ a wall-clock schedule on a dedicated thread (sleep to just before the deadline, 
 from __future__ import annotations
 
 import math
-import os
 import time
 from collections import deque
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from htm import _core
 from htm.control.safety import CH, FRACTURE_STATES, EventLog, FractureWatch, Safety
 from htm.control.timing import Timing
 from htm.devices.analog import AnalogIO
 from htm.devices.config import RigConfig
+from htm.devices.realtime import set_priority
 from htm.devices.transducer import TransducerMaster
 
 ERROR_WINDOW = 50  # periods over which CAN error frames are counted
@@ -22,17 +23,6 @@ SPIN_NS = 300_000  # real time: sleep until this long before the deadline, then 
 FEED_HZ = 20.0
 PLAUS_WINDOW = 4  # periods over which the position is checked against the integrated speed
 LOCKSTEP_REPLY_S = 0.05  # lock-step against a rig in another process: its answer to one SYNC
-
-
-def set_priority(priority: int, log: EventLog | None = None) -> None:
-    """Give the calling thread SCHED_FIFO `priority` (0: leave it); logs when the OS refuses."""
-    if priority <= 0:
-        return
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-    except (OSError, AttributeError) as e:
-        if log is not None:
-            log.add(0, "warning", f"real-time priority {priority} refused: {e}")
 
 
 class ControlLoop:
@@ -223,7 +213,9 @@ class ControlLoop:
 
     def run_realtime(self, seconds: float | None = None, stop: Callable[[], bool] | None = None) -> None:
         """Wall-clock periods on this thread until `seconds` pass or `stop()` is true."""
-        set_priority(self.cfg.loop.priority, self.log)
+        refused = set_priority(self.cfg.loop.priority)
+        if refused:
+            self.log.add(0, "warning", refused)
         period_ns = round(self.dt * 1e9)
         perf, sleep = time.perf_counter_ns, time.sleep
         t0 = perf()

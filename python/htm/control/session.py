@@ -26,9 +26,10 @@ import math
 import sys
 import threading
 import time
+from collections.abc import Callable
 from concurrent.futures import Future
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from htm import _core
 from htm.control.loop import ControlLoop
@@ -54,7 +55,19 @@ def specimen_of(spec) -> dict[str, Any]:
 
 
 class Session:
-    """See the module docstring."""
+    """The operator's handle on a rig (real or virtual): devices and control loop on a thread.
+
+    ``Session().open(config, ...)`` opens the bus and DAQ and starts the loop; then position
+    commands (``move_to(y_m)`` [m], ``jog(rate_m_s)`` [m/s]), ``tare()``, ``start(spec)`` for a
+    `TestSpec`, ``hold()``/``resume()``/``stop()``/``estop()``/``reset()``, live numbers with
+    ``snapshot()`` and ``close()``. See the module docstring for every call.
+
+    Notes
+    -----
+    All numbers are SI: positions [m], forces [N], pressures [Pa], crack size [m], ΔK [Pa·√m].
+    Commands wait for the loop (a clear error if refused, e.g. InterlockTripped while a latch
+    holds); the loop never waits for the caller.
+    """
 
     def __init__(self) -> None:
         self.cfg: RigConfig | None = None
@@ -69,13 +82,16 @@ class Session:
 
     # -- life cycle ---------------------------------------------------------------------------------
     def open(self, config: RigConfig | str | Path | None = None, *, virtual: bool | None = None,
-             specimen: dict[str, Any] | None = None, thread: bool = True, mode: str | None = None,
-             paced: bool = False) -> "Session":
+             specimen: Any = None, thread: bool = True, mode: str | None = None,
+             paced: bool = False) -> Session:
         """Validate the configuration, open the bus and the DAQ, check the transducer over SDO, start
         it (NMT) and the loop. `None` = an in-process virtual rig; `virtual=True` puts one behind
         any config. `paced=True` with a lock-step in-process rig keeps the deterministic device path
         (the loop pumps the rig) but runs the periods on the wall clock, as the console does.
-        Nothing is energised until a motion or a test is commanded."""
+        Nothing is energised until a motion or a test is commanded. `specimen`, gripped in a
+        virtual rig: a `TestSpec` (its specimen and material) or the rig's specimen dict."""
+        if specimen is not None and not isinstance(specimen, dict):
+            specimen = specimen_of(specimen)
         if isinstance(config, (str, Path)):
             config = load_config(config)
         cfg = config or virtual_config(mode or "realtime")
@@ -195,7 +211,7 @@ class Session:
             self.rig = None
         self.loop = None
 
-    def __enter__(self) -> "Session":
+    def __enter__(self) -> Session:
         return self
 
     def __exit__(self, *exc: Any) -> None:
@@ -229,7 +245,7 @@ class Session:
 
     def _supply_min_pa(self) -> float:
         """The lowest supply pressure the detectors accept [Pa] (0 without a supply limit)."""
-        return max((l.lo for l in self.cfg.limits if l.channel == "p_s_pa" and l.action != "indicate"), default=0.0)
+        return max((lim.lo for lim in self.cfg.limits if lim.channel == "p_s_pa" and lim.action != "indicate"), default=0.0)
 
     def _load_supply(self) -> None:
         """Load the supply and wait until its pressure is within its detector's range, before

@@ -10,8 +10,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import canopen
 import can
+import canopen
 
 from htm.devices.calibration import Channel, load_calibration
 from htm.errors import DeviceError
@@ -134,8 +134,8 @@ class RigConfig:
 
     def detector_specs(self) -> list[dict[str, Any]]:
         """The limits as `htm._core.Detectors` items."""
-        return [{"name": l.name, "channel": CHANNELS.index(l.channel), "lo": l.lo, "hi": l.hi, "action": l.action,
-                 "persist": l.persist} for l in self.limits]
+        return [{"name": lim.name, "channel": CHANNELS.index(lim.channel), "lo": lim.lo, "hi": lim.hi, "action": lim.action,
+                 "persist": lim.persist} for lim in self.limits]
 
 
 def _err(msg: str) -> DeviceError:
@@ -269,7 +269,23 @@ def load_config(path: str | Path) -> RigConfig:
 
 
 def virtual_config(mode: str = "lockstep", rate_hz: float = 500.0, **sections: dict[str, Any]) -> RigConfig:
-    """An in-process virtual rig: a private virtual CAN channel and shared-memory DAQ."""
+    """The configuration of an in-process virtual rig: a private virtual CAN channel and
+    shared-memory DAQ.
+
+    Parameters
+    ----------
+    mode : str
+        ``"lockstep"`` (one plant period per SYNC, as fast as the host allows) or ``"realtime"``.
+    rate_hz : float
+        Control loop rate [Hz].
+    **sections : dict
+        Configuration sections to merge in (``limits``, ``loop``, ...), SI values.
+
+    Returns
+    -------
+    RigConfig
+        The validated configuration, for `Session.open`.
+    """
     tag = f"htm-{os.getpid()}-{next(_counter)}"
     doc: dict[str, Any] = {"bus": {"interface": "virtual", "channel": tag}, "analog": {"device": tag},
                            "loop": {"mode": mode, "rate_hz": rate_hz}}

@@ -9,6 +9,7 @@ import can
 from htm import _core
 from htm.devices.analog import SimulatedDaq
 from htm.devices.config import RigConfig
+from htm.devices.realtime import set_priority
 from htm.devices.transducer import CAN_ERR_BUSOFF, TransducerDevice, network_on, open_bus, stop_notifier
 from htm.params import with_overrides
 
@@ -54,9 +55,7 @@ class VirtualRig:
     # -- one plant period per SYNC ------------------------------------------------------------
     def _on_sync(self) -> tuple[float, float]:
         if self.periods == 0 and self.cfg.loop.mode == "realtime":
-            from htm.control.loop import set_priority
-
-            set_priority(self.cfg.loop.priority)
+            set_priority(self.cfg.loop.priority)  # refused: the rig runs on at normal priority
         f = self.faults
         u = self.daq.output(self._valve)
         self.valve_command_v = u

@@ -2,8 +2,6 @@
 from __future__ import annotations
 
 import csv
-import os
-import subprocess
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -17,10 +15,20 @@ GEOMETRIES = ("ct", "mt")
 
 @dataclass(frozen=True)
 class Setup:
-    """Specimen and constant-amplitude load, SI: W and B in m, Pmax in N, R = Pmin/Pmax.
+    """Specimen and constant-amplitude load of an a–N record.
 
-    `a` is the crack size from the load line for C(T) and the half crack length for M(T).
-    `yield_strength_pa` (optional) enables the E647 size criterion.
+    Attributes
+    ----------
+    geometry : str
+        ``"ct"`` (a from the load line) or ``"mt"`` (a is the half crack length).
+    width_m, thickness_m : float
+        Specimen width W and thickness B [m].
+    pmax_n : float
+        Maximum force [N].
+    r_ratio : float
+        Stress ratio R = Pmin/Pmax [-].
+    yield_strength_pa : float, optional
+        Yield strength [Pa]; enables the E647 size criterion.
     """
 
     geometry: str
@@ -51,7 +59,7 @@ class Setup:
     @classmethod
     def from_loads(cls, geometry: str, width_m: float, thickness_m: float, *, r_ratio: float,
                    delta_p_n: float | None = None, pmax_n: float | None = None,
-                   yield_strength_pa: float | None = None) -> "Setup":
+                   yield_strength_pa: float | None = None) -> Setup:
         """Build from ΔP [N] or Pmax [N] (exactly one) and R."""
         if (delta_p_n is None) == (pmax_n is None):
             raise SpecError("give exactly one of delta_p_n (force range) or pmax_n (maximum force)")
@@ -94,38 +102,36 @@ class Setup:
 
 @dataclass
 class CrackData:
-    """One specimen's a–N record: cycles and crack size [m], in test order."""
+    """One specimen's a–N record, in test order.
+
+    Attributes
+    ----------
+    specimen : str
+        The specimen's name.
+    cycles : ndarray
+        Cycle count N at each reading.
+    a_m : ndarray
+        Crack size a [m] at each reading.
+    """
 
     specimen: str
     cycles: np.ndarray
     a_m: np.ndarray
 
 
-def shared_dir() -> Path:
-    """The shared reference-data folder: $HTM_SHARED, else <repo>/../shared, else (for a clone
-    of a local checkout) <origin>/../shared. Raises RecordError when none holds the data."""
-    env = os.environ.get("HTM_SHARED")
-    if env:
-        return Path(env)
-    repo = Path(__file__).resolve().parents[3]
-    candidates = [repo.parent / "shared"]
-    try:
-        url = subprocess.run(["git", "-C", str(repo), "config", "--get", "remote.origin.url"],
-                             capture_output=True, text=True, timeout=5).stdout.strip()
-    except (OSError, subprocess.SubprocessError):
-        url = ""
-    if url and Path(url).is_dir():
-        candidates.append(Path(url).resolve().parent / "shared")
-    for c in candidates:
-        if (c / "data").is_dir():
-            return c
-    raise RecordError(f"reference data not found in {', '.join(map(str, candidates))}: set HTM_SHARED to the shared/ folder")
-
-
 def read_a_n(path: str | Path) -> list[CrackData]:
-    """Read an a–N CSV: `cycles` and `a_m` (or `a_mm`, millimetres), optional `specimen`.
+    """Read an a–N CSV file.
 
-    Returns one CrackData per specimen (file order). Raises RecordError naming the problem.
+    Parameters
+    ----------
+    path : str or Path
+        CSV with columns ``cycles`` and ``a_m`` [m] (or ``a_mm``, millimetres, converted to m),
+        optionally ``specimen``.
+
+    Returns
+    -------
+    list of CrackData
+        One per specimen, in file order (crack size in m). Raises RecordError naming the problem.
     """
     path = Path(path)
     try:

@@ -132,12 +132,30 @@ def secant(cycles: np.ndarray, a_m: np.ndarray) -> tuple[np.ndarray, np.ndarray,
 def reduce(data: CrackData, setup: Setup, method: str = "polynomial", n: int = 3,
            min_spacing_m: float = MIN_SPACING_M, cycles_resolution: np.ndarray | float | None = None,
            a_resolution_m: np.ndarray | float | None = None) -> Reduced:
-    """Reduce one specimen's a–N record per E647.
+    """Reduce one specimen's a–N record per ASTM E647: da/dN and ΔK per point, with validity.
 
-    method "polynomial" (incremental polynomial, 2n+1 points; ΔK at the fitted â_i) or "secant"
-    (ΔK at the interval's mean crack size). Validity per point: ΔK expression range (a/W),
-    crack-extension spacing (E647 min 0.25 mm and max per §8.6.3), size criterion (if σ_ys given),
-    positive growth rate. `cycles_resolution`/`a_resolution_m`: see `incremental_polynomial`.
+    Parameters
+    ----------
+    data : CrackData
+        Cycles and crack size a [m] of one specimen.
+    setup : Setup
+        Specimen (W, B [m]), load (Pmax [N], R) and optional yield strength [Pa].
+    method : str
+        ``"polynomial"`` (incremental polynomial, 2n+1 points; ΔK at the fitted â_i) or
+        ``"secant"`` (ΔK at the interval's mean crack size).
+    n : int
+        Half-width of the incremental polynomial.
+    min_spacing_m : float
+        Minimum crack extension between points [m] (E647: 0.25 mm).
+    cycles_resolution, a_resolution_m : array or float, optional
+        Reading resolution of N [cycles] and a [m]; see `incremental_polynomial`.
+
+    Returns
+    -------
+    Reduced
+        Per point: da/dN [m/cycle], ΔK and Kmax [Pa·√m], fitted a [m], and validity (ΔK
+        expression range in a/W, crack-extension spacing per §8.6.3, size criterion if σ_ys is
+        given, positive growth rate) with reasons.
     """
     check_a_n(data, setup)
     N, a = data.cycles.astype(float), data.a_m.astype(float)

@@ -39,7 +39,7 @@ class Points:
     specimen: np.ndarray
 
     @classmethod
-    def from_reduced(cls, reds: list[Reduced], only_valid: bool = False) -> "Points":
+    def from_reduced(cls, reds: list[Reduced], only_valid: bool = False) -> Points:
         parts = []
         for rd in reds:
             m = rd.mask(only_valid)
@@ -108,7 +108,7 @@ class Model:
                 "fit": self.fit}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "Model":
+    def from_dict(cls, d: dict) -> Model:
         try:
             params = {k: (v["value"] if isinstance(v, dict) else v) for k, v in d["parameters"].items()}
             return cls(d["law"], params)

@@ -10,7 +10,7 @@ import numpy as np
 
 from htm.fatigue.data import CrackData, Setup
 from htm.fatigue.e647 import Reduced, reduce
-from htm.fatigue.laws import Model, Points, fit_life, fit_rate, life_errors, log_residual, scatter
+from htm.fatigue.laws import Model, Points, fit_life, fit_rate, log_residual, scatter
 
 THRESHOLD_TERM = ("dk_th_mpa",)
 TOUGHNESS_TERM = ("k_crit_mpa",)

@@ -1,11 +1,8 @@
-"""`htm db list | show ID | export ID | delete ID` and `htm resume ID`: the test store from the shell."""
+"""`htm db list | show ID | export ID | delete ID`: the test store from the shell (`htm resume ID` is htm.run's)."""
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
-
-import numpy as np
 
 from htm.errors import RecordError
 from htm.record.store import Store
@@ -69,53 +66,10 @@ def resume_hint(t: dict) -> str:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    import pyarrow as pa
-    import pyarrow.csv as pacsv
-    import pyarrow.parquet as pq
-
-    out = Path(args.out)
-    if out.exists() and any(out.iterdir()):
-        raise RecordError(f"{out} is not empty; nothing was overwritten")
     with Store(args.store) as store:
-        t = store.get(args.id)
-        out.mkdir(parents=True, exist_ok=True)
-        written = []
-        for name, table in (("cycles", store.cycles(args.id)), ("raw", store.raw(args.id))):
-            if not table:
-                continue
-            tab = pa.table({k: np.asarray(v) for k, v in table.items()})
-            path = out / f"{name}.{args.format}"
-            if args.format == "csv":
-                pacsv.write_csv(tab, path)
-            else:
-                pq.write_table(tab, path, compression="zstd")
-            written.append(path)
-        written += _copy_files(t, out)
-        meta = {k: t[k] for k in ("id", "name", "kind", "mode", "status", "end_reason", "cycles", "a_end_m",
-                                  "created_utc", "updated_utc", "results", "events")}
-        (out / "test.json").write_text(json.dumps(meta, indent=1, default=float))
-        (out / f"spec.{t['spec_format']}").write_text(t["spec"])
-        print("exported: " + ", ".join(str(p) for p in [*written, out / "test.json"]))
+        written = store.export(args.id, Path(args.out), args.format)
+    print("exported: " + ", ".join(str(p) for p in written))
     return 0
-
-
-def _copy_files(t: dict, out: Path) -> list[Path]:
-    """The test's other files (recording, report with its plots, summary) into `out`."""
-    import shutil
-
-    copied = []
-    for role, f in sorted(t["files"].items()):
-        src = Path(f["path"])
-        if role in ("cycles", "raw") or not src.exists():
-            continue
-        group = [src]
-        if role == "report":  # the report's plots and tables sit beside it
-            group += [p for p in src.parent.iterdir() if p.suffix in (".png", ".html") or p.name == "reduced.csv"]
-        for p in dict.fromkeys(group):
-            if not (out / p.name).exists():
-                shutil.copy2(p, out / p.name)
-                copied.append(out / p.name)
-    return copied
 
 
 def cmd_delete(args: argparse.Namespace) -> int:
@@ -128,23 +82,7 @@ def cmd_delete(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_resume(args: argparse.Namespace) -> int:
-    from htm.run import resume_recorded, summary_text, write_outputs
-
-    with Store(args.store) as store:
-        test_id, spec, mode, out, wall = resume_recorded(store, args.id, progress=not args.quiet, recording=not args.no_recording,
-                                                         spawn=args.spawn, connect=args.connect)
-        t = store.get(test_id)
-    print(f"test {test_id}: {t['status']}, {t['end_reason']} after {t['cycles']:,} cycles")
-    if args.out and "cycles" in out:
-        s = write_outputs(Path(args.out), spec, out, wall, mode)
-        print(summary_text(spec, s))
-    return 0
-
-
 def register(sub: argparse._SubParsersAction) -> None:
-    from htm.run import add_store_args
-
     db = sub.add_parser("db", help="the test store: list, show, export, delete tests",
                         description="Query the test store (SQLite catalogue + Parquet tables + rerun recordings).")
     dsub = db.add_subparsers(dest="db_command", required=True, metavar="ACTION")
@@ -167,12 +105,3 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_delete)
     for q in dsub.choices.values():
         q.add_argument("--store", help="test store folder (default $HTM_STORE or ~/.local/share/htm/store)")
-
-    r = sub.add_parser("resume", help="continue a simulated test after a crash or a stop",
-                       description="Continue a test from its journal: the engine state of the last block written "
-                                   "(cycle count, crack length, controller, waveform), into the same store and recording.")
-    r.add_argument("id")
-    r.add_argument("--out", help="also write summary.json, cycles.parquet and the report here")
-    r.add_argument("--quiet", action="store_true", help="no progress bar")
-    add_store_args(r)
-    r.set_defaults(func=cmd_resume)

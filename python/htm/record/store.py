@@ -21,9 +21,10 @@ import secrets
 import shutil
 import sqlite3
 import time
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 
@@ -72,7 +73,22 @@ def _now() -> str:
 
 
 class Store:
-    """A store at `root` (created when missing). Catalogue errors raise `RecordError`."""
+    """The test store: a SQLite catalogue of tests with their per-cycle tables (Parquet), events,
+    specs and files.
+
+    Parameters
+    ----------
+    root : str or Path, optional
+        The store's folder, created when missing (default ``$HTM_STORE``, else
+        ``~/.local/share/htm/store``).
+
+    Notes
+    -----
+    Tables hold SI columns (``a_m`` [m], ``delta_k_pa_sqrt_m`` [Pa·√m], forces [N], times [s]).
+    ``list()`` gives every test, ``get(id)`` one test's catalogue row, ``cycles(id)`` its
+    per-cycle table as numpy arrays. Use it as a context manager to close the catalogue.
+    Catalogue errors raise RecordError.
+    """
 
     def __init__(self, root: Path | str | None = None):
         self.root = Path(root) if root is not None else default_root()
@@ -139,6 +155,11 @@ class Store:
     def _migrate(self, v: int) -> None:
         try:
             self.db.execute("BEGIN IMMEDIATE")
+            # another process opening the same new store may have migrated it since this one read
+            # the version: under the write lock the version read now is the truth
+            if self.db.execute("PRAGMA user_version").fetchone()[0] > v:
+                self.db.execute("COMMIT")
+                return
             for stmt in MIGRATIONS[v].split(";"):
                 if stmt.strip():
                     self.db.execute(stmt)
@@ -243,6 +264,40 @@ class Store:
         """Raw high-rate windows and live signal windows (column `t_s` first)."""
         return self._table(test_id, "raw.parquet", journal.SIGNALS)
 
+    def export(self, test_id: str, out: str | Path, fmt: str = "parquet") -> list[Path]:
+        """Write one test into the folder `out` (missing or empty): its tables (``cycles`` and
+        ``raw``, as ``parquet`` or ``csv``), its other files (recording, report with plots,
+        summary), ``test.json`` (catalogue row) and its spec. Returns the files written; a
+        non-empty `out` raises RecordError and nothing is overwritten."""
+        import pyarrow as pa
+        import pyarrow.csv as pacsv
+        import pyarrow.parquet as pq
+
+        if fmt not in ("parquet", "csv"):
+            raise RecordError(f"export format {fmt!r}: allowed parquet, csv")
+        out = Path(out)
+        if out.exists() and any(out.iterdir()):
+            raise RecordError(f"{out} is not empty; nothing was overwritten")
+        t = self.get(test_id)
+        out.mkdir(parents=True, exist_ok=True)
+        written = []
+        for name, table in (("cycles", self.cycles(test_id)), ("raw", self.raw(test_id))):
+            if not table:
+                continue
+            tab = pa.table({k: np.asarray(v) for k, v in table.items()})
+            path = out / f"{name}.{fmt}"
+            if fmt == "csv":
+                pacsv.write_csv(tab, path)
+            else:
+                pq.write_table(tab, path, compression="zstd")
+            written.append(path)
+        written += _copy_files(t, out)
+        meta = {k: t[k] for k in ("id", "name", "kind", "mode", "status", "end_reason", "cycles", "a_end_m",
+                                  "created_utc", "updated_utc", "results", "events")}
+        (out / "test.json").write_text(json.dumps(meta, indent=1, default=float))
+        (out / f"spec.{t['spec_format']}").write_text(t["spec"])
+        return [*written, out / "test.json", out / f"spec.{t['spec_format']}"]
+
     def _table(self, test_id: str, name: str, kind: bytes) -> dict[str, np.ndarray]:
         self.get(test_id)
         path = self.test_dir(test_id) / name
@@ -269,6 +324,23 @@ class Store:
         except BaseException:
             self.db.execute("ROLLBACK")
             raise
+
+
+def _copy_files(t: dict[str, Any], out: Path) -> list[Path]:
+    """The test's other files (recording, report with its plots, summary) into `out`."""
+    copied = []
+    for role, f in sorted(t["files"].items()):
+        src = Path(f["path"])
+        if role in ("cycles", "raw") or not src.exists():
+            continue
+        group = [src]
+        if role == "report":  # the report's plots and tables sit beside it
+            group += [p for p in src.parent.iterdir() if p.suffix in (".png", ".html") or p.name == "reduced.csv"]
+        for p in dict.fromkeys(group):
+            if not (out / p.name).exists():
+                shutil.copy2(p, out / p.name)
+                copied.append(out / p.name)
+    return copied
 
 
 def concat(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:

@@ -13,21 +13,23 @@ import json
 import os
 import time
 import uuid
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, BinaryIO, Callable
+from typing import Any, BinaryIO
 
 import numpy as np
 
+from htm import _core
 from htm.errors import RecordError
 from htm.record import journal
 from htm.record.store import Store, concat
 
-# event bits of the engine's per-cycle table (crates/htm-core engine.rs `events`)
-EVENT_NAMES = {1: "start", 2: "out_of_tolerance", 4: "tolerance_exceeded", 8: "size_criterion", 16: "jump",
-               32: "stiffness_step", 64: "phase_change", 128: "stop", 256: "end"}
-# bits worth an entry in the catalogue's event list when they appear (START and JUMP are states)
-CATALOGUED = 2 | 4 | 8 | 32 | 64 | 256
-JUMP = 16
+# event bits of the engine's per-cycle table, as the core names them
+EVENT_NAMES = {bit: name for name, bit in _core.EVENTS.items()}
+# bits worth an entry in the catalogue's event list when they appear (start, jump and stop are states)
+CATALOGUED = sum(_core.EVENTS[n] for n in ("out_of_tolerance", "tolerance_exceeded", "size_criterion", "stiffness_step",
+                                           "phase_change", "end"))
+JUMP = _core.EVENTS["jump"]
 # seconds between two checks that the recording's file writer is alive
 FLUSH_EVERY_S = 0.5
 

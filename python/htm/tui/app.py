@@ -8,14 +8,14 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from textual import work
 from textual.app import App, ComposeResult
 from textual.binding import Binding
-from textual.css.query import NoMatches
 from textual.containers import VerticalScroll
+from textual.css.query import NoMatches
 from textual.screen import ModalScreen
 from textual.widgets import Footer, Header, Markdown, RichLog, TabbedContent, TabPane
 

@@ -134,16 +134,13 @@ class ResultsPane(Vertical):
 
     @on(Button.Pressed, "#export")
     def _export(self) -> None:
-        import argparse
-
-        from htm.record.cli import cmd_export
-
         out = self.query_one("#export-dir", Input).value.strip()
         if self.selected is None or not out:
             self.notify("select a test and type an export folder", severity="warning")
             return
         try:
-            cmd_export(argparse.Namespace(store=self.store_root, id=self.selected, out=out, format="parquet"))
+            with self._store() as st:
+                st.export(self.selected, out)
         except (HtmError, OSError) as e:
             self.notify(f"export failed: {e}", severity="error")
             return

@@ -5,10 +5,9 @@ use pyo3::types::{PyDict, PyList};
 
 use super::engine::config_from;
 use super::fatigue::law_from;
-use super::{py_err, InputError, PyParams};
+use super::{InputError, PyParams};
 use crate::control::limits::{Action, Detector, Detectors};
 use crate::cyclic::{Cyclic, CycleResult, PositionGains};
-use crate::params::Params;
 use crate::rig::{CrackingSpecimen, RigPlant};
 use crate::specimen::{Geometry, Material, Specimen};
 
@@ -62,19 +61,19 @@ impl PyCyclic {
             y_max_m: opt_f(position, "y_max_m", d.y_max_m)?,
             u_max_v: opt_f(position, "u_max_v", d.u_max_v)?,
         };
-        Ok(PyCyclic { inner: Cyclic::new(rate_hz, g).map_err(py_err)? })
+        Ok(PyCyclic { inner: Cyclic::new(rate_hz, g)? })
     }
 
     /// One period: measured force [N] and position [m] in, valve command [V] out.
     fn step(&mut self, force_n: f64, position_m: f64) -> PyResult<f64> {
-        self.inner.step(force_n, position_m).map_err(py_err)
+        self.inner.step(force_n, position_m).map_err(PyErr::from)
     }
 
     /// Start a force test (config dict as `run_test`'s, SI) from the measured force `f0_n`.
     fn start_test(&mut self, py: Python<'_>, config: &Bound<'_, PyDict>, f0_n: f64) -> PyResult<()> {
         let cfg = config_from(config)?;
         let inner = &mut self.inner;
-        py.detach(|| inner.start_test(&cfg, f0_n)).map_err(py_err)
+        py.detach(|| inner.start_test(&cfg, f0_n)).map_err(PyErr::from)
     }
 
     /// Position control holding `y_m`, bumpless from command `u_v`.
@@ -82,19 +81,19 @@ impl PyCyclic {
         self.inner.position(y_m, u_v)
     }
     fn jog(&mut self, rate_m_s: f64) -> PyResult<()> {
-        self.inner.jog(rate_m_s).map_err(py_err)
+        self.inner.jog(rate_m_s).map_err(PyErr::from)
     }
     fn jog_step(&mut self, dm: f64) -> PyResult<()> {
-        self.inner.jog_step(dm).map_err(py_err)
+        self.inner.jog_step(dm).map_err(PyErr::from)
     }
     fn move_to(&mut self, y_m: f64) -> PyResult<()> {
-        self.inner.move_to(y_m).map_err(py_err)
+        self.inner.move_to(y_m).map_err(PyErr::from)
     }
     fn hold(&mut self) -> PyResult<()> {
-        self.inner.hold().map_err(py_err)
+        self.inner.hold().map_err(PyErr::from)
     }
     fn resume(&mut self) -> PyResult<()> {
-        self.inner.resume().map_err(py_err)
+        self.inner.resume().map_err(PyErr::from)
     }
     fn stop(&mut self) {
         self.inner.stop()
@@ -198,7 +197,7 @@ impl PyDetectors {
             let name: String = get("name")?.extract()?;
             let action = Action::parse(&get("action")?.extract::<String>()?).map_err(|e| InputError::new_err(format!("limits.{name}: {e}")))?;
             let persist: u32 = match d.get_item("persist")? { Some(v) => v.extract()?, None => 1 };
-            list.push(Detector::new(&name, get("channel")?.extract()?, get("lo")?.extract()?, get("hi")?.extract()?, action, persist).map_err(py_err)?);
+            list.push(Detector::new(&name, get("channel")?.extract()?, get("lo")?.extract()?, get("hi")?.extract()?, action, persist)?);
         }
         Ok(PyDetectors { inner: Detectors { list } })
     }
@@ -256,13 +255,13 @@ impl PyRigPlant {
     #[new]
     #[pyo3(signature = (params = None, specimen = None, rtol = 1e-4))]
     fn new(params: Option<PyParams>, specimen: Option<&Bound<'_, PyDict>>, rtol: f64) -> PyResult<Self> {
-        let p = params.map(|p| p.inner).unwrap_or_else(Params::default);
+        let p = params.map(|p| p.inner).unwrap_or_default();
         let spec = match specimen {
             None => None,
             Some(d) => {
                 let need = |k: &str| -> PyResult<f64> { d.get_item(k)?.ok_or_else(|| InputError::new_err(format!("specimen needs `{k}`")))?.extract() };
                 let geom: String = d.get_item("geometry")?.ok_or_else(|| InputError::new_err("specimen needs `geometry`"))?.extract()?;
-                let s = Specimen::new(Geometry::parse(&geom).map_err(py_err)?, need("width_m")?, need("thickness_m")?).map_err(py_err)?;
+                let s = Specimen::new(Geometry::parse(&geom)?, need("width_m")?, need("thickness_m")?)?;
                 let m = Material {
                     youngs_modulus_pa: need("youngs_modulus_pa")?,
                     poisson_ratio: need("poisson_ratio")?,
@@ -270,17 +269,17 @@ impl PyRigPlant {
                     fracture_toughness_pa_sqrt_m: need("fracture_toughness_pa_sqrt_m")?,
                 };
                 let law = law_from(&d.get_item("law")?.ok_or_else(|| InputError::new_err("specimen needs `law`"))?.cast_into::<PyDict>()?)?;
-                Some(CrackingSpecimen::new(s, m, law, need("a0_m")?, opt_f(Some(d), "hysteresis_n", 50.0)?).map_err(py_err)?)
+                Some(CrackingSpecimen::new(s, m, law, need("a0_m")?, opt_f(Some(d), "hysteresis_n", 50.0)?)?)
             }
         };
-        let mut r = RigPlant::new(p, spec).map_err(py_err)?;
-        r.machine = r.machine.clone().with_rtol(rtol).map_err(py_err)?;
+        let mut r = RigPlant::new(p, spec)?;
+        r.machine = r.machine.clone().with_rtol(rtol)?;
         Ok(PyRigPlant { inner: r })
     }
 
     /// Hold valve command `u` [V] for `dt` [s]; returns (y, v, p_a, p_b, p_s, f) SI.
     fn step(&mut self, u: f64, dt: f64) -> PyResult<(f64, f64, f64, f64, f64, f64)> {
-        let o = self.inner.step(u, dt).map_err(py_err)?;
+        let o = self.inner.step(u, dt)?;
         Ok((o.y, o.v, o.p_a, o.p_b, o.p_s, o.f))
     }
     /// Sensor readings now: (y, v, p_a, p_b, p_s, f).

@@ -8,7 +8,7 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
 use super::fatigue::law_from;
-use super::{py_err, InputError, PyParams};
+use super::{InputError, PyParams};
 use crate::engine::{self, Action, ControllerSpec, ExecMode, JumpConfig, Limits, Mode, Outcome, Phase, TestConfig};
 use crate::params::Params;
 use crate::specimen::{Geometry, Material, Specimen};
@@ -61,7 +61,7 @@ pub(super) fn config_from(d: &Bound<'_, PyDict>) -> PyResult<TestConfig> {
         Some(p) if !p.is_none() => p.extract::<PyParams>()?.inner,
         _ => Params::default(),
     };
-    let specimen = Specimen::new(Geometry::parse(&need::<String>(d, "geometry")?).map_err(py_err)?, need(d, "width_m")?, need(d, "thickness_m")?).map_err(py_err)?;
+    let specimen = Specimen::new(Geometry::parse(&need::<String>(d, "geometry")?)?, need(d, "width_m")?, need(d, "thickness_m")?)?;
     let material = Material {
         youngs_modulus_pa: need(d, "youngs_modulus_pa")?,
         poisson_ratio: need(d, "poisson_ratio")?,
@@ -167,14 +167,14 @@ fn run_test<'py>(py: Python<'py>, config: &Bound<'py, PyDict>, mode: &str, progr
     let cfg = config_from(config)?;
     let mode = mode_from(mode)?;
     let prog = progress.unwrap_or_default();
-    let o = py.detach(|| engine::run_test(&cfg, mode, Some(&prog.cycles), Some(&prog.cancel))).map_err(py_err)?;
+    let o = py.detach(|| engine::run_test(&cfg, mode, Some(&prog.cycles), Some(&prog.cancel)))?;
     outcome_dict(py, o)
 }
 
 /// Check a config without running it (raises ParameterError/InputError naming the field).
 #[pyfunction]
 fn validate_test(config: &Bound<'_, PyDict>) -> PyResult<()> {
-    config_from(config)?.validate().map_err(py_err)
+    config_from(config)?.validate().map_err(PyErr::from)
 }
 
 /// Run many tests on `threads` cores (0 = all) with the GIL released; results in input order.
@@ -186,12 +186,17 @@ fn run_batch<'py>(py: Python<'py>, configs: &Bound<'py, PyList>, mode: &str, thr
     let outs = py.detach(|| engine::run_batch(&cfgs, mode, threads));
     let l = PyList::empty(py);
     for o in outs {
-        l.append(outcome_dict(py, o.map_err(py_err)?)?)?;
+        l.append(outcome_dict(py, o?)?)?;
     }
     Ok(l)
 }
 
 pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    let events = PyDict::new(m.py());
+    for (name, bit) in engine::events::NAMED {
+        events.set_item(name, bit)?;
+    }
+    m.add("EVENTS", events)?;
     m.add_class::<PyProgress>()?;
     m.add_function(wrap_pyfunction!(run_test, m)?)?;
     m.add_function(wrap_pyfunction!(validate_test, m)?)?;
@@ -240,7 +245,7 @@ impl PyTestRun {
         let cfg = config_from(config)?;
         let mode = mode_from(mode)?;
         let raw = raw_from(raw)?;
-        let inner = py.detach(|| engine::Session::new(cfg, mode, raw)).map_err(py_err)?;
+        let inner = py.detach(|| engine::Session::new(cfg, mode, raw))?;
         Ok(PyTestRun { inner })
     }
 
@@ -248,7 +253,7 @@ impl PyTestRun {
     #[staticmethod]
     #[pyo3(signature = (config, mode, snapshot))]
     fn restore(config: &Bound<'_, PyDict>, mode: &str, snapshot: &[u8]) -> PyResult<Self> {
-        let inner = engine::Session::restore(config_from(config)?, mode_from(mode)?, snapshot).map_err(py_err)?;
+        let inner = engine::Session::restore(config_from(config)?, mode_from(mode)?, snapshot)?;
         Ok(PyTestRun { inner })
     }
 
@@ -260,7 +265,7 @@ impl PyTestRun {
             return Err(InputError::new_err(format!("max_seconds = {max_seconds}: allowed (0, inf) s")));
         }
         let inner = &mut self.inner;
-        let chunk = py.detach(|| inner.advance(max_cycles, std::time::Duration::from_secs_f64(max_seconds))).map_err(py_err)?;
+        let chunk = py.detach(|| inner.advance(max_cycles, std::time::Duration::from_secs_f64(max_seconds)))?;
         let d = PyDict::new(py);
         d.set_item("table", records_dict(py, chunk.records)?)?;
         let n = chunk.raw.len();
@@ -273,7 +278,7 @@ impl PyTestRun {
     /// The complete engine state as bytes (plant, solver step, controller and its filter rings,
     /// waveform phase, crack length, cycle count, compensation terms, counters, raw-window memory).
     fn snapshot<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, pyo3::types::PyBytes>> {
-        let b = self.inner.snapshot().map_err(py_err)?;
+        let b = self.inner.snapshot()?;
         Ok(pyo3::types::PyBytes::new(py, &b))
     }
 

@@ -3,13 +3,13 @@ use numpy::{PyArray1, PyReadonlyArray1};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use super::{py_err, InputError};
+use super::{InputError};
 use crate::crack::{self, Law, Load};
 use crate::specimen::{self, Geometry, Material, Specimen};
 use crate::{Error, Result};
 
 fn spec(geometry: &str, width_m: f64, thickness_m: f64) -> PyResult<Specimen> {
-    Specimen::new(Geometry::parse(geometry).map_err(py_err)?, width_m, thickness_m).map_err(py_err)
+    Specimen::new(Geometry::parse(geometry)?, width_m, thickness_m).map_err(PyErr::from)
 }
 
 fn elastic(youngs_modulus_pa: f64, poisson_ratio: f64) -> Material {
@@ -33,7 +33,7 @@ pub(super) fn law_from(d: &Bound<'_, PyDict>) -> PyResult<Law> {
         },
         other => return Err(InputError::new_err(format!("unknown growth law `{other}`: use paris, forman or nasgro"))),
     };
-    law.validate().map_err(py_err)?;
+    law.validate()?;
     Ok(law)
 }
 
@@ -65,16 +65,18 @@ fn a_range(geometry: &str, width_m: f64, thickness_m: f64) -> PyResult<(f64, f64
 fn stress_intensity<'py>(py: Python<'py>, geometry: &str, width_m: f64, thickness_m: f64, a_m: PyReadonlyArray1<'py, f64>, force_n: f64) -> PyResult<Bound<'py, PyArray1<f64>>> {
     let s = spec(geometry, width_m, thickness_m)?;
     let a = a_m.as_slice()?;
-    let v = py.detach(|| map_each(a, |x| s.k(x, force_n))).map_err(py_err)?;
+    let v = py.detach(|| map_each(a, |x| s.k(x, force_n)))?;
     Ok(PyArray1::from_vec(py, v))
 }
 
+type Array<'py> = Bound<'py, PyArray1<f64>>;
+
 /// E647 size criterion at each crack size: (ligament [m], required ligament [m]).
 #[pyfunction]
-fn size_criterion<'py>(py: Python<'py>, geometry: &str, width_m: f64, thickness_m: f64, a_m: PyReadonlyArray1<'py, f64>, pmax_n: f64, yield_strength_pa: f64) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>)> {
+fn size_criterion<'py>(py: Python<'py>, geometry: &str, width_m: f64, thickness_m: f64, a_m: PyReadonlyArray1<'py, f64>, pmax_n: f64, yield_strength_pa: f64) -> PyResult<(Array<'py>, Array<'py>)> {
     let s = spec(geometry, width_m, thickness_m)?;
     let a = a_m.as_slice()?;
-    let pairs: Vec<(f64, f64)> = py.detach(|| a.iter().map(|&x| s.size_criterion(x, pmax_n, yield_strength_pa)).collect::<Result<_>>()).map_err(py_err)?;
+    let pairs: Vec<(f64, f64)> = py.detach(|| a.iter().map(|&x| s.size_criterion(x, pmax_n, yield_strength_pa)).collect::<Result<_>>())?;
     let (lig, req): (Vec<f64>, Vec<f64>) = pairs.into_iter().unzip();
     Ok((PyArray1::from_vec(py, lig), PyArray1::from_vec(py, req)))
 }
@@ -85,7 +87,7 @@ fn compliance_ct<'py>(py: Python<'py>, width_m: f64, thickness_m: f64, a_m: PyRe
     let s = spec("ct", width_m, thickness_m)?;
     let m = elastic(youngs_modulus_pa, poisson_ratio);
     let a = a_m.as_slice()?;
-    let v = py.detach(|| map_each(a, |x| s.compliance(x, &m))).map_err(py_err)?;
+    let v = py.detach(|| map_each(a, |x| s.compliance(x, &m)))?;
     Ok(PyArray1::from_vec(py, v))
 }
 
@@ -95,7 +97,7 @@ fn stiffness_ct<'py>(py: Python<'py>, width_m: f64, thickness_m: f64, a_m: PyRea
     let s = spec("ct", width_m, thickness_m)?;
     let m = elastic(youngs_modulus_pa, poisson_ratio);
     let a = a_m.as_slice()?;
-    let v = py.detach(|| map_each(a, |x| s.stiffness(x, &m))).map_err(py_err)?;
+    let v = py.detach(|| map_each(a, |x| s.stiffness(x, &m)))?;
     Ok(PyArray1::from_vec(py, v))
 }
 
@@ -105,7 +107,7 @@ fn crack_length_from_compliance_ct<'py>(py: Python<'py>, width_m: f64, thickness
     let s = spec("ct", width_m, thickness_m)?;
     let m = elastic(youngs_modulus_pa, poisson_ratio);
     let c = compliance_m_per_n.as_slice()?;
-    let v = py.detach(|| map_each(c, |x| s.crack_length_from_compliance(x, &m))).map_err(py_err)?;
+    let v = py.detach(|| map_each(c, |x| s.crack_length_from_compliance(x, &m)))?;
     Ok(PyArray1::from_vec(py, v))
 }
 
@@ -116,7 +118,7 @@ fn growth_rate<'py>(py: Python<'py>, law: &Bound<'py, PyDict>, delta_k: PyReadon
     let law = law_from(law)?;
     let (dk, km) = (delta_k.as_slice()?, kmax.as_slice()?);
     if dk.len() != km.len() {
-        return Err(py_err(Error::Input(format!("delta_k has {} values but kmax has {}", dk.len(), km.len()))));
+        return Err(Error::Input(format!("delta_k has {} values but kmax has {}", dk.len(), km.len())).into());
     }
     Ok(PyArray1::from_vec(py, dk.iter().zip(km).map(|(&d, &k)| law.rate(d, r_ratio, k)).collect()))
 }
@@ -124,7 +126,7 @@ fn growth_rate<'py>(py: Python<'py>, law: &Bound<'py, PyDict>, delta_k: PyReadon
 /// Newman's crack-opening function f(R, Smax/σ0, α) used by NASGRO.
 #[pyfunction]
 fn newman_f(r_ratio: f64, smax_over_flow_stress: f64, constraint_factor: f64) -> PyResult<f64> {
-    crack::newman_f(r_ratio, smax_over_flow_stress, constraint_factor).map_err(py_err)
+    crack::newman_f(r_ratio, smax_over_flow_stress, constraint_factor).map_err(PyErr::from)
 }
 
 fn life_dict<'py>(py: Python<'py>, l: crack::Life) -> PyResult<Bound<'py, PyDict>> {
@@ -142,8 +144,8 @@ fn life_dict<'py>(py: Python<'py>, l: crack::Life) -> PyResult<Bound<'py, PyDict
 fn life<'py>(py: Python<'py>, law: &Bound<'py, PyDict>, geometry: &str, width_m: f64, thickness_m: f64, pmax_n: f64, r_ratio: f64, a0_m: f64, af_m: f64) -> PyResult<Bound<'py, PyDict>> {
     let law = law_from(law)?;
     let s = spec(geometry, width_m, thickness_m)?;
-    let load = Load::new(pmax_n, r_ratio).map_err(py_err)?;
-    let l = py.detach(|| crack::life(&law, &s, &load, a0_m, af_m)).map_err(py_err)?;
+    let load = Load::new(pmax_n, r_ratio)?;
+    let l = py.detach(|| crack::life(&law, &s, &load, a0_m, af_m))?;
     life_dict(py, l)
 }
 
@@ -153,10 +155,10 @@ fn life<'py>(py: Python<'py>, law: &Bound<'py, PyDict>, geometry: &str, width_m:
 fn life_curve<'py>(py: Python<'py>, law: &Bound<'py, PyDict>, geometry: &str, width_m: f64, thickness_m: f64, pmax_n: f64, r_ratio: f64, a_m: PyReadonlyArray1<'py, f64>) -> PyResult<Bound<'py, PyArray1<f64>>> {
     let law = law_from(law)?;
     let s = spec(geometry, width_m, thickness_m)?;
-    let load = Load::new(pmax_n, r_ratio).map_err(py_err)?;
+    let load = Load::new(pmax_n, r_ratio)?;
     let a = a_m.as_slice()?;
     let mut out = vec![0.0; a.len()];
-    py.detach(|| crack::life_curve(&law, &s, &load, a, &mut out)).map_err(py_err)?;
+    py.detach(|| crack::life_curve(&law, &s, &load, a, &mut out))?;
     Ok(PyArray1::from_vec(py, out))
 }
 
@@ -166,15 +168,15 @@ fn life_curve<'py>(py: Python<'py>, law: &Bound<'py, PyDict>, geometry: &str, wi
 fn crack_after<'py>(py: Python<'py>, law: &Bound<'py, PyDict>, geometry: &str, width_m: f64, thickness_m: f64, pmax_n: f64, r_ratio: f64, a0_m: f64, cycles: f64) -> PyResult<Bound<'py, PyDict>> {
     let law = law_from(law)?;
     let s = spec(geometry, width_m, thickness_m)?;
-    let load = Load::new(pmax_n, r_ratio).map_err(py_err)?;
-    let l = py.detach(|| crack::crack_after(&law, &s, &load, a0_m, cycles)).map_err(py_err)?;
+    let load = Load::new(pmax_n, r_ratio)?;
+    let l = py.detach(|| crack::crack_after(&law, &s, &load, a0_m, cycles))?;
     life_dict(py, l)
 }
 
 /// Pmax [N] from the force range ΔP [N] and R per E647.
 #[pyfunction]
 fn pmax_from_delta_p(delta_p_n: f64, r_ratio: f64) -> PyResult<f64> {
-    Ok(Load::from_delta_p(delta_p_n, r_ratio).map_err(py_err)?.pmax_n)
+    Ok(Load::from_delta_p(delta_p_n, r_ratio)?.pmax_n)
 }
 
 pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {

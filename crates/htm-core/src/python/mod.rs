@@ -1,5 +1,5 @@
 //! Thin pyo3 bindings: convert, release the GIL, map errors. No numerics here.
-use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray1};
+use numpy::{PyArray1, PyReadonlyArray1};
 use pyo3::create_exception;
 use pyo3::exceptions::{PyException, PyKeyError};
 use pyo3::prelude::*;
@@ -9,7 +9,7 @@ use crate::control::Controller;
 use crate::machine::{Machine, Outputs, NX};
 use crate::params::{Field, Params, FIELDS};
 use crate::run::{self, Trace};
-use crate::solver::{OdeSystem, Stats};
+use crate::solver::Stats;
 use crate::Error;
 
 mod control;
@@ -35,11 +35,14 @@ create_exception!(htm._core, ParameterError, HtmError, "A parameter is outside i
 create_exception!(htm._core, InputError, HtmError, "An input signal or argument is unusable.");
 create_exception!(htm._core, SolverError, HtmError, "The integrator could not meet its tolerance.");
 
-fn py_err(e: Error) -> PyErr {
-    match e {
-        Error::Parameter { .. } => ParameterError::new_err(e.to_string()),
-        Error::Input(_) => InputError::new_err(e.to_string()),
-        Error::Solver(_) => SolverError::new_err(e.to_string()),
+/// Each core error as its `HtmError` subclass, so `?` carries it to Python.
+impl From<Error> for PyErr {
+    fn from(e: Error) -> PyErr {
+        match e {
+            Error::Parameter { .. } => ParameterError::new_err(e.to_string()),
+            Error::Input(_) => InputError::new_err(e.to_string()),
+            Error::Solver(_) => SolverError::new_err(e.to_string()),
+        }
     }
 }
 
@@ -98,7 +101,7 @@ impl PyParams {
         if self.inner.get(name).is_none() {
             return Err(PyKeyError::new_err(format!("unknown parameter `{name}`")));
         }
-        self.inner.set(name, value).map_err(py_err)
+        self.inner.set(name, value).map_err(PyErr::from)
     }
 
     fn __contains__(&self, name: &str) -> bool {
@@ -111,7 +114,7 @@ impl PyParams {
 
     /// Raise ParameterError naming the first field out of range.
     fn validate(&self) -> PyResult<()> {
-        self.inner.validate().map_err(py_err)
+        self.inner.validate().map_err(PyErr::from)
     }
 
     fn copy(&self) -> Self {
@@ -200,9 +203,9 @@ impl PyMachine {
     #[pyo3(signature = (params = None, rtol = None))]
     fn new(params: Option<PyParams>, rtol: Option<f64>) -> PyResult<Self> {
         let p = params.map(|p| p.inner).unwrap_or_default();
-        let mut m = Machine::new(p).map_err(py_err)?;
+        let mut m = Machine::new(p)?;
         if let Some(r) = rtol {
-            m = m.with_rtol(r).map_err(py_err)?;
+            m = m.with_rtol(r)?;
         }
         Ok(PyMachine { inner: m })
     }
@@ -210,7 +213,7 @@ impl PyMachine {
     /// Hold command `u` [V] for `dt` [s]; returns the sensor readings at the end of the period.
     fn step<'py>(&mut self, py: Python<'py>, u: f64, dt: f64) -> PyResult<Bound<'py, PyDict>> {
         let m = &mut self.inner;
-        let o = py.detach(|| m.step(u, dt)).map_err(py_err)?;
+        let o = py.detach(|| m.step(u, dt))?;
         outputs_dict(py, &o)
     }
 
@@ -228,7 +231,7 @@ impl PyMachine {
     fn set_state(&mut self, x: PyReadonlyArray1<'_, f64>) -> PyResult<()> {
         let s = x.as_slice()?;
         let arr: [f64; NX] = s.try_into().map_err(|_| InputError::new_err(format!("state needs {NX} values, got {}", s.len())))?;
-        self.inner.set_state(arr).map_err(py_err)
+        self.inner.set_state(arr).map_err(PyErr::from)
     }
 
     #[getter]
@@ -264,7 +267,7 @@ impl PyMachine {
     fn simulate<'py>(&mut self, py: Python<'py>, u: PyReadonlyArray1<'_, f64>, dt: f64) -> PyResult<Bound<'py, PyDict>> {
         let u = u.as_slice()?;
         let m = &mut self.inner;
-        let tr = py.detach(|| run::simulate_open_loop(m, u, dt)).map_err(py_err)?;
+        let tr = py.detach(|| run::simulate_open_loop(m, u, dt))?;
         trace_dict(py, tr)
     }
 
@@ -273,7 +276,7 @@ impl PyMachine {
         let ctrl = controller_from(controller)?;
         let r = reference.as_slice()?;
         let m = &mut self.inner;
-        let tr = py.detach(|| run::simulate_closed_loop(m, r, dt, &ctrl)).map_err(py_err)?;
+        let tr = py.detach(|| run::simulate_closed_loop(m, r, dt, &ctrl))?;
         trace_dict(py, tr)
     }
 }

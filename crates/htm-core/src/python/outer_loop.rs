@@ -5,7 +5,7 @@ use pyo3::exceptions::PyKeyError;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
-use super::{field_table, py_err, values_dict, InputError};
+use super::{field_table, values_dict, InputError};
 use crate::outer_loop::{simulate_batch, validate_input, LoopOutput, LoopParams, LOOP_FIELDS, STALL_FORCE_KEY};
 
 /// Parameters of a machine's closed displacement loop (SI); `LoopParams()` has every effect off.
@@ -30,7 +30,7 @@ impl PyLoopParams {
         if self.inner.get(name).is_none() {
             return Err(PyKeyError::new_err(format!("unknown displacement-loop parameter `{name}`")));
         }
-        self.inner.set(name, value).map_err(py_err)
+        self.inner.set(name, value).map_err(PyErr::from)
     }
 
     fn __contains__(&self, name: &str) -> bool {
@@ -44,7 +44,7 @@ impl PyLoopParams {
 
     /// Raise ParameterError naming the first field out of range.
     fn validate(&self) -> PyResult<()> {
-        self.inner.validate().map_err(py_err)
+        self.inner.validate().map_err(PyErr::from)
     }
 
     fn copy(&self) -> Self {
@@ -102,7 +102,7 @@ fn output_dict<'py>(py: Python<'py>, r: crate::Result<LoopOutput>, n: usize) -> 
 fn loop_simulate<'py>(py: Python<'py>, params: Vec<PyLoopParams>, dt: f64, y_ref: PyReadonlyArray1<'py, f64>,
                       load: Option<PyReadonlyArray1<'py, f64>>, threads: usize) -> PyResult<Bound<'py, PyList>> {
     let r = y_ref.as_slice()?;
-    validate_input(dt, r).map_err(py_err)?;
+    validate_input(dt, r)?;
     let f = match &load {
         Some(a) => Some(a.as_slice()?),
         None => None,

@@ -4,7 +4,7 @@ use numpy::{PyArray1, PyReadonlyArray1};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
-use super::{controller_from, py_err, InputError, PyParams};
+use super::{controller_from, InputError, PyParams};
 use crate::measure::{Corruption, CHANNELS};
 use crate::replay::{Replay, Replayed, DEFAULT_HORIZON_S, DEFAULT_PREROLL_S, DEFAULT_RTOL};
 
@@ -116,7 +116,7 @@ fn replay<'py>(
         (Some(_), None) => return Err(InputError::new_err("a controller needs its `reference` (y_ref or f_ref)")),
         (None, _) => {}
     }
-    rp.validate().map_err(py_err)?;
+    rp.validate()?;
     let ps: Vec<_> = params.into_iter().map(|p| p.inner).collect();
     let n = u_s.len();
     let rp_ref = &rp;
