@@ -51,10 +51,10 @@ def runner(client: Any, workers: list[str] | None = None):
 
     def run(chunks: list[Chunk], mode: str) -> Iterator[list[dict[str, Any]]]:
         # threads = 1 per task: the cluster's parallelism is its workers' threads, one test each
-        futs = [client.submit(run_chunk, ch, mode, 1, pure=False, retries=RETRIES,
-                              workers=workers, allow_other_workers=workers is None) for ch in chunks]
+        pin = {"workers": workers, "allow_other_workers": False} if workers else {}
+        futs = [client.submit(run_chunk, ch, mode, 1, pure=False, retries=RETRIES, **pin) for ch in chunks]
         try:
-            for f in as_completed(futs):
+            for f in as_completed(futs, loop=client.loop):
                 yield f.result()
         finally:
             for f in futs:
