@@ -83,7 +83,9 @@ _htm_start_postgres() {
         { cat "$pgdir/server.log" >&2; return 1; }
     password="$("$HTM_VENV/bin/python" -c 'import secrets; print(secrets.token_hex(16))')"
     # the SQL (with the password) goes through stdin, never a command line
-    $_HTM_AS_PG psql -q -v ON_ERROR_STOP=1 -h "$pgdir" -p "$port" -d postgres >/dev/null <<SQL || return 1
+    local psql="$_HTM_PG_BIN/psql"
+    [ -x "$psql" ] || psql="psql"
+    $_HTM_AS_PG "$psql" -q -v ON_ERROR_STOP=1 -h "$pgdir" -p "$port" -d postgres >/dev/null <<SQL || return 1
 CREATE ROLE htm_test LOGIN NOSUPERUSER NOCREATEDB NOCREATEROLE PASSWORD '$password';
 CREATE DATABASE htm_test OWNER htm_test;
 REVOKE CONNECT ON DATABASE postgres FROM PUBLIC;
