@@ -10,6 +10,8 @@ fields of it by their dotted path in that spec (`loading.delta_f_n`, `law.c`,
     [scatter]    samples = M, "FIELD" = { lognormal_sigma = s } | { normal_sd = s }
                  M Monte Carlo draws of material scatter around each point (lognormal multiplies the
                  base value by exp(N(0, s²)), normal adds N(0, s²))
+    [scatter.joint]  fields = [...], mean = [...], cov = [[...]], log10 = [...]: fields drawn together
+                 from one multivariate normal (a Paris law's log10 C and m, strongly correlated)
 
 The plan is fixed by the file (and its seed): the same file gives the same tests in the same order,
 which is what lets a re-started campaign skip what the store already holds. Every test's spec goes
@@ -131,13 +133,14 @@ def _lhs(doc: dict) -> tuple[int, dict[str, tuple[float, float]]]:
     return n, ranges
 
 
-def _scatter(doc: dict) -> tuple[int, dict[str, tuple[str, float]]]:
+def _scatter(doc: dict) -> tuple[int, dict[str, tuple[str, float]], dict[str, Any] | None]:
     t = dict(_table(doc, "scatter"))
     if not t:
-        return 1, {}
+        return 1, {}, None
     n = t.pop("samples", None)
     if isinstance(n, bool) or not isinstance(n, int) or n < 1:
         raise SpecError(f"campaign: scatter.samples = {n!r} must be a positive integer")
+    joint = _joint(t.pop("joint")) if "joint" in t else None
     laws = {}
     for f, d in t.items():
         if not (isinstance(d, dict) and len(d) == 1 and next(iter(d)) in ("lognormal_sigma", "normal_sd")):
@@ -147,9 +150,35 @@ def _scatter(doc: dict) -> tuple[int, dict[str, tuple[str, float]]]:
         if s < 0:
             raise SpecError(f"campaign: scatter `{f}`.{kind} = {s:g} must be ≥ 0")
         laws[f] = (kind, s)
-    if not laws:
+    if not laws and joint is None:
         raise SpecError("campaign: [scatter] names no field to draw")
-    return n, laws
+    return n, laws, joint
+
+
+def _joint(t: Any) -> dict[str, Any]:
+    """[scatter.joint]: fields drawn together from a multivariate normal (their correlation kept,
+    e.g. a Paris law's log10 C and m): `fields`, `mean`, `cov`, optional `log10` flags (the normal
+    is then of log10 of that field)."""
+    where = "campaign: [scatter.joint]"
+    if not isinstance(t, dict) or set(t) - {"fields", "mean", "cov", "log10"} or not {"fields", "mean", "cov"} <= set(t):
+        raise SpecError(f"{where} needs fields, mean, cov (and optionally log10)")
+    fields = t["fields"]
+    k = len(fields) if isinstance(fields, list) else 0
+    if k == 0 or not all(isinstance(f, str) for f in fields):
+        raise SpecError(f"{where}.fields must be a list of field names")
+    mean = np.array([_number(v, f"{where}.mean") for v in t["mean"]]) if isinstance(t["mean"], list) else np.zeros(0)
+    cov_rows = t["cov"] if isinstance(t["cov"], list) else []
+    cov = np.array([[_number(v, f"{where}.cov") for v in row] for row in cov_rows if isinstance(row, list)])
+    log10 = t.get("log10", [False] * k)
+    if len(mean) != k or cov.shape != (k, k) or not (isinstance(log10, list) and len(log10) == k):
+        raise SpecError(f"{where}: mean needs {k} values, cov {k}×{k}, log10 {k} flags (one per field)")
+    try:
+        chol = np.linalg.cholesky(cov) if np.allclose(cov, cov.T) else None
+    except np.linalg.LinAlgError:
+        chol = None
+    if chol is None:
+        raise SpecError(f"{where}.cov must be symmetric positive definite")
+    return {"fields": list(fields), "mean": mean, "chol": chol, "log10": [bool(x) for x in log10]}
 
 
 def latin_hypercube(n: int, ranges: dict[str, tuple[float, float]], rng: np.random.Generator) -> list[dict[str, float]]:
@@ -209,8 +238,9 @@ def parse(text: str, path: Path) -> Campaign:
 
     grid = _grid(doc)
     n_lhs, ranges = _lhs(doc)
-    n_mc, laws = _scatter(doc)
-    twice = (set(grid) & set(ranges)) | ((set(grid) | set(ranges)) & set(laws))
+    n_mc, laws, joint = _scatter(doc)
+    drawn = set(laws) | set(joint["fields"] if joint else [])
+    twice = (set(grid) & set(ranges)) | ((set(grid) | set(ranges)) & drawn) | (set(laws) & set(joint["fields"] if joint else []))
     if twice:
         raise SpecError(f"campaign: field(s) {', '.join(sorted(twice))} appear in more than one of [grid], [lhs], [scatter]")
     n_grid = int(np.prod([len(v) for v in grid.values()])) if grid else 1
@@ -246,6 +276,10 @@ def parse(text: str, path: Path) -> Campaign:
                     z = float(rng.standard_normal())
                     b = float(_get(base, f))
                     inp[f] = b * float(np.exp(s * z)) if kind == "lognormal_sigma" else b + s * z
+                if joint:
+                    x = joint["mean"] + joint["chol"] @ rng.standard_normal(len(joint["fields"]))
+                    for f, v, lg in zip(joint["fields"], x, joint["log10"]):
+                        inp[f] = float(10.0 ** v) if lg else float(v)
                 d = copy.deepcopy(base)
                 for f, v in inp.items():
                     _set(d, f, v)
@@ -255,9 +289,10 @@ def parse(text: str, path: Path) -> Campaign:
     for i, d in enumerate(docs):
         _check(d, f"{name}[{i}]", f"test {i} ({', '.join(f'{k} = {v:g}' for k, v in inputs[i].items())})")
 
-    cid = f"{_slug(name)}-{_hash({'campaign': doc, 'base': base, 'mode': mode})[:10]}"
+    ident = {k: v for k, v in doc.items() if k != "campaign"} | {"seed": seed, "name": name}
+    cid = f"{_slug(name)}-{_hash({'campaign': ident, 'base': base, 'mode': mode})[:10]}"
     return Campaign(id=cid, name=name, path=path, text=text, base_text=base_text, mode=mode, chunk_tests=chunk,
-                    swept=list(grid) + list(ranges), scattered=list(laws), inputs=inputs, docs=docs)
+                    swept=list(grid) + list(ranges), scattered=list(laws) + (joint["fields"] if joint else []), inputs=inputs, docs=docs)
 
 
 def _slug(name: str) -> str:
