@@ -22,7 +22,7 @@ def _read(path: str, a_mm_column: str | None):
     head, _, rest = text.partition("\n")
     cols = [c.strip() for c in head.split(",")]
     if a_mm_column not in cols:
-        raise SpecError(f"{path}: no column `{a_mm_column}` (found: {', '.join(cols)})")
+        return read_a_n(path)  # this file names its columns as usual (a_m / a_mm), or the reader says what is missing
     with tempfile.TemporaryDirectory() as tmp:
         p = Path(tmp) / Path(path).name
         p.write_text(",".join("a_mm" if c == a_mm_column else c for c in cols) + "\n" + rest)
