@@ -117,3 +117,37 @@ def test_unreachable_scheduler_and_database_are_named(tmp_path):
     r = htm("campaign", str(ok), "--store", "postgresql://nobody:s3cret@127.0.0.1:9/nothing")
     one_line_error(r, "PGPASSWORD")
     assert "s3cret" not in r.stderr + r.stdout
+
+
+def test_a_campaign_killed_mid_run_resumes_without_repeating_or_losing_a_test(tmp_path):
+    import os
+    import re
+    import signal
+    import time
+
+    p = campaign_file(tmp_path, SMALL.replace("samples = 3", "samples = 5"), "killed")  # 10 tests
+    store = tmp_path / "store"
+    cmd = [sys.executable, "-m", "htm.cli", "campaign", str(p), "--store", str(store), "--out", str(tmp_path / "out"), "--quiet", "--threads", "1"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    held = 0
+    t0 = time.monotonic()
+    while held < 2 and time.monotonic() - t0 < 60:
+        time.sleep(0.1)
+        if (store / "catalogue.sqlite").exists():
+            with Store(store) as s:
+                try:
+                    held = s.db.execute("SELECT COUNT(*) FROM campaign_tests").fetchone()[0]
+                except Exception:
+                    held = 0
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait(timeout=10)
+    with Store(store) as s:
+        kept = s.db.execute("SELECT COUNT(*) FROM campaign_tests").fetchone()[0]
+    assert 2 <= kept < 10, kept  # killed mid-campaign, the finished chunks kept
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    m = re.search(r"10/10 tests in the store \((\d+) already there, (\d+) run now", r.stdout)
+    assert m and int(m.group(1)) == kept and int(m.group(2)) == 10 - kept, r.stdout
+    with Store(store) as s:
+        idx = [i for (i,) in s.db.execute("SELECT idx FROM campaign_tests").fetchall()]
+    assert sorted(idx) == list(range(10))
