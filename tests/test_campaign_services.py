@@ -162,3 +162,25 @@ def test_pg_role_reaches_only_its_own_database():
     with psycopg.connect(url, connect_timeout=5) as conn:
         su = conn.execute("SELECT rolsuper OR rolcreatedb OR rolcreaterole FROM pg_roles WHERE rolname = current_user").fetchone()[0]
     assert su is False
+
+
+def test_fleet_diagnosis_on_dask_into_postgresql(tmp_path):
+    from htm.fleet import catalogue
+    from htm.ident import proving, records
+
+    pg, dask = service("HTM_TEST_PG"), service("HTM_TEST_DASK")
+    folder = tmp_path / "fleet"
+    rec, _ = proving.make_record({"sensor_offset": {"channel": "p_a", "offset_pa": 4e5}}, seed=1, duration_s=4)
+    (folder / "frame-a" / "2026-03-01").mkdir(parents=True)
+    records.write_record(rec, folder / "frame-a" / "2026-03-01" / "run1")
+    cmd = [sys.executable, "-m", "htm.cli", "fleet", "diagnose", str(folder), "--store", pg, "--cluster", dask, "--work-s", "1"]
+    env = dict(os.environ, HTM_STORE_FILES=str(tmp_path / "files"))
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=env)
+    assert r.returncode == 0, r.stderr
+    assert "frame-a 2026-03-01 run1:" in r.stdout and "sensor_offset" in r.stdout
+    again = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=env)
+    assert "1 already in the store, diagnosing 0" in again.stdout, again.stdout + again.stderr
+    with Store(pg) as s:
+        h = catalogue.history(s, "frame-a")
+        s.db.execute("DELETE FROM fleet_params WHERE machine = 'frame-a'")  # the database outlives this test
+    assert abs(h["sensor_offset_p_a"][0][1] - 4e5) < 1e5 and h["moving_mass_kg"][0][0] == "2026-03-01"

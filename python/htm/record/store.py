@@ -66,6 +66,12 @@ MIGRATIONS = [
         size_criterion_cycle INTEGER, valid INTEGER NOT NULL, error TEXT, wall_s REAL, worker TEXT,
         written_utc TEXT NOT NULL, PRIMARY KEY(campaign_id, idx));
     """,
+    # 3 -> 4: fleet diagnosis (htm.fleet): the parameters `htm diagnose` identified, per machine and date
+    """
+    CREATE TABLE fleet_params(machine TEXT NOT NULL, date TEXT NOT NULL, record TEXT NOT NULL, param TEXT NOT NULL,
+        value REAL NOT NULL, findings TEXT NOT NULL, unexplained INTEGER NOT NULL, diagnosed_utc TEXT NOT NULL,
+        PRIMARY KEY(machine, date, record, param));
+    """,
 ]
 SCHEMA_VERSION = len(MIGRATIONS)
 STATUSES = ("running", "finished", "stopped", "failed", "interrupted")
