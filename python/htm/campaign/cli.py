@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
 from typing import Any
 
@@ -75,7 +76,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "Running it again continues where it stopped.",
                        epilog="see examples/campaign_ct.toml and README § Campaigns")
     p.add_argument("campaign", help="campaign file (TOML)")
-    p.add_argument("--cluster", metavar="tcp://HOST:PORT", help="run the chunks on this Dask scheduler's workers")
+    p.add_argument("--cluster", metavar="tcp://HOST:PORT", default=os.environ.get("HTM_CLUSTER") or None,
+                   help="run the chunks on this Dask scheduler's workers (default $HTM_CLUSTER; unset: this machine)")
     p.add_argument("--store", help="test store: a folder, or postgresql://USER@HOST:PORT/DB (password from PGPASSWORD "
                                    "or ~/.pgpass); default $HTM_STORE or ~/.local/share/htm/store")
     p.add_argument("--out", help="folder for campaign.parquet and life.png (default out/campaign-ID)")
