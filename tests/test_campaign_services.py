@@ -136,6 +136,7 @@ def test_store_on_postgresql_keeps_a_test_as_sqlite_does(tmp_path, monkeypatch):
             tid = s.create_test("pg-roundtrip", "simulated", "jump", "toml", "x = 1", 10.0)
             s.add_event(tid, "note", "first", cycle=5)
             s.add_event(tid, "note", "second", cycle=5)
+            s.add_event(tid, "note", "no cycle")  # NULL cycle: first on both (their NULL orders differ)
             s.set_results(tid, {"cycles": 12345, "gains": {"k1": 0.5}})
             s.set_results(tid, {"cycles": 12346})  # an upsert, not a second row
             s.set_status(tid, "finished", "target_crack_length", 12346, 0.03)
@@ -143,7 +144,7 @@ def test_store_on_postgresql_keeps_a_test_as_sqlite_does(tmp_path, monkeypatch):
             got.append((d["status"], d["cycles"], d["a_end_m"], [e["detail"] for e in d["events"]], d["results"]))
             assert tid in [t["id"] for t in s.list_tests()]
             s.delete(tid)
-    assert got[0] == got[1] == ("finished", 12346, 0.03, ["first", "second"], {"cycles": 12346.0, "gains": {"k1": 0.5}})
+    assert got[0] == got[1] == ("finished", 12346, 0.03, ["no cycle", "first", "second"], {"cycles": 12346.0, "gains": {"k1": 0.5}})
 
 
 @pytest.mark.parametrize("backend", ["sqlite", "postgresql"])

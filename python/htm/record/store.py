@@ -235,7 +235,9 @@ class Store:
         fmt, body = self.db.execute("SELECT format, body FROM specs WHERE test_id = ?", (test_id,)).fetchone()
         d["spec_format"], d["spec"] = fmt, body
         d["events"] = [dict(zip(("cycle", "time_s", "kind", "detail", "source"), r)) for r in self.db.execute(
-            "SELECT cycle, time_s, kind, detail, source FROM events WHERE test_id = ? ORDER BY cycle, rowid", (test_id,))]
+            # events without a cycle first, on SQLite and PostgreSQL alike (their NULL orders differ)
+            "SELECT cycle, time_s, kind, detail, source FROM events WHERE test_id = ? ORDER BY COALESCE(cycle, -1), rowid",
+            (test_id,))]
         d["results"] = {k: (v if t is None else json.loads(t)) for k, v, t in self.db.execute(
             "SELECT key, value, text FROM results WHERE test_id = ?", (test_id,))}
         d["files"] = {r: {"path": str(self.root / p), "bytes": b} for r, p, b in self.db.execute(
