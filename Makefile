@@ -21,8 +21,11 @@ test: setup test-rust test-python
 test-rust:
 	cargo test --release --quiet
 
+# the campaign tests need PostgreSQL and a Dask cluster: started here unless already running
+# (.ci/run starts them once for the whole run)
 test-python: setup
-	$(PY) -m pytest -q
+	if [ -n "$${HTM_TEST_PG:-}" ] && [ -n "$${HTM_TEST_DASK:-}" ]; then $(PY) -m pytest -q; \
+	else HTM_VENV=$(VENV) bash tools/services.sh $(PY) -m pytest -q; fi
 
 bench: setup
 	$(PY) benchmarks/plant_throughput.py

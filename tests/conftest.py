@@ -16,3 +16,4 @@ for sub in ("examples", "benchmarks"):
 def _isolated_store(tmp_path_factory, monkeypatch):
     """`htm run` records into a test store: never the developer's own."""
     monkeypatch.setenv("HTM_STORE", str(tmp_path_factory.mktemp("store")))
+    monkeypatch.delenv("HTM_CLUSTER", raising=False)  # `htm campaign` runs here unless a test says otherwise

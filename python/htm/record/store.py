@@ -4,7 +4,10 @@ one folder per test holding its journal, Parquet tables and rerun recording.
 Layout: `ROOT/catalogue.sqlite`, `ROOT/tests/ID/` with `journal-NNN.htmj` (while the test is open),
 `cycles.parquet` (one row per cycle run through the plant, and one per cycle jump), `raw.parquet`
 (raw high-rate windows: the first cycles, a few cycles per decade, around events), `recording.rrd`. The root is `--store`, else
-`$HTM_STORE`, else `~/.local/share/htm/store`. The schema version is SQLite's `user_version`;
+`$HTM_STORE`, else `~/.local/share/htm/store`. With `--store postgresql://USER@HOST/DB` (or such an
+`$HTM_STORE`) the catalogue is that PostgreSQL database and the test folders are under the shared path
+`$HTM_STORE_FILES` (default as above): same schema, same migrations (`backend.py` translates).
+The schema version is SQLite's `user_version` (a table on PostgreSQL);
 `MIGRATIONS[i]` takes a catalogue from version i to i + 1 inside one transaction.
 A catalogue that does not read as one raises `RecordError` and is left untouched.
 A test whose writer died (SIGKILL, power loss) is still `running` in the catalogue; the next
@@ -19,7 +22,6 @@ import json
 import os
 import secrets
 import shutil
-import sqlite3
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -29,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from htm.errors import RecordError
-from htm.record import journal
+from htm.record import backend, journal
 
 MIGRATIONS = [
     # 0 -> 1
@@ -53,6 +55,24 @@ MIGRATIONS = [
     ALTER TABLE tests ADD COLUMN host TEXT;
     CREATE INDEX events_by_test ON events(test_id, cycle);
     """,
+    # 2 -> 3: virtual test campaigns (htm.campaign): one row per planned test, keyed by its index
+    # in the campaign's plan, so a re-started or retried chunk never adds a row twice
+    """
+    CREATE TABLE campaigns(id TEXT PRIMARY KEY, name TEXT NOT NULL, created_utc TEXT NOT NULL,
+        mode TEXT NOT NULL, n_tests INTEGER NOT NULL, swept TEXT NOT NULL, body TEXT NOT NULL,
+        base_spec TEXT NOT NULL);
+    CREATE TABLE campaign_tests(campaign_id TEXT NOT NULL REFERENCES campaigns(id) ON DELETE CASCADE,
+        idx INTEGER NOT NULL, inputs_hash TEXT NOT NULL, inputs TEXT NOT NULL, life_cycles INTEGER,
+        end_reason TEXT, a_end_m REAL, max_abs_df_err_pct REAL, max_abs_peak_err_pct REAL,
+        size_criterion_cycle INTEGER, valid INTEGER NOT NULL, error TEXT, wall_s REAL, worker TEXT,
+        written_utc TEXT NOT NULL, PRIMARY KEY(campaign_id, idx));
+    """,
+    # 3 -> 4: fleet diagnosis (htm.fleet): the parameters `htm diagnose` identified, per machine and date
+    """
+    CREATE TABLE fleet_params(machine TEXT NOT NULL, date TEXT NOT NULL, record TEXT NOT NULL, param TEXT NOT NULL,
+        value REAL NOT NULL, findings TEXT NOT NULL, unexplained INTEGER NOT NULL, diagnosed_utc TEXT NOT NULL,
+        PRIMARY KEY(machine, date, record, param));
+    """,
 ]
 SCHEMA_VERSION = len(MIGRATIONS)
 STATUSES = ("running", "finished", "stopped", "failed", "interrupted")
@@ -60,9 +80,9 @@ STATUSES = ("running", "finished", "stopped", "failed", "interrupted")
 STARTING_S = 60.0
 
 
-def default_root() -> Path:
+def default_root(allow_url: bool = True) -> Path:
     env = os.environ.get("HTM_STORE")
-    if env:
+    if env and (allow_url or not backend.is_postgres(env)):
         return Path(env)
     base = os.environ.get("XDG_DATA_HOME") or str(Path.home() / ".local" / "share")
     return Path(base) / "htm" / "store"
@@ -91,28 +111,25 @@ class Store:
     """
 
     def __init__(self, root: Path | str | None = None):
-        self.root = Path(root) if root is not None else default_root()
-        self.path = self.root / "catalogue.sqlite"
-        fresh = not self.path.exists()
-        if fresh:
+        # `root` a folder (catalogue.sqlite inside), or a PostgreSQL URL for the catalogue with the
+        # test folders on the shared path $HTM_STORE_FILES (backend.py)
+        if backend.is_postgres(root) or (root is None and backend.is_postgres(os.environ.get("HTM_STORE"))):
+            url = str(root or os.environ["HTM_STORE"])
+            files = os.environ.get("HTM_STORE_FILES")
+            self.root = Path(files) if files else default_root(allow_url=False)
+            self.path: Path | str = backend.check_url(url)
+        else:
+            self.root = Path(root) if root is not None else default_root()
+            self.path = self.root / "catalogue.sqlite"
+        if isinstance(self.path, str) or not self.path.exists():
             (self.root / "tests").mkdir(parents=True, exist_ok=True)
-        try:
-            self.db = sqlite3.connect(self.path, isolation_level=None, timeout=10.0)
-            version = self.db.execute("PRAGMA user_version").fetchone()[0]
-            if not fresh:
-                bad = self.db.execute("PRAGMA quick_check").fetchone()[0]
-                if bad != "ok":
-                    raise sqlite3.DatabaseError(bad)
-        except sqlite3.DatabaseError as e:
-            raise RecordError(f"catalogue {self.path} is not readable ({e}); nothing was changed — "
-                              "restore it from a backup or point --store elsewhere") from None
+        self.db = backend.open_catalogue(self.path)
+        version = self.db.version()
         if version > SCHEMA_VERSION:
             self.db.close()
             raise RecordError(f"catalogue {self.path} has schema version {version}, newer than this htm "
                               f"({SCHEMA_VERSION}); upgrade htm. Nothing was changed")
-        self.db.execute("PRAGMA foreign_keys = ON")
-        for v in range(version, SCHEMA_VERSION):
-            self._migrate(v)
+        self.db.migrate(MIGRATIONS)
         self.mark_interrupted()
 
     def mark_interrupted(self) -> list[str]:
@@ -151,23 +168,6 @@ class Store:
         except OSError:
             return False
         return True
-
-    def _migrate(self, v: int) -> None:
-        try:
-            self.db.execute("BEGIN IMMEDIATE")
-            # another process opening the same new store may have migrated it since this one read
-            # the version: under the write lock the version read now is the truth
-            if self.db.execute("PRAGMA user_version").fetchone()[0] > v:
-                self.db.execute("COMMIT")
-                return
-            for stmt in MIGRATIONS[v].split(";"):
-                if stmt.strip():
-                    self.db.execute(stmt)
-            self.db.execute(f"PRAGMA user_version = {v + 1}")
-            self.db.execute("COMMIT")
-        except sqlite3.Error as e:
-            self.db.execute("ROLLBACK")
-            raise RecordError(f"catalogue {self.path}: migration {v} -> {v + 1} failed ({e}); nothing was changed") from None
 
     def close(self) -> None:
         self.db.close()
@@ -216,13 +216,15 @@ class Store:
             for k, v in results.items():
                 num = float(v) if isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) else None
                 text = None if num is not None else json.dumps(v, default=float)
-                self.db.execute("INSERT OR REPLACE INTO results VALUES (?, ?, ?, ?)", (test_id, k, num, text))
+                self.db.execute("INSERT INTO results VALUES (?, ?, ?, ?) ON CONFLICT(test_id, key) DO UPDATE "
+                                "SET value = excluded.value, text = excluded.text", (test_id, k, num, text))
 
     def add_file(self, test_id: str, role: str, path: Path) -> None:
         p = Path(path)
         rel = os.path.relpath(p, self.root)
         with self._tx():
-            self.db.execute("INSERT OR REPLACE INTO files VALUES (?, ?, ?, ?)", (test_id, role, rel, p.stat().st_size))
+            self.db.execute("INSERT INTO files VALUES (?, ?, ?, ?) ON CONFLICT(test_id, role) DO UPDATE "
+                            "SET path = excluded.path, bytes = excluded.bytes", (test_id, role, rel, p.stat().st_size))
 
     def delete(self, test_id: str) -> None:
         """Remove a test from the catalogue and its folder."""
@@ -249,7 +251,9 @@ class Store:
         fmt, body = self.db.execute("SELECT format, body FROM specs WHERE test_id = ?", (test_id,)).fetchone()
         d["spec_format"], d["spec"] = fmt, body
         d["events"] = [dict(zip(("cycle", "time_s", "kind", "detail", "source"), r)) for r in self.db.execute(
-            "SELECT cycle, time_s, kind, detail, source FROM events WHERE test_id = ? ORDER BY cycle, rowid", (test_id,))]
+            # events without a cycle first, on SQLite and PostgreSQL alike (their NULL orders differ)
+            "SELECT cycle, time_s, kind, detail, source FROM events WHERE test_id = ? ORDER BY COALESCE(cycle, -1), rowid",
+            (test_id,))]
         d["results"] = {k: (v if t is None else json.loads(t)) for k, v, t in self.db.execute(
             "SELECT key, value, text FROM results WHERE test_id = ?", (test_id,))}
         d["files"] = {r: {"path": str(self.root / p), "bytes": b} for r, p, b in self.db.execute(
@@ -311,19 +315,8 @@ class Store:
     @contextmanager
     def _tx(self) -> Iterator[None]:
         """One write transaction; a catalogue error becomes `RecordError` (nothing half-written)."""
-        try:
-            self.db.execute("BEGIN IMMEDIATE")
-        except sqlite3.Error as e:
-            raise RecordError(f"catalogue {self.path}: {e}") from None
-        try:
+        with self.db.tx():
             yield
-            self.db.execute("COMMIT")
-        except sqlite3.Error as e:
-            self.db.execute("ROLLBACK")
-            raise RecordError(f"catalogue {self.path}: {e}") from None
-        except BaseException:
-            self.db.execute("ROLLBACK")
-            raise
 
 
 def _copy_files(t: dict[str, Any], out: Path) -> list[Path]:

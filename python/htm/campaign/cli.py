@@ -1,0 +1,86 @@
+"""`htm campaign CAMPAIGN.toml`: run a virtual test campaign into the store, on this machine or a Dask cluster."""
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from htm.errors import HtmError
+
+
+def summary_lines(c: Any, rows: list[dict[str, Any]], s: dict[str, Any], where: str) -> list[str]:
+    life = np.array([r["life_cycles"] for r in rows if r["valid"]], float)
+    lines = [f"campaign {c.id}: {len(rows):,}/{len(c):,} tests in the store ({s['skipped']:,} already there, "
+             f"{s['ran']:,} run now on {where} in {s['wall_s']:.1f} s, {s['tests_per_s']:.2f} tests/s)"]
+    valid = sum(r["valid"] for r in rows)
+    errors = sum(r["error"] is not None for r in rows)
+    lines.append(f"valid {valid:,}, not valid {len(rows) - valid - errors:,}, engine errors {errors:,}")
+    if len(life):
+        q5, q50, q95 = np.percentile(life, [5, 50, 95])
+        lines.append(f"life of valid tests: median {q50:,.0f} cycles, 5–95 % {q5:,.0f} .. {q95:,.0f}")
+    return lines
+
+
+def write_table(path: Path, rows: list[dict[str, Any]]) -> None:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    pq.write_table(pa.Table.from_pylist(rows), path)
+
+
+def cmd_campaign(args: argparse.Namespace) -> int:
+    from htm.campaign import engine, plot
+    from htm.campaign import spec as campaign_spec
+    from htm.record.store import Store
+
+    # everything that can be wrong is found before the first test: the file, every test's spec,
+    # the store and the cluster
+    c = campaign_spec.load(args.campaign)
+    out = Path(args.out or f"out/campaign-{c.id}")
+    with Store(args.store) as store:
+        if args.cluster:
+            from htm.campaign import cluster
+
+            client = cluster.connect(args.cluster)
+            runner, where = cluster.runner(client), f"Dask {args.cluster} ({len(client.scheduler_info()['workers'])} workers)"
+        else:
+            client, runner, where = None, engine.local_runner(args.threads), "this machine"
+        print(f"campaign {c.id}: {len(c):,} tests ({c.mode} mode, {c.chunk_tests} per chunk) on {where}; "
+              f"store {store.path}")
+        try:
+            s = engine.run(c, store, runner, progress=not args.quiet)
+        except KeyboardInterrupt:
+            held = len(engine.done(store, c))
+            raise HtmError(f"interrupted with {held:,}/{len(c):,} tests in the store; the same command continues") from None
+        finally:
+            if client is not None:
+                client.close()
+        rows = engine.table(store, c.id)
+    out.mkdir(parents=True, exist_ok=True)
+    write_table(out / "campaign.parquet", rows)
+    png = plot.life_plot(out / "life.png", rows, c.swept + c.scattered, f"{c.name}: life vs campaign fields")
+    for line in summary_lines(c, rows, s, where):
+        print(line)
+    print(f"outputs: {out / 'campaign.parquet'}, {png}")
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("campaign", help="run a virtual test campaign (sweeps, Latin hypercube, material scatter) into the store",
+                       description="Expand a campaign file (a base test spec plus [grid], [lhs] and [scatter]) into "
+                                   "simulated tests, run them in chunks on all local cores or a Dask cluster, and write "
+                                   "one table (inputs, life, end reason, force errors, validity) into the store. "
+                                   "Running it again continues where it stopped.",
+                       epilog="see examples/campaign_ct.toml and README § Campaigns")
+    p.add_argument("campaign", help="campaign file (TOML)")
+    p.add_argument("--cluster", metavar="tcp://HOST:PORT", default=os.environ.get("HTM_CLUSTER") or None,
+                   help="run the chunks on this Dask scheduler's workers (default $HTM_CLUSTER; unset: this machine)")
+    p.add_argument("--store", help="test store: a folder, or postgresql://USER@HOST:PORT/DB (password from PGPASSWORD "
+                                   "or ~/.pgpass); default $HTM_STORE or ~/.local/share/htm/store")
+    p.add_argument("--out", help="folder for campaign.parquet and life.png (default out/campaign-ID)")
+    p.add_argument("--threads", type=int, default=0, help="local threads (default all cores)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_campaign)

@@ -1,0 +1,192 @@
+"""Running a campaign: chunks of tests through the core's `run_batch` (GIL released), on local
+threads or on a Dask cluster, each chunk's rows written to the store as it comes back.
+
+What makes it safe to stop and start again: the plan is fixed by the campaign file, every row is
+keyed by (campaign id, test index) and written with `ON CONFLICT DO NOTHING` in one transaction per
+chunk, and a re-started campaign only submits the indices the store does not hold yet. A chunk lost
+with its worker is simply run again (Dask reschedules it); it cannot be written twice.
+"""
+from __future__ import annotations
+
+import json
+import os
+import socket
+import sys
+import time
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from typing import Any
+
+from htm.campaign.spec import Campaign
+from htm.errors import HtmError, RecordError
+
+# ISO 12108 / E647 force band used across htm (`htm run`'s summary): ±2 % of the force range
+FORCE_BAND_PCT = 2.0
+RESULT_COLUMNS = ("life_cycles", "end_reason", "a_end_m", "max_abs_df_err_pct", "max_abs_peak_err_pct",
+                  "size_criterion_cycle", "valid", "error", "wall_s", "worker")
+
+
+def _row(idx: int, out: dict[str, Any] | None, error: str | None, wall_s: float, worker: str) -> dict[str, Any]:
+    if out is None:
+        return {"idx": idx, "life_cycles": None, "end_reason": "engine_error", "a_end_m": None, "max_abs_df_err_pct": None,
+                "max_abs_peak_err_pct": None, "size_criterion_cycle": None, "valid": False, "error": error,
+                "wall_s": wall_s, "worker": worker}
+    # a valid test reached its target crack length inside the force band with the E647 size
+    # criterion met throughout
+    valid = (out["end_reason"] == "target_crack_length" and out["size_criterion_cycle"] is None
+             and out["max_abs_df_err_pct"] <= FORCE_BAND_PCT and out["max_abs_peak_err_pct"] <= FORCE_BAND_PCT)
+    return {"idx": idx, "life_cycles": int(out["cycles"]), "end_reason": out["end_reason"], "a_end_m": float(out["a_end_m"]),
+            "max_abs_df_err_pct": float(out["max_abs_df_err_pct"]), "max_abs_peak_err_pct": float(out["max_abs_peak_err_pct"]),
+            "size_criterion_cycle": out["size_criterion_cycle"], "valid": bool(valid), "error": None,
+            "wall_s": wall_s, "worker": worker}
+
+
+def run_chunk(items: list[tuple[int, dict[str, Any]]], mode: str, threads: int = 1) -> list[dict[str, Any]]:
+    """Run one chunk of tests (index, spec document) in the core; one result row per test.
+
+    This is the unit a cluster worker runs: plain data in and out (specs are rebuilt here, the
+    core's objects do not travel). A test the engine rejects gets a row with its error rather than
+    failing its neighbours."""
+    from htm import _core
+    from htm import spec as test_spec
+
+    worker = f"{socket.gethostname()}:{os.getpid()}"
+    cfgs = [test_spec.parse(doc, f"test-{i}").to_config() for i, doc in items]
+    t0 = time.perf_counter()
+    try:
+        outs = _core.run_batch(cfgs, mode, threads)
+    except HtmError:
+        outs = None
+    if outs is not None:
+        wall = (time.perf_counter() - t0) / len(items)
+        return [_row(i, o, None, wall, worker) for (i, _), o in zip(items, outs)]
+    rows = []  # one test failed the batch: run them one by one to tell which
+    for (i, _), cfg in zip(items, cfgs):
+        t1 = time.perf_counter()
+        try:
+            rows.append(_row(i, _core.run_batch([cfg], mode, 1)[0], None, time.perf_counter() - t1, worker))
+        except HtmError as e:
+            rows.append(_row(i, None, str(e), time.perf_counter() - t1, worker))
+    return rows
+
+
+# ---- where chunks run --------------------------------------------------------------------------
+
+Chunk = list[tuple[int, dict[str, Any]]]
+
+
+def local_runner(threads: int = 0) -> Callable[[list[Chunk], str], Iterator[list[dict[str, Any]]]]:
+    """Chunks on this machine's cores: one chunk per thread, each through the core with the GIL
+    released (no barrier between chunks: a long test holds one core, not all)."""
+    n = threads or os.cpu_count() or 1
+
+    def run(chunks: list[Chunk], mode: str) -> Iterator[list[dict[str, Any]]]:
+        with ThreadPoolExecutor(max_workers=n) as pool:
+            futs = [pool.submit(run_chunk, c, mode, 1) for c in chunks]
+            try:
+                for f in as_completed(futs):
+                    yield f.result()
+            finally:
+                for f in futs:
+                    f.cancel()
+
+    return run
+
+
+# ---- the catalogue side --------------------------------------------------------------------------
+
+def register(store: Any, c: Campaign) -> None:
+    """Record the campaign itself (once; a re-start finds it)."""
+    with store._tx():
+        store.db.execute("INSERT INTO campaigns VALUES (?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT(id) DO NOTHING",
+                         (c.id, c.name, time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), c.mode, len(c),
+                          json.dumps({"swept": c.swept, "scattered": c.scattered}), c.text, c.base_text))
+
+
+def done(store: Any, c: Campaign) -> set[int]:
+    """Indices of the tests the store already holds for this campaign (checked against the plan)."""
+    held = store.db.execute("SELECT idx, inputs_hash FROM campaign_tests WHERE campaign_id = ?", (c.id,)).fetchall()
+    for idx, h in held:
+        if idx >= len(c) or h != c.inputs_hash(idx):
+            raise RecordError(f"campaign {c.id}: the store's test {idx} has other inputs than this plan; "
+                              "nothing was run (was the campaign file changed without changing its name?)")
+    return {int(i) for i, _ in held}
+
+
+def write(store: Any, c: Campaign, rows: list[dict[str, Any]]) -> int:
+    """Write one chunk's rows in one transaction; a row already there is kept. Returns rows added."""
+    now = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+    vals = [(c.id, r["idx"], c.inputs_hash(r["idx"]), json.dumps(c.inputs[r["idx"]], sort_keys=True),
+             r["life_cycles"], r["end_reason"], r["a_end_m"], r["max_abs_df_err_pct"], r["max_abs_peak_err_pct"],
+             r["size_criterion_cycle"], int(r["valid"]), r["error"], r["wall_s"], r["worker"], now) for r in rows]
+    with store._tx():
+        before = store.db.execute("SELECT COUNT(*) FROM campaign_tests WHERE campaign_id = ?", (c.id,)).fetchone()[0]
+        store.db.executemany("INSERT INTO campaign_tests VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) "
+                             "ON CONFLICT(campaign_id, idx) DO NOTHING", vals)
+        after = store.db.execute("SELECT COUNT(*) FROM campaign_tests WHERE campaign_id = ?", (c.id,)).fetchone()[0]
+    return int(after - before)
+
+
+def table(store: Any, campaign_id: str) -> list[dict[str, Any]]:
+    """The campaign's table: one dict per test in plan order (its input fields, then the results)."""
+    cur = store.db.execute("SELECT idx, inputs, life_cycles, end_reason, a_end_m, max_abs_df_err_pct, max_abs_peak_err_pct, "
+                           "size_criterion_cycle, valid, error, wall_s, worker FROM campaign_tests "
+                           "WHERE campaign_id = ? ORDER BY idx", (campaign_id,))
+    out = []
+    for r in cur.fetchall():
+        d = {"idx": int(r[0]), **json.loads(r[1])}
+        d.update(zip(RESULT_COLUMNS, r[2:]))
+        d["valid"] = bool(d["valid"])
+        out.append(d)
+    return out
+
+
+# ---- the driver ------------------------------------------------------------------------------------
+
+def run(c: Campaign, store: Any, runner: Callable[[list[Chunk], str], Iterable[list[dict[str, Any]]]],
+        progress: bool = True) -> dict[str, Any]:
+    """Run what the store does not hold yet; returns counts and throughput of this session."""
+    register(store, c)
+    have = done(store, c)
+    todo = [i for i in range(len(c)) if i not in have]
+    chunks = [[(i, c.docs[i]) for i in ch] for ch in c.chunks(todo)]
+    t0 = time.perf_counter()
+    added = 0
+    bar = _Bar(len(c), len(have)) if progress else None
+    try:
+        for rows in runner(chunks, c.mode):
+            added += write(store, c, rows)
+            if bar:
+                bar.update(len(rows))
+    finally:
+        if bar:
+            bar.close()
+    wall = time.perf_counter() - t0
+    return {"campaign": c.id, "tests": len(c), "skipped": len(have), "ran": added, "wall_s": wall,
+            "tests_per_s": added / wall if wall > 0 and added else 0.0}
+
+
+class _Bar:
+    """A one-line progress bar on stderr: tests done, rate and time left."""
+
+    def __init__(self, total: int, start: int):
+        self.total, self.done, self.start = total, start, start
+        self.t0 = time.perf_counter()
+        self.draw()
+
+    def update(self, n: int) -> None:
+        self.done += n
+        self.draw()
+
+    def draw(self) -> None:
+        frac = self.done / self.total if self.total else 1.0
+        el = time.perf_counter() - self.t0
+        rate = (self.done - self.start) / el if el > 0 else 0.0
+        left = f"{(self.total - self.done) / rate:6.0f} s left" if rate > 0 else "          "
+        fill = int(30 * frac)
+        sys.stderr.write(f"\r[{'#' * fill}{'-' * (30 - fill)}] {self.done:>7,}/{self.total:,} tests  {rate:7.2f} tests/s  {left}")
+        sys.stderr.flush()
+
+    def close(self) -> None:
+        sys.stderr.write("\n")
+        sys.stderr.flush()

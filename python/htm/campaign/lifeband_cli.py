@@ -1,0 +1,171 @@
+"""`htm life-band SPEC.toml --data A_N.csv`: life as a distribution from a specimen set's scatter,
+by a Monte Carlo campaign; held-out specimens' coverage; a running specimen's early-data update."""
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from htm.errors import SpecError
+
+
+def _read(path: str, a_mm_column: str | None):
+    from htm.fatigue.data import read_a_n
+
+    if not a_mm_column:
+        return read_a_n(path)
+    text = Path(path).read_text()
+    head, _, rest = text.partition("\n")
+    cols = [c.strip() for c in head.split(",")]
+    if a_mm_column not in cols:
+        return read_a_n(path)  # this file names its columns as usual (a_m / a_mm), or the reader says what is missing
+    with tempfile.TemporaryDirectory() as tmp:
+        p = Path(tmp) / Path(path).name
+        p.write_text(",".join("a_mm" if c == a_mm_column else c for c in cols) + "\n" + rest)
+        return read_a_n(p)
+
+
+def build(spec_path: Path, datas: list, hold_out: set[str], samples: int, seed: int, store: Any, runner: Any,
+          out: Path, progress: bool) -> dict[str, Any]:
+    """Fit the specimens not held out, run the campaign, and return the band and what it rests on."""
+    from htm import spec as test_spec
+    from htm.campaign import engine, lifeband
+    from htm.campaign import spec as campaign_spec
+
+    spec = test_spec.load(spec_path)
+    setup = lifeband.setup_of(spec)
+    a0, af = spec.a0_m, spec.phases[-1].end_a_m
+    fit_set = [d for d in datas if d.specimen not in hold_out]
+    if len(fit_set) < 3:
+        raise SpecError(f"life band: {len(fit_set)} specimens left to fit; at least 3 are needed")
+    unknown = hold_out - {d.specimen for d in datas}
+    if unknown:
+        raise SpecError(f"--hold-out: no specimen {', '.join(sorted(unknown))} in the data")
+    models = lifeband.paris_fits(fit_set, setup)
+    j = lifeband.joint(models, fit_set)
+    base = lifeband.with_paris_base(spec_path, out)
+    cpath = out / "campaign.toml"
+    cpath.write_text(lifeband.campaign_text(base, j, samples, seed, f"life-band-{spec.name}"))
+    c = campaign_spec.load(cpath)
+    s = engine.run(c, store, runner, progress=progress)
+    rows = engine.table(store, c.id)
+    ok = [r for r in rows if r["end_reason"] == "target_crack_length"]
+    life = np.array([r["life_cycles"] for r in ok], float)
+    return {"campaign": c.id, "run": s, "setup": setup, "a0_m": a0, "af_m": af, "joint": j, "fit_set": fit_set,
+            "rows": ok, "life": life, "band": lifeband.quantiles(life), "tests_not_reaching_af": len(rows) - len(ok)}
+
+
+def evaluate(res: dict[str, Any], held: list, early_fraction: float) -> list[dict[str, Any]]:
+    """For each held-out specimen: its measured life against the band, and the early-data update
+    from its points up to `early_fraction` of the band's median life."""
+    from htm.campaign import lifeband
+
+    lo, med, hi = res["band"]
+    draws = [{"law.c": r["law.c"], "law.m": r["law.m"]} for r in res["rows"]]
+    out = []
+    for d in held:
+        actual = lifeband.life_between(d, res["a0_m"], res["af_m"])
+        if actual is None:
+            continue
+        early = lifeband.first_points(d, early_fraction * med)
+        w = lifeband.early_weights(draws, early, res["setup"], res["a0_m"], res["joint"].point_sigma_cycles)
+        ulo, umed, uhi = lifeband.quantiles(res["life"], w)
+        out.append({"specimen": d.specimen, "life": actual, "in_band": lo <= actual <= hi,
+                    "err_no_update": (med - actual) / actual, "early_points": len(early.cycles),
+                    "early_a_mm": float(early.a_m[-1] * 1e3), "updated": (ulo, umed, uhi),
+                    "err_update": (umed - actual) / actual, "in_updated_band": ulo <= actual <= uhi,
+                    "effective_draws": lifeband.effective_samples(w)})
+    return out
+
+
+def cmd_life_band(args: argparse.Namespace) -> int:
+    from htm.campaign import engine, lifeband
+    from htm.record.store import Store
+
+    datas = _read(args.data, args.a_mm_column)
+    hold = {s.strip() for s in (args.hold_out or "").split(",") if s.strip()}
+    out = Path(args.out)
+    early = None
+    if args.early:
+        early = _read(args.early, args.a_mm_column)[0]
+    with Store(args.store) as store:
+        if args.cluster:
+            from htm.campaign import cluster
+
+            client = cluster.connect(args.cluster)
+            runner = cluster.runner(client)
+        else:
+            client, runner = None, engine.local_runner()
+        try:
+            res = build(Path(args.spec), datas, hold, args.samples, args.seed, store, runner, out, not args.quiet)
+        finally:
+            if client is not None:
+                client.close()
+    j = res["joint"]
+    lo, med, hi = res["band"]
+    summary: dict[str, Any] = {
+        "specimens_fitted": j.n_specimens, "log10_c_si_mean": j.mean[0], "m_mean": j.mean[1],
+        "log10_c_sd": float(np.sqrt(j.cov[0, 0])), "m_sd": float(np.sqrt(j.cov[1, 1])), "corr_log10_c_m": j.corr,
+        "point_sigma_cycles": j.point_sigma_cycles, "draws": len(res["life"]),
+        "draws_not_reaching_af": res["tests_not_reaching_af"],
+        "life_median": med, "life_p5": lo, "life_p95": hi, "campaign": res["campaign"],
+    }
+    print(f"{j.n_specimens} specimens fitted (Paris by life): log10 C = {j.mean[0]:.3f} ± {np.sqrt(j.cov[0, 0]):.3f} (SI), "
+          f"m = {j.mean[1]:.3f} ± {np.sqrt(j.cov[1, 1]):.3f}, correlation {j.corr:+.3f}")
+    print(f"life a0 {res['a0_m'] * 1e3:.2f} → {res['af_m'] * 1e3:.2f} mm over {len(res['life'])} simulated tests: "
+          f"median {med:,.0f} cycles, 5–95 % {lo:,.0f} .. {hi:,.0f}")
+    held = [d for d in datas if d.specimen in hold]
+    if held:
+        ev = evaluate(res, held, args.early_fraction)
+        cov = float(np.mean([e["in_band"] for e in ev]))
+        e0 = np.array([e["err_no_update"] for e in ev])
+        e1 = np.array([e["err_update"] for e in ev])
+        print(f"held-out specimens: {sum(e['in_band'] for e in ev)}/{len(ev)} inside the 5–95 % band ({100 * cov:.0f} %)")
+        print(f"median life error, held-out: no update mean |e| {100 * np.mean(np.abs(e0)):.2f} % (max {100 * np.max(np.abs(e0)):.2f} %); "
+              f"updated from points up to {100 * args.early_fraction:.0f} % of the median life: mean |e| "
+              f"{100 * np.mean(np.abs(e1)):.2f} % (max {100 * np.max(np.abs(e1)):.2f} %), "
+              f"{sum(e['in_updated_band'] for e in ev)}/{len(ev)} inside their updated band")
+        summary.update({"held_out": len(ev), "coverage_5_95": cov, "mean_abs_err_no_update": float(np.mean(np.abs(e0))),
+                        "mean_abs_err_update": float(np.mean(np.abs(e1))), "max_abs_err_no_update": float(np.max(np.abs(e0))),
+                        "max_abs_err_update": float(np.max(np.abs(e1))),
+                        "updated_band_coverage": float(np.mean([e["in_updated_band"] for e in ev])),
+                        "mean_updated_band_width_rel": float(np.mean([(e["updated"][2] - e["updated"][0]) / e["life"] for e in ev])),
+                        "band_width_rel": float((hi - lo) / med), "specimens": ev})
+    if early is not None:
+        draws = [{"law.c": r["law.c"], "law.m": r["law.m"]} for r in res["rows"]]
+        w = lifeband.early_weights(draws, early, res["setup"], res["a0_m"], j.point_sigma_cycles)
+        ulo, umed, uhi = lifeband.quantiles(res["life"], w)
+        print(f"updated from {args.early}'s {len(early.cycles)} points (to a = {early.a_m[-1] * 1e3:.2f} mm at "
+              f"{early.cycles[-1]:,.0f} cycles): median {umed:,.0f} cycles, 5–95 % {ulo:,.0f} .. {uhi:,.0f} "
+              f"({lifeband.effective_samples(w):.0f} effective draws)")
+        summary["early_update"] = {"median": umed, "p5": ulo, "p95": uhi, "points": len(early.cycles)}
+    (out / "life_band.json").write_text(json.dumps(summary, indent=2, default=float))
+    print(f"outputs: {out / 'life_band.json'}, {out / 'campaign.toml'}")
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("life-band", help="crack-growth life as a distribution over a specimen set's scatter (Monte Carlo campaign)",
+                       description="Fit a Paris law to every specimen of an a–N data set, take the joint normal of "
+                                   "(log10 C, m), run the base spec's test as a Monte Carlo campaign over it on the "
+                                   "simulated rig, and report the life's median and 5–95 % band; with --hold-out, how "
+                                   "well the band covers specimens it did not see and how their own first points "
+                                   "narrow their prediction; with --early, that update for a running test.")
+    p.add_argument("spec", help="the test spec (TOML) of the set's test: specimen, material, constant-force loading, a0 and end")
+    p.add_argument("--data", required=True, help="a–N CSV of the specimen set (cycles, a_m or a_mm, specimen)")
+    p.add_argument("--a-mm-column", help="the column holding a in mm when not named a_mm (e.g. a_half_crack_mm)")
+    p.add_argument("--hold-out", metavar="IDS", help="specimens left out of the fit and checked against the band (comma-separated)")
+    p.add_argument("--early", metavar="CSV", help="a running test's a–N so far: its prediction updated from these points")
+    p.add_argument("--early-fraction", type=float, default=0.25,
+                   help="held-out specimens: their points up to this fraction of the median life drive the update (default 0.25)")
+    p.add_argument("--samples", type=int, default=400, help="Monte Carlo draws (simulated tests; default 400)")
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--cluster", metavar="tcp://HOST:PORT", help="run the campaign on this Dask scheduler's workers")
+    p.add_argument("--store", help="test store (folder or postgresql://...), as for `htm campaign`")
+    p.add_argument("--out", default="out/life-band", help="folder for campaign.toml and life_band.json (default out/life-band)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_life_band)
