@@ -2,27 +2,8 @@
 matrix and the external benchmark show them at work on whole records)."""
 import numpy as np
 
-from htm.ident.model import Candidate, Model, lin, logf
-from htm.ident.search import _untwinned
+from htm.ident.model import Model, logf
 from htm.ident.valve import MIN_GAIN_ERROR, _calibrated_off
-
-
-def _cand(effect: str, channel: str | None) -> Candidate:
-    return Candidate(effect, channel, (lin("k", 1.0, -1.0, 1.0),), "constant")
-
-
-def test_an_offset_and_a_gain_the_screen_cannot_tell_apart_take_one_slot_the_offsets():
-    ranked = [(_cand("sensor_gain", "p_s"), 0.132, 1.0), (_cand("sensor_offset", "p_s"), 0.1319, 1.0),
-              (_cand("valve_dynamics", None), 0.127, 1.0)]
-    kept = _untwinned(ranked)
-    assert [(c.effect, c.channel) for c, _, _ in kept] == [("sensor_offset", "p_s"), ("valve_dynamics", None)]
-
-
-def test_an_offset_and_a_gain_that_screen_apart_are_both_kept():
-    # a pressure that moves: a gain's signature is a slope, not a shift
-    ranked = [(_cand("sensor_gain", "p_a"), 0.30, 1.0), (_cand("sensor_offset", "p_a"), 0.20, 1.0),
-              (_cand("sensor_offset", "p_b"), 0.199, 1.0)]
-    assert len(_untwinned(ranked)) == 3
 
 
 def test_a_gain_within_calibration_tolerance_is_not_claimed():

@@ -27,8 +27,6 @@ PROBE_GAIN = 0.1
 # ...and account for half of some channel's systematic residual: structure outside the
 # vocabulary is a feature that dominates what is left, not a sliver of the model's form.
 PROBE_SHARE = 0.5
-# An offset and a gain of one sensor screened within this share of each other are twins.
-TWIN = 0.02
 # Candidates refitted per round: those whose screened gain is at least this share of the best.
 REFIT_SHARE = 0.3
 # Least-squares budgets: Jacobians (one simulation per free parameter each, plus 3 trial steps).
@@ -118,7 +116,7 @@ def search(prob: Problem, base: Model, nominal: Any, pool: list[Candidate], rate
         log("refit without effect", {c: round(v, 2) for c, v in ratios.items()})
         if max(ratios.values()) <= SYSTEMATIC:
             break
-        ranked = _untwinned(screen(prob, model, work_pred, jac, pool))
+        ranked = screen(prob, model, work_pred, jac, pool)
         q = np.linalg.qr(jac)[0]  # what the base parameters can absorb, to first order
         log("screen", [(c.effect, c.channel, round(g, 3)) for c, g, _ in ranked[:6]])
         good: list[tuple[Candidate, dict, Model, dict]] = []
@@ -232,22 +230,6 @@ def probe(prob: Problem, res: Result, pool: list[Candidate], rate: float, log: L
                 and (best is None or verdict["dbic"] < best[0])):
             best = (verdict["dbic"], finding(prob, cand, model, pred, trial, tpred, verdict, rate))
     return best[1] if best else None
-
-
-def _untwinned(ranked: list[tuple[Candidate, float, float | None]]) -> list[tuple[Candidate, float, float | None]]:
-    """The screen's ranking with one of each pair of twins: an offset and a gain of one sensor
-    that explain the residual alike (TWIN) — a channel that barely moves, like a supply gauge —
-    are one candidate; the more common (PREFERENCE) is refitted and the slot goes to the next."""
-    out: list[tuple[Candidate, float, float | None]] = []
-    for entry in ranked:
-        c, g = entry[0], entry[1]
-        twin = next((i for i, (o, go, _) in enumerate(out) if o.channel == c.channel and o.channel is not None
-                     and {o.effect, c.effect} == {"sensor_offset", "sensor_gain"} and abs(g - go) <= TWIN * go), None)
-        if twin is None:
-            out.append(entry)
-        elif PREFERENCE.index(c.effect) < PREFERENCE.index(out[twin][0].effect):
-            out[twin] = entry
-    return out
 
 
 def _restarts(model: Model, x0: np.ndarray, xn: np.ndarray) -> list[Model]:
