@@ -17,7 +17,6 @@ import numpy as np
 
 from htm.campaign import engine
 from htm.campaign.lifeband_cli import _read, build, evaluate
-from htm.fatigue.data import shared_dir
 from htm.record.store import Store
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -30,7 +29,7 @@ def main() -> int:
     ap.add_argument("--out", default="out/virkler-band")
     args = ap.parse_args()
     t0 = time.perf_counter()
-    data = shared_dir() / "data" / "virkler_2024t3" / "virkler_a_vs_n_specimens_1_40.csv"
+    data = ROOT / "data" / "virkler_2024t3" / "virkler_a_vs_n_specimens_1_40.csv"
     datas = _read(str(data), "a_half_crack_mm")
     out = Path(args.out)
     folds, rows = [], []

@@ -11,14 +11,15 @@ import numpy as np
 from htm.campaign import lifeband
 from htm.campaign import spec as campaign_spec
 from htm.campaign.lifeband_cli import _read
-from htm.fatigue.data import shared_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 SPEC = ROOT / "examples" / "virkler_mt.toml"
+# the Virkler specimens inside the repository (data/virkler_2024t3/README.md: origin, licence)
+VIRKLER = ROOT / "data" / "virkler_2024t3" / "virkler_a_vs_n_specimens_1_40.csv"
 
 
 def virkler():
-    return _read(str(shared_dir() / "data" / "virkler_2024t3" / "virkler_a_vs_n_specimens_1_40.csv"), "a_half_crack_mm")
+    return _read(str(VIRKLER), "a_half_crack_mm")
 
 
 def test_joint_scatter_keeps_the_correlation(tmp_path):
@@ -68,7 +69,7 @@ def test_life_band_cli_builds_a_band_and_updates_from_early_data(tmp_path):
     k = d.cycles <= 60_000
     early.write_text("cycles,a_m\n" + "".join(f"{n:.0f},{a:.6f}\n" for n, a in zip(d.cycles[k], d.a_m[k])))
     # specimens 1-8 of the set (the CLI's whole path; the README's numbers use all 40)
-    src = (shared_dir() / "data" / "virkler_2024t3" / "virkler_a_vs_n_specimens_1_40.csv").read_text().splitlines()
+    src = (VIRKLER).read_text().splitlines()
     data = tmp_path / "virkler_1_8.csv"
     data.write_text("\n".join([src[0]] + [ln for ln in src[1:] if int(ln.split(",")[0]) <= 8]) + "\n")
     cmd = [sys.executable, "-m", "htm.cli", "life-band", str(SPEC), "--data", str(data), "--a-mm-column", "a_half_crack_mm",
