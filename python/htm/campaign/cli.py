@@ -2,12 +2,12 @@
 from __future__ import annotations
 
 import argparse
-import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from htm.campaign import cluster
 from htm.errors import HtmError
 
 
@@ -42,8 +42,6 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     out = Path(args.out or f"out/campaign-{c.id}")
     with Store(args.store) as store:
         if args.cluster:
-            from htm.campaign import cluster
-
             client = cluster.connect(args.cluster)
             runner, where = cluster.runner(client), f"Dask {args.cluster} ({len(client.scheduler_info()['workers'])} workers)"
         else:
@@ -76,7 +74,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "Running it again continues where it stopped.",
                        epilog="see examples/campaign_ct.toml and README § Campaigns")
     p.add_argument("campaign", help="campaign file (TOML)")
-    p.add_argument("--cluster", metavar="tcp://HOST:PORT", default=os.environ.get("HTM_CLUSTER") or None,
+    p.add_argument("--cluster", metavar="tcp://HOST:PORT", default=cluster.default_address(),
                    help="run the chunks on this Dask scheduler's workers (default $HTM_CLUSTER; unset: this machine)")
     p.add_argument("--store", help="test store: a folder, or postgresql://USER@HOST:PORT/DB (password from PGPASSWORD "
                                    "or ~/.pgpass); default $HTM_STORE or ~/.local/share/htm/store")

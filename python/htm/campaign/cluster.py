@@ -7,6 +7,7 @@ chunk that raised. Results come back as they finish; the driver writes them to t
 """
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 from typing import Any
 
@@ -20,6 +21,11 @@ RETRIES = 3
 
 class ClusterError(HtmError):
     """The Dask scheduler cannot be reached or has no workers."""
+
+
+def default_address() -> str | None:
+    """The cluster `--cluster` defaults to: $HTM_CLUSTER, else none (this machine)."""
+    return os.environ.get("HTM_CLUSTER") or None
 
 
 def connect(address: str) -> Any:

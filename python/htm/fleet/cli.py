@@ -7,6 +7,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from htm.campaign import cluster
 from htm.errors import HtmError
 
 
@@ -50,8 +51,6 @@ def cmd_fleet_diagnose(args: argparse.Namespace) -> int:
         todo = [j for j in jobs if (j[0], j[1], catalogue.record_name(j[2])) not in done]
         client = None
         if args.cluster:
-            from htm.campaign import cluster
-
             client = cluster.connect(args.cluster)
         print(f"fleet: {len(jobs)} records in {args.folder}, {len(jobs) - len(todo)} already in the store, diagnosing {len(todo)}")
         failed = 0
@@ -139,7 +138,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                                   "keep its identified parameters per machine and date in the store; records already "
                                   "there are skipped.")
     d.add_argument("folder")
-    d.add_argument("--cluster", metavar="tcp://HOST:PORT", help="diagnose on this Dask scheduler's workers (FOLDER must be readable there)")
+    d.add_argument("--cluster", metavar="tcp://HOST:PORT", default=cluster.default_address(),
+                   help="diagnose on this Dask scheduler's workers (FOLDER must be readable there; default $HTM_CLUSTER)")
     d.add_argument("--store", help="test store: a folder or postgresql://USER@HOST:PORT/DB")
     d.add_argument("--work-s", type=float, default=20.0, help="search effort per record (diagnose's work_s, default 20)")
     d.set_defaults(func=cmd_fleet_diagnose)
