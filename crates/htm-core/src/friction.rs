@@ -47,10 +47,11 @@ impl Friction {
     #[inline]
     pub fn force(&self, v: f64, p_sum: f64) -> f64 {
         let s = sig(v, self.smoothing_m_s);
-        // Direction-dependent Coulomb level blended smoothly: F+ for v >> eps, F- for v << -eps.
-        let mean = 0.5 * (self.coulomb_pos_n + self.coulomb_neg_n);
-        let half = 0.5 * (self.coulomb_pos_n - self.coulomb_neg_n);
-        let coulomb = mean + half * s + self.pressure_coeff_n_per_pa * p_sum;
+        // The Coulomb level of the direction of motion (a seal grips harder one way as soon as
+        // it slides that way), through the smoothed sign: continuous, with a kink at v = 0 when
+        // the two levels differ.
+        let level = if v >= 0.0 { self.coulomb_pos_n } else { self.coulomb_neg_n };
+        let coulomb = level + self.pressure_coeff_n_per_pa * p_sum;
         let stribeck = self.static_n * (-v.abs() / self.stribeck_m_s).exp();
         self.viscous_n_s_m * v + s * (coulomb + stribeck)
     }
@@ -100,5 +101,10 @@ mod tests {
         f.static_n = 0.0;
         assert!((f.force(1.0, 0.0) - 900.0).abs() < 2.0);
         assert!((f.force(-1.0, 0.0) + 500.0).abs() < 2.0);
+        // at creep speed too: half the level of each direction where sig() is one half
+        let eps = f.smoothing_m_s;
+        assert!((f.force(eps, 0.0) - 450.0).abs() < 1e-9);
+        assert!((f.force(-eps, 0.0) + 250.0).abs() < 1e-9);
+        assert_eq!(f.force(0.0, 0.0), 0.0);
     }
 }

@@ -395,11 +395,10 @@ impl OdeSystem<NX> for Plant {
         let eps = fr.smoothing_m_s;
         let s = sig(v, eps);
         let ds = eps / ((v.abs() + eps) * (v.abs() + eps));
-        let mean = 0.5 * (fr.coulomb_pos_n + fr.coulomb_neg_n);
-        let half = 0.5 * (fr.coulomb_pos_n - fr.coulomb_neg_n);
+        let coulomb = if v >= 0.0 { fr.coulomb_pos_n } else { fr.coulomb_neg_n };
         let e = fr.static_n * (-v.abs() / fr.stribeck_m_s).exp();
-        let level = mean + half * s + fr.pressure_coeff_n_per_pa * (pa + pb) + e;
-        let dff_dv = fr.viscous_n_s_m + ds * level + s * (half * ds - e * v.signum() / fr.stribeck_m_s);
+        let level = coulomb + fr.pressure_coeff_n_per_pa * (pa + pb) + e;
+        let dff_dv = fr.viscous_n_s_m + ds * level - s * e * v.signum() / fr.stribeck_m_s;
         let dff_dpsum = fr.pressure_coeff_n_per_pa * s;
         // the bumps enter as a negative friction: -g(y) (F_f - F_c s - c v)
         let (g, dg) = self.band(y);

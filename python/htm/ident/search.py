@@ -31,6 +31,8 @@ PROBE_SHARE = 0.5
 REFIT_SHARE = 0.3
 # Least-squares budgets: Jacobians (one simulation per free parameter each, plus 3 trial steps).
 BASE_ITERS, REFIT_ITERS, POLISH_ITERS = 10, 6, 15
+# ...and for a contender's own parameters on another contender's base (few: the base is held).
+COMMON_ITERS = 3
 # Which of two effects that explain a record equally well is named (the more common first).
 PREFERENCE = ("sensor_offset", "valve_null_bias", "sensor_gain", "sensor_delay", "valve_dynamics", "internal_leakage",
               "friction_asymmetry", "valve_deadband", "valve_hysteresis", "supply_pressure_sag",
@@ -102,7 +104,7 @@ def search(prob: Problem, base: Model, nominal: Any, pool: list[Candidate], rate
     model, pred = base, base_pred
     findings: list[Finding] = []
     kept_base = False
-    for _round in range(max_findings + 2):
+    for _round in range(2 * max_findings + 2):  # a round per finding, and one per better base
         if len(findings) >= max_findings:
             break
         ratios = prob.ratios(pred, rate)
@@ -139,10 +141,22 @@ def search(prob: Problem, base: Model, nominal: Any, pool: list[Candidate], rate
                 cost = prob.fit_cost(twork)
                 if better_base is None or cost < better_base[0]:
                     better_base = (cost, trial.truncated(len(model.x)))
+        if better_base is not None and good:
+            # A refit whose effect did nothing still cut the cost: the current fit had not settled.
+            # An effect must pay off against those base parameters too, or it is only getting
+            # the credit for their convergence.
+            bpred = prob.predict([better_base[1].params()], whole=True)[0]
+            settled = []
+            for g in good:
+                if pays_off(prob, bpred, g[2], prob.whole(g[2], g[3]), model, g[0])["ok"]:
+                    settled.append(g)
+                else:
+                    log("not against the better base", g[0].label)
+            good = settled
         if not good:
             if better_base is None or kept_base:
                 break  # no candidate pays off on the held-out data
-            kept_base = True  # once: a second time the search would only go round in circles
+            kept_base = True  # once per finding: a second time the search would only go round in circles
             model = better_base[1]
             work_pred = prob.predict([model.params()])[0]
             pred = prob.whole(model, work_pred)
@@ -162,6 +176,9 @@ def search(prob: Problem, base: Model, nominal: Any, pool: list[Candidate], rate
                     trial, twork, tjac = retry
             tpred = prob.whole(trial, twork)
             polished.append((cand, pays_off(prob, pred, trial, tpred, model, cand), trial, twork, tjac, tpred))
+            log("polished", cand.label, cand.report(trial.params()), polished[-1][1])
+        if len(polished) == 2:
+            polished = _on_common_base(prob, pred, model, polished, log)
         # Both at the noise floor: the record cannot tell them apart; name the more common effect
         # (PREFERENCE: an offset before a gain before a delay...) and say so.
         at_floor = [g for g in polished if max(prob.ratios(g[5], rate).values()) <= SYSTEMATIC]
@@ -185,10 +202,16 @@ def search(prob: Problem, base: Model, nominal: Any, pool: list[Candidate], rate
             base, base_pred = model, pred
         findings.append(finding(prob, cand, model, pred, trial, tpred, verdict, rate))
         model, pred, work_pred, jac = trial, tpred, twork, tjac
+        kept_base = False
 
-    # Backward check: an earlier finding that the later ones make redundant is dropped.
-    for f in list(findings[:-1]) if len(findings) > 1 else []:
-        wmodel, wwork, wjac = fit(prob, model.without(f.cand, nominal), iters=REFIT_ITERS)
+    # Backward check, latest first: a finding the others make redundant is dropped. Without it the
+    # model is refitted from where the search left it and from the base parameters anew: a
+    # finding added late may only have led the fit out of a basin it had settled in.
+    for f in list(reversed(findings)):
+        if len(findings) < 2:
+            break  # a single finding was weighed against the model without it when it was made
+        fits = [fit(prob, start, iters=REFIT_ITERS) for start in _restarts(model.without(f.cand, nominal), x0, xn)]
+        wmodel, wwork, wjac = min(fits, key=lambda g: prob.fit_cost(g[1]))
         wpred = prob.whole(wmodel, wwork)
         dbic, dcost = prob.bic_delta(wpred, pred, max(1, len(f.cand.frees)))
         log("backward check", f.cand.label, f"dBIC {dbic:.0f} dcost {dcost:+.3f}")
@@ -230,6 +253,32 @@ def probe(prob: Problem, res: Result, pool: list[Candidate], rate: float, log: L
                 and (best is None or verdict["dbic"] < best[0])):
             best = (verdict["dbic"], finding(prob, cand, model, pred, trial, tpred, verdict, rate))
     return best[1] if best else None
+
+
+def _on_common_base(prob: Problem, pred0: dict, model: Model, polished: list[tuple], log: Log) -> list[tuple]:
+    """Two contenders polished apart may have settled their base parameters in different basins
+    (a flat cost lets them wander), and the better base would then decide between the effects.
+    Each contender is also fitted on the other's base (its own parameters only, the base held)
+    and keeps the better of the two by the information criterion: the effects are compared on
+    the same base."""
+    n = len(model.x)
+    hold = frozenset(f.key for f in model.frees)
+    out = []
+    for i, (cand, verdict, trial, twork, tjac, tpred) in enumerate(polished):
+        other = polished[1 - i][2]
+        x = trial.x.copy()
+        x[:n] = other.x[:n]
+        moved, mwork, mjac = fit(prob, trial.at(x), iters=COMMON_ITERS, hold=hold)
+        mpred = prob.whole(moved, mwork)
+        mverdict = pays_off(prob, pred0, moved, mpred, model, cand)
+        log("on the other's base", cand.label, cand.report(moved.params()), mverdict)
+        if mverdict["dbic"] < verdict["dbic"]:
+            # one step with all free: the Jacobian of every parameter, for the screens to come
+            trial, twork, tjac = fit(prob, moved, iters=1, pred0=mwork)
+            tpred = prob.whole(trial, twork)
+            verdict = pays_off(prob, pred0, trial, tpred, model, cand)
+        out.append((cand, verdict, trial, twork, tjac, tpred))
+    return out
 
 
 def _restarts(model: Model, x0: np.ndarray, xn: np.ndarray) -> list[Model]:

@@ -3,7 +3,7 @@
 (EFFECTS.md) with the free parameters a real rig needs, and its candidate effects."""
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -112,7 +112,8 @@ class ValveFamily:
             return Candidate(effect, channel, frees, signature, fields=fields, **kw)
 
         for c in channels:
-            offset = cand("sensor_offset", c, (lin(f"sensor_offset_{c}", scales[c], -1e3, 1e3),), "constant")
+            offset = cand("sensor_offset", c, (lin(f"sensor_offset_{c}", scales[c], -1e3, 1e3),), "constant",
+                          claimable=_not_a_tolerated_gain(rec, c))
             gain = cand("sensor_gain", c, (lin(f"sensor_gain_{c}", 0.01, -50.0, 50.0, origin=1.0),), f"predicted {c}",
                         claimable=_calibrated_off)
             delay = cand("sensor_delay", c, (lin(f"sensor_delay_{c}_s", dt, 0.0, 100.0),), f"d(predicted {c})/dt")
@@ -209,6 +210,24 @@ def _calibrated_off(p: dict[str, float]) -> bool:
     """A gain off by MIN_GAIN_ERROR at least: within it a transducer is inside its calibration
     tolerance, and a fit's gain there is taking up the model's form, not a fault."""
     return abs(p["gain"] - 1.0) >= MIN_GAIN_ERROR
+
+
+def _not_a_tolerated_gain(rec: Record, channel: str) -> Callable[[dict[str, float]], bool]:
+    """An offset claimed only where no gain inside calibration tolerance could read the same: a
+    gain error e reads e·median + e·(reading − median); an offset o is that with e = o/median
+    whenever the varying part, |o|·spread/median, is lost in the noise (a supply gauge reads
+    nearly constant), and such an e under MIN_GAIN_ERROR is a calibrated transducer."""
+    y = np.asarray(rec.columns[channel], dtype=float)
+    y = y[np.isfinite(y)]
+    median = float(np.median(np.abs(y))) if y.size else 0.0
+    spread = float(np.std(y)) if y.size else 0.0
+    noise = ft.declared_noise(rec.meta, channel) or ft.noise_floor(y, ft.declared_resolution(rec.meta, channel))
+
+    def claimable(p: dict[str, float]) -> bool:
+        o = abs(next(iter(p.values())))
+        return median <= 0 or o >= MIN_GAIN_ERROR * median or o * spread / median > noise
+
+    return claimable
 
 
 def _asymmetric(p: dict[str, float]) -> bool:
