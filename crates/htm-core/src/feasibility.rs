@@ -62,8 +62,11 @@ fn status(need: f64, limit: f64) -> Status {
     }
 }
 
-/// (phase, a, Fmax, Fmin) at crack lengths spread over every phase.
-fn load_points(cfg: &TestConfig) -> Result<Vec<(usize, f64, f64, f64)>> {
+/// (phase index, crack length a [m], target Fmax [N], target Fmin [N])
+type LoadPoint = (usize, f64, f64, f64);
+
+/// The targets at crack lengths spread over every phase.
+fn load_points(cfg: &TestConfig) -> Result<Vec<LoadPoint>> {
     let mut out = Vec::with_capacity(cfg.phases.len() * SAMPLES);
     let mut a0 = cfg.a0_m;
     for (i, ph) in cfg.phases.iter().enumerate() {
@@ -121,12 +124,12 @@ pub fn assess(cfg: &TestConfig) -> Result<Vec<Check>> {
     let pts = load_points(cfg)?;
     let df = |fmax: f64, fmin: f64| fmax - fmin;
     let mut out = Vec::new();
-    let check = |name, need: f64, limit: f64, unit, (phase, a, fmax, fmin): (usize, f64, f64, f64), f_max: f64| {
+    let check = |name, need: f64, limit: f64, unit, (phase, a, fmax, fmin): LoadPoint, f_max: f64| {
         let d = df(fmax, fmin);
         Check { name, status: status(need, limit), need, limit, unit, phase, a_m: a, delta_f_n: d,
                 largest_delta_f_n: if need > 0.0 { d * limit / need } else { f64::INFINITY }, largest_frequency_hz: f_max }
     };
-    let worst = |key: &dyn Fn(&(usize, f64, f64, f64)) -> f64| {
+    let worst = |key: &dyn Fn(&LoadPoint) -> f64| {
         *pts.iter().max_by(|x, y| key(x).total_cmp(&key(y))).expect("a test has phases")
     };
 
