@@ -100,7 +100,8 @@ def run_batch(configs: list[dict[str, Any]], mode: str = "full", threads: int = 
 MARGINAL_FRACTION: float
 RESONANCE_FRACTION: float
 
-class FeasibilityCheck(TypedDict):
+# one check of feasibility(); a dict at run time, so private to the stub
+class _FeasibilityCheck(TypedDict):
     name: str
     status: str
     need: float
@@ -112,7 +113,7 @@ class FeasibilityCheck(TypedDict):
     largest_delta_f_n: float | None
     largest_frequency_hz: float | None
 
-def feasibility(config: dict[str, Any]) -> list[FeasibilityCheck]: ...
+def feasibility(config: dict[str, Any]) -> list[_FeasibilityCheck]: ...
 
 # --- a machine's closed displacement loop (crates/htm-core/src/outer_loop.rs) ---
 @final

@@ -1,11 +1,9 @@
-"""Reports: plots (matplotlib, Agg), the E647 reduction report, and the fatigue test report
+"""Fatigue reports (drawn and written with `htm.report`): plots, the E647 reduction report, and the fatigue test report
 (Table B.1-style table, a–N, da/dN–ΔK with the fitted law, ±2 % force-band statistics, specimen and
 loading data, validity summary) in Markdown and standalone HTML with embedded plots."""
 from __future__ import annotations
 
-import base64
 import csv
-import html
 from pathlib import Path
 
 import numpy as np
@@ -13,17 +11,9 @@ import numpy as np
 from htm.fatigue.data import CrackData, Setup
 from htm.fatigue.e647 import Reduced, paris_region_ii, reduce, summary, threshold
 from htm.fatigue.laws import Model, Points, fit_rate
+from htm.report import md_table, pyplot, save, write
 
 REDUCED_COLUMNS = ("cycles", "a_m", "a_fit_m", "dadn_m_per_cycle", "delta_k_mpa_sqrt_m", "kmax_mpa_sqrt_m", "valid", "reasons")
-
-
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def write_reduced_csv(path: Path, reds: list[Reduced], with_specimen: bool) -> None:
@@ -44,7 +34,7 @@ def _g(v: float) -> str:
 
 def plot_a_n(path: Path, datas: list[CrackData], reds: list[Reduced] | None = None, model: Model | None = None,
              setup: Setup | None = None) -> Path:
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     for d in datas:
         ax.plot(d.cycles, d.a_m * 1e3, ".", ms=2.5, label=None if len(datas) > 6 else f"specimen {d.specimen}")
@@ -61,14 +51,12 @@ def plot_a_n(path: Path, datas: list[CrackData], reds: list[Reduced] | None = No
     if len(datas) <= 6:
         ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save(fig, path)
 
 
 def plot_dadn_dk(path: Path, reds: list[Reduced], models: dict[str, Model] | None = None, r_ratio: float = 0.0,
                  band: float | None = None) -> Path:
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6.4, 4.6))
     for rd in reds:
         m = rd.mask(False)
@@ -90,13 +78,11 @@ def plot_dadn_dk(path: Path, reds: list[Reduced], models: dict[str, Model] | Non
     ax.set_ylabel("da/dN [m/cycle]")
     ax.grid(alpha=0.3, which="both")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save(fig, path)
 
 
 def plot_residual(path: Path, x: np.ndarray, r: np.ndarray, bins: list[dict], xlabel: str, bins_after: list[dict] | None = None) -> Path:
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6.4, 3.8))
     ax.plot(x, r, ".", ms=1.5, alpha=0.3, color="0.5")
     ax.errorbar([b["x_mean"] for b in bins], [b["residual_mean"] for b in bins],
@@ -110,52 +96,7 @@ def plot_residual(path: Path, x: np.ndarray, r: np.ndarray, bins: list[dict], xl
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
-
-
-def md_table(header: list[str], rows: list[list]) -> str:
-    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    out += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
-    return "\n".join(out)
-
-
-def markdown_to_html(md: str, images: dict[str, Path], title: str) -> str:
-    """Minimal Markdown (headings, tables, lists, paragraphs, images) to standalone HTML; images are
-    embedded as base64 PNG."""
-    body: list[str] = []
-    lines = md.splitlines()
-    i = 0
-    while i < len(lines):
-        ln = lines[i]
-        if ln.startswith("|"):
-            rows = []
-            while i < len(lines) and lines[i].startswith("|"):
-                if not set(lines[i].replace("|", "").strip()) <= set("-: "):
-                    rows.append([c.strip() for c in lines[i].strip().strip("|").split("|")])
-                i += 1
-            body.append("<table>" + "".join(
-                "<tr>" + "".join(f"<{'th' if j == 0 else 'td'}>{html.escape(c)}</{'th' if j == 0 else 'td'}>" for c in r) + "</tr>"
-                for j, r in enumerate(rows)) + "</table>")
-            continue
-        if ln.startswith("!["):
-            name = ln[ln.index("(") + 1:ln.index(")")]
-            p = images.get(name)
-            if p is not None and Path(p).exists():
-                data = base64.b64encode(Path(p).read_bytes()).decode()
-                body.append(f'<p><img alt="{html.escape(name)}" src="data:image/png;base64,{data}"></p>')
-        elif ln.startswith("#"):
-            lvl = len(ln) - len(ln.lstrip("#"))
-            body.append(f"<h{lvl}>{html.escape(ln[lvl:].strip())}</h{lvl}>")
-        elif ln.startswith("- "):
-            body.append(f"<ul><li>{html.escape(ln[2:])}</li></ul>")
-        elif ln.strip():
-            body.append(f"<p>{html.escape(ln)}</p>")
-        i += 1
-    css = ("body{font-family:sans-serif;max-width:60em;margin:2em auto;}table{border-collapse:collapse;font-size:90%}"
-           "td,th{border:1px solid #bbb;padding:2px 6px;text-align:right}img{max-width:100%}")
-    return f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title><style>{css}</style></head><body>{''.join(body)}</body></html>"
+    return save(fig, path)
 
 
 def e647_report(out: Path, datas: list[CrackData], setup: Setup, reds: list[Reduced], n: int) -> Path:
@@ -321,9 +262,8 @@ def write_test_report(out: str | Path, table: dict, setup: Setup, *, specimen_in
               "## Reduced data (E647 Table X1.2 / thesis Table B.1 layout)", "",
               md_table(["row", "N", "a [mm]", "â [mm]", "da/dN [mm/cycle]", "ΔK [MPa·√m]", "valid"], b1), ""]
     md = "\n".join(lines)
-    (out / "report.md").write_text(md)
-    (out / "report.html").write_text(markdown_to_html(md, {a_n.name: a_n, dadn.name: dadn}, title))
-    return {"markdown": out / "report.md", "html": out / "report.html", "reduced": out / "reduced.csv",
+    md_path, html_path = write(out, md, title, [a_n, dadn])
+    return {"markdown": md_path, "html": html_path, "reduced": out / "reduced.csv",
             "model": model, "force_band": fb, "force_errors": errs[1] if errs is not None else None, "validity": s}
 
 
