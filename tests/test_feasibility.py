@@ -171,3 +171,20 @@ def test_the_examples_pass_the_check(name):
     r = htm_cli("run", "--check", str(ROOT / "examples" / name))
     assert r.returncode == 0, r.stdout + r.stderr
     assert "REFUSED" not in r.stdout and load(ROOT / "examples" / name).feasibility().feasible
+
+
+def test_the_live_rig_report_says_outside_when_the_force_left_the_band():
+    import numpy as np
+
+    from htm.control.recorder import summary_markdown
+
+    spec = load(CT)
+    row = {"id": "t1", "status": "finished", "end_reason": "operator stop", "events": []}
+
+    def table(err: float) -> dict:
+        n = 30
+        return {"cycle": np.arange(n), "a_m": np.full(n, spec.a0_m), "starting": np.zeros(n, bool),
+                "df_err_pct": np.full(n, err), "peak_err_pct": np.full(n, 0.5)}
+
+    assert "max |ΔF| 1.500 %, max |peak| 0.500 %: inside the ISO 12108 band ±2 %" in summary_markdown(spec, row, table(1.5), None)
+    assert "max |ΔF| 37.000 %, max |peak| 0.500 %: OUTSIDE the ISO 12108 band ±2 %" in summary_markdown(spec, row, table(37.0), None)

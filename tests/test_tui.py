@@ -61,6 +61,7 @@ def test_setup_rejects_a_bad_field_and_simulates_a_valid_test(store):
             await app.workers.wait_for_complete()
             await pilot.pause()
             assert "predicted life" in text(app, "#sim-result") and "cycles" in text(app, "#sim-result")
+            assert "inside the band ±2 %" in text(app, "#sim-result")
     run(go())
 
 

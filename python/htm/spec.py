@@ -63,6 +63,9 @@ class TestSpec:
         Force controller, end conditions (``max_cycles``, ...) and ramp-in (cycles).
     mode : str
         ``"full"`` (every cycle through the plant) or ``"jump"`` (cycle-jump).
+    override_limits : bool
+        ``[run] override_limits``: run even what the feasibility check refuses (`feasibility`);
+        the summary and report then state the force error the test reached.
     """
 
     name: str

@@ -218,7 +218,8 @@ class SetupPane(Vertical):
             s = summary(spec, out, wall, "jump")
             text = (f"[b]predicted life[/] {s['cycles']:,} cycles → {s['end_reason']}, a = {s['final_a_m'] * 1e3:.2f} mm "
                     f"(a/W {s['final_a_over_w']:.3f})\n[b]force error[/] max |ΔF| {s['max_abs_df_err_pct']:.2f} %, "
-                    f"max |peak| {s['max_abs_peak_err_pct']:.2f} % (band ±2 %)   [dim]{wall:.2f} s wall[/]")
+                    f"max |peak| {s['max_abs_peak_err_pct']:.2f} %: {'inside' if s['force_in_band'] else '[b red]OUTSIDE[/]'} the band "
+                    f"±{s['force_tolerance_pct']:g} %   [dim]{wall:.2f} s wall[/]")
         except HtmError as e:
             text = f"[red]simulation refused: {e}[/]"
         self.app.call_from_thread(self.query_one("#sim-result", Static).update, text)
