@@ -15,7 +15,8 @@ import numpy as np
 from htm.fatigue.data import Setup, read_a_n
 from htm.fatigue.laws import Points, log_residual
 from htm.fatigue.loop import analyse
-from htm.fatigue.report import markdown_to_html, md_table, plot_a_n, plot_dadn_dk, plot_residual
+from htm.fatigue.report import plot_a_n, plot_dadn_dk, plot_residual
+from htm.report import md_table, write
 
 
 def main() -> int:
@@ -95,9 +96,7 @@ def main() -> int:
                    f"{p['loo_after']:.0f}", pct(p["loo_after_err"])] for p in res.predictions]), "",
     ]
     md = "\n".join(lines)
-    (out / "report.md").write_text(md)
-    (out / "report.html").write_text(markdown_to_html(md, {n: out / n for n in ("residual_dk.png", "dadn_dk.png", "a_n.png")},
-                                                      "Virkler closing the loop"))
+    write(out, md, "Virkler closing the loop", [out / n for n in ("residual_dk.png", "dadn_dk.png", "a_n.png")])
     summ = {k: v for k, v in s.items() if "scatter" not in k}
     summ["runtime_s"] = elapsed
     (out / "summary.json").write_text(json.dumps(summ, indent=2))

@@ -12,7 +12,7 @@ from htm import control, errors, params, run, spec
 from htm._core import Machine, Params
 from htm.devices import config
 from htm.fatigue import data, e647
-from htm.ident import diagnose, records
+from htm.ident import diagnose, proving, records
 from htm.record import store
 
 simulate = import_module("htm.simulate")  # the module; htm.simulate is its function
@@ -25,8 +25,9 @@ REAL = {
     "Store": store.Store, "Session": control.session.Session, "virtual_config": config.virtual_config,
     "read_a_n": data.read_a_n, "CrackData": data.CrackData, "Setup": data.Setup, "e647": e647.reduce,
     "read_record": records.read_record, "Record": records.Record, "diagnose": diagnose.diagnose,
+    "write_record": records.write_record, "proving_record": proving.make_record,
     "HtmError": errors.HtmError, "ParameterError": errors.ParameterError, "InputError": errors.InputError,
-    "SolverError": errors.SolverError, "SpecError": errors.SpecError, "RecordError": errors.RecordError,
+    "SolverError": errors.SolverError, "SpecError": errors.SpecError, "InfeasibleTest": errors.InfeasibleTest, "RecordError": errors.RecordError,
     "DeviceError": errors.DeviceError, "InterlockTripped": errors.InterlockTripped,
 }
 # the names this branch documented (htm.ident's docstrings are its own work's to convert)

@@ -1,12 +1,15 @@
 """The operator console driven by Textual's pilot, one test per workflow, on the virtual rig."""
 import asyncio
 import time
+from pathlib import Path
 
 import pytest
 from textual.widgets import DataTable, Input, Static
 
 from htm.tui.app import HtmApp
 from htm.tui.setup import SetupPane
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 
 def run(coro):
@@ -58,6 +61,7 @@ def test_setup_rejects_a_bad_field_and_simulates_a_valid_test(store):
             await app.workers.wait_for_complete()
             await pilot.pause()
             assert "predicted life" in text(app, "#sim-result") and "cycles" in text(app, "#sim-result")
+            assert "inside the band ±2 %" in text(app, "#sim-result")
     run(go())
 
 
@@ -292,4 +296,32 @@ def test_diagnose_evidence_fits_the_table_and_shows_whole_below(store):
             cell = app.query_one("#findings", DataTable).get_row_at(0)[6]
             assert len(cell) <= EVIDENCE_CELL and cell.endswith("…")
             assert long.strip() in str(app.query_one("#finding-detail", Static).content)
+    run(go())
+
+
+def test_setup_shows_what_the_rig_can_do_and_refuses_a_force_beyond_it(store):
+    """The Setup tab runs the feasibility check of `htm run --check` as you type: the example
+    asking 88.9 kN peak (ΔF 80 kN at R = 0.1) of the thesis rig's ~48 kN is refused, with the
+    capacity and the largest feasible ΔF at the ΔF field, and cannot be simulated until ΔF is
+    feasible."""
+    async def go():
+        app = HtmApp(session_factory=lambda: None)
+        async with app.run_test(size=(140, 50)) as pilot:
+            pane = app.query_one(SetupPane)
+            assert pane.spec is not None and "force capacity (tension)" in text(app, "#setup-check")
+            app.query_one("#spec-path", Input).value = str(EXAMPLES / "mt_beyond_capacity.toml")
+            await pilot.click("#load")
+            await pilot.pause()
+            assert pane.spec is None
+            check = text(app, "#setup-check")
+            assert "REFUSED" in check and "48.2 kN" in check and "refused: force capacity (tension)" in check, check
+            assert "cannot run this test" in text(app, "#setup-status")
+            assert "largest feasible ΔF 43.4 kN" in text(app, "#err-loading-delta_f_n")
+            await pilot.press("ctrl+s")
+            await pilot.pause()
+            assert "predicted life" not in text(app, "#sim-result")
+            app.query_one("#loading-delta_f_n", Input).value = "40"
+            await pilot.pause()
+            assert pane.spec is not None and "REFUSED" not in text(app, "#setup-check")
+            assert text(app, "#err-loading-delta_f_n") == ""
     run(go())

@@ -6,7 +6,8 @@
 - a fatigue test: `TestSpec`, `load_spec`, `run_test` (simulated), `Session` with `virtual_config`
   (the live or virtual rig), `Store` (every recorded test)
 - fatigue data: `read_a_n`, `CrackData`, `Setup`, `e647` (ASTM E647 reduction)
-- measurement records: `read_record`, `Record`, `diagnose`
+- measurement records: `read_record`, `write_record`, `Record`, `diagnose`, and `proving_record`
+  (a record of the simulated rig with effects switched on, to try a diagnosis on)
 - errors: `HtmError` and its subclasses
 
 The names below the machine's are imported on first use, so `import htm` stays cheap.
@@ -18,6 +19,7 @@ from htm._core import Machine, Params, __version__
 from htm.errors import (
     DeviceError,
     HtmError,
+    InfeasibleTest,
     InputError,
     InterlockTripped,
     ParameterError,
@@ -42,6 +44,8 @@ _LAZY = {
     "e647": ("htm.fatigue.e647", "reduce"),
     "read_record": ("htm.ident.records", "read_record"),
     "Record": ("htm.ident.records", "Record"),
+    "write_record": ("htm.ident.records", "write_record"),
+    "proving_record": ("htm.ident.proving", "make_record"),
     "diagnose": ("htm.ident.diagnose", "diagnose"),
 }
 
@@ -57,6 +61,7 @@ __all__ = [
     "InputError",
     "SolverError",
     "SpecError",
+    "InfeasibleTest",
     "RecordError",
     "DeviceError",
     "InterlockTripped",

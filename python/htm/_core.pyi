@@ -9,6 +9,7 @@ __all__ = [
     "Params", "Machine", "g_ct", "h_ct", "a_range", "stress_intensity", "size_criterion", "compliance_ct", "stiffness_ct",
     "crack_length_from_compliance_ct", "growth_rate", "newman_f", "life", "life_curve", "crack_after", "pmax_from_delta_p",
     "CyclicController", "Detectors", "RigPlant", "Progress", "EVENTS", "run_test", "validate_test", "run_batch", "TestRun",
+    "feasibility", "MARGINAL_FRACTION", "RESONANCE_FRACTION",
     "friction_force", "LoopParams", "loop_simulate", "replay",
 ]
 
@@ -92,6 +93,27 @@ class Progress:
 def run_test(config: dict[str, Any], mode: str = "full", progress: Progress | None = None) -> dict[str, Any]: ...
 def validate_test(config: dict[str, Any]) -> None: ...
 def run_batch(configs: list[dict[str, Any]], mode: str = "full", threads: int = 0) -> list[dict[str, Any]]: ...
+
+# --- know before you start (crates/htm-core/src/feasibility.rs) ---
+# a need above this fraction of its limit is marginal; the frequency limit is this fraction of
+# the oil-column/specimen resonance
+MARGINAL_FRACTION: float
+RESONANCE_FRACTION: float
+
+# one check of feasibility(); a dict at run time, so private to the stub
+class _FeasibilityCheck(TypedDict):
+    name: str
+    status: str
+    need: float
+    limit: float
+    unit: str
+    phase: int
+    a_m: float
+    delta_f_n: float
+    largest_delta_f_n: float | None
+    largest_frequency_hz: float | None
+
+def feasibility(config: dict[str, Any]) -> list[_FeasibilityCheck]: ...
 
 # --- a machine's closed displacement loop (crates/htm-core/src/outer_loop.rs) ---
 @final

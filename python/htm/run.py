@@ -204,7 +204,17 @@ def summary(spec: TestSpec, out: dict[str, Any], wall: float, mode: str) -> dict
         "wall_time_s": wall, "cycles_simulated": int(out["cycles_simulated"]),
         "size_criterion_cycle": out["size_criterion_cycle"], "velocity_gain_m_s_per_v": out["velocity_gain_m_s_per_v"],
         "demod_gains": out.get("demod_gains"),
+        **force_verdict(spec, out),
     }
+
+
+def force_verdict(spec: TestSpec, out: dict[str, Any]) -> dict[str, Any]:
+    """Whether the test held its force band (the test phase's tolerance), and what the
+    feasibility check said before it ran: a test forced past its limits says so."""
+    tol_pct = 100 * spec.phases[-1].tolerance
+    worst = max(float(out["max_abs_df_err_pct"]), float(out["max_abs_peak_err_pct"]))
+    return {"force_tolerance_pct": tol_pct, "force_in_band": bool(worst <= tol_pct),
+            "feasibility": spec.feasibility().verdict(), "override_limits": spec.override_limits}
 
 
 def write_outputs(out_dir: Path, spec: TestSpec, out: dict[str, Any], wall: float, mode: str) -> dict[str, Any]:
@@ -230,7 +240,9 @@ def summary_text(spec: TestSpec, s: dict[str, Any]) -> str:
                  f"{spec.waveform} {spec.frequency_hz:g} Hz, {spec.controller['type']} control, mode {s['mode']}"),
         ("end", f"{s['end_reason']} after {s['cycles']:,} cycles"),
         ("crack", f"a = {spec.a0_m * 1e3:.2f} → {s['final_a_m'] * 1e3:.2f} mm (a/W {s['final_a_over_w']:.3f})"),
-        ("force error", f"max |ΔF| {s['max_abs_df_err_pct']:.3f} %, max |peak| {s['max_abs_peak_err_pct']:.3f} % (ISO 12108 band ±2 %)"),
+        ("force error", f"max |ΔF| {s['max_abs_df_err_pct']:.3f} %, max |peak| {s['max_abs_peak_err_pct']:.3f} %: "
+                        f"{'inside' if s['force_in_band'] else 'OUTSIDE'} the ISO 12108 band ±{s['force_tolerance_pct']:g} %"),
+        ("rig limits", s["feasibility"] + (" (run anyway: override_limits)" if s["override_limits"] else "")),
         ("size criterion", "met throughout" if s["size_criterion_cycle"] is None else f"violated from cycle {s['size_criterion_cycle']:,}"),
         ("wall time", f"{s['wall_time_s']:.2f} s ({s['cycles'] / max(s['wall_time_s'], 1e-9):,.0f} cycles/s, "
                       f"{s['cycles_simulated']:,} cycles through the plant)"),
@@ -239,8 +251,27 @@ def summary_text(spec: TestSpec, s: dict[str, Any]) -> str:
     return "\n".join(f"{k:<{w}}  {v}" for k, v in rows)
 
 
+def cmd_check(args: argparse.Namespace) -> int:
+    """`htm run --check SPEC`: every feasibility check; exit 1 when the rig cannot run it."""
+    spec = load(args.spec, check=False)
+    feas = spec.feasibility()
+    print(f"{spec.name}: can the rig run this test?")
+    print(feas.table())
+    if not feas.feasible and spec.override_limits:
+        print("[run] override_limits = true: `htm run` runs it anyway and reports the force error it reaches")
+    return 0 if feas.feasible else 1
+
+
 def cmd_run(args: argparse.Namespace) -> int:
-    spec = load(args.spec)
+    if args.check:
+        return cmd_check(args)
+    if not args.out:
+        raise HtmError("--out DIR is required (or --check to check the spec only)")
+    spec = load(args.spec)  # refuses a test the rig cannot run (InfeasibleTest)
+    for c in spec.feasibility().checks:
+        if c.status != "ok":
+            forced = " (override_limits: running anyway)" if c.status == "refused" else ""
+            print(f"htm run: warning: {c.name}: {c.text}{forced}", file=sys.stderr)
     mode = args.mode or spec.mode
     out_dir = Path(args.out)
     if (out_dir / "summary.json").exists():
@@ -286,7 +317,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="Run a whole fatigue crack growth test (plant, controller, specimen, crack growth) "
                                    "in the Rust core; write DIR/summary.json, DIR/cycles.parquet, a text summary and a report.")
     p.add_argument("spec", help="test spec (TOML), e.g. examples/ct_constant_force.toml")
-    p.add_argument("--out", required=True, help="output directory (must not already hold a test)")
+    p.add_argument("--out", help="output directory (must not already hold a test); required unless --check")
+    p.add_argument("--check", action="store_true",
+                   help="only check whether the rig can run the test (force, valve flow, frequency, stroke, E647 size "
+                        "criterion) and print the largest feasible ΔF and frequency; exit 1 if it cannot")
     p.add_argument("--mode", choices=["full", "jump"], help="full fidelity or cycle-jump (default: the spec's [run] mode)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_store_args(p)

@@ -12,7 +12,8 @@ from pathlib import Path
 from typing import Any
 
 from htm import _core
-from htm.errors import HtmError, SpecError
+from htm.errors import HtmError, InfeasibleTest, SpecError
+from htm.feasibility import Feasibility, assess
 from htm.params import thesis_rig, with_overrides
 
 MODES = ("constant_force", "constant_delta_k", "k_gradient")
@@ -62,6 +63,9 @@ class TestSpec:
         Force controller, end conditions (``max_cycles``, ...) and ramp-in (cycles).
     mode : str
         ``"full"`` (every cycle through the plant) or ``"jump"`` (cycle-jump).
+    override_limits : bool
+        ``[run] override_limits``: run even what the feasibility check refuses (`feasibility`);
+        the summary and report then state the force error the test reached.
     """
 
     name: str
@@ -84,6 +88,12 @@ class TestSpec:
     rtol: float = 1e-4
     mode: str = "jump"
     stiffness_steps: list[tuple[int, float]] = field(default_factory=list)
+    override_limits: bool = False
+
+    def feasibility(self) -> Feasibility:
+        """What the rig can do with this test (`htm.feasibility`): force, flow, frequency,
+        stroke and the E647 size criterion, each with its largest feasible value."""
+        return assess(self.to_config())
 
     def params(self) -> _core.Params:
         try:
@@ -193,8 +203,11 @@ def _loading(d: dict, where: str, end_a_m: float, tolerance: float) -> Loading:
     return ph
 
 
-def parse(doc: dict, name: str = "test") -> TestSpec:
-    """Validate a parsed TOML document into a `TestSpec` (raises SpecError)."""
+def parse(doc: dict, name: str = "test", *, check: bool = True) -> TestSpec:
+    """Validate a parsed TOML document into a `TestSpec` (raises SpecError).
+
+    With `check` (the default) a test the rig cannot run raises InfeasibleTest naming the limit
+    and the largest feasible value, unless the spec sets ``[run] override_limits = true``."""
     _keys(doc, {"specimen", "material", "law", "loading", "precrack", "controller", "end", "start", "rig", "run", "stiffness_steps"}, "spec")
     sp = _table(doc, "specimen", "specimen")
     _keys(sp, {"geometry", "width_m", "thickness_m", "a0_m"}, "specimen")
@@ -281,7 +294,10 @@ def parse(doc: dict, name: str = "test") -> TestSpec:
     if not isinstance(overrides, dict):
         raise SpecError("rig.overrides must be a table of parameter = value (SI)")
     run = _table(doc, "run", "run", required=False)
-    _keys(run, {"mode", "rtol"}, "run")
+    _keys(run, {"mode", "rtol", "override_limits"}, "run")
+    override = run.get("override_limits", False)
+    if not isinstance(override, bool):
+        raise SpecError(f"run.override_limits = {override!r} must be true or false")
     steps = doc.get("stiffness_steps", [])
     if not (isinstance(steps, list) and all(isinstance(s, list) and len(s) == 2 for s in steps)):
         raise SpecError("stiffness_steps must be a list of [cycle, factor] pairs")
@@ -291,7 +307,7 @@ def parse(doc: dict, name: str = "test") -> TestSpec:
         controller=controller, end=end_d, start=start, rig_overrides={k: float(v) for k, v in overrides.items()},
         rig_preset=preset, rtol=_num(run, "rtol", "run", 1e-8, 1e-2, default=1e-4),
         mode=_choice(run, "mode", "run", ("full", "jump"), "jump"),
-        stiffness_steps=[(int(c), float(f)) for c, f in steps],
+        stiffness_steps=[(int(c), float(f)) for c, f in steps], override_limits=override,
     )
     # what only the core can judge (rig limits, Kmax vs K_IC, law constants): checked now, not later
     try:
@@ -300,6 +316,10 @@ def parse(doc: dict, name: str = "test") -> TestSpec:
         raise
     except HtmError as e:
         raise SpecError(_explain(str(e))) from None
+    if check and not spec.override_limits:
+        feas = spec.feasibility()
+        if not feas.feasible:
+            raise InfeasibleTest(feas.refusal())
     return spec
 
 
@@ -312,13 +332,15 @@ def _explain(msg: str) -> str:
     return msg
 
 
-def load(path: str | Path) -> TestSpec:
+def load(path: str | Path, *, check: bool = True) -> TestSpec:
     """Read and validate a TOML test spec.
 
     Parameters
     ----------
     path : str or Path
         The spec file (e.g. ``examples/ct_constant_force.toml``); its values are SI.
+    check : bool
+        Refuse a test the rig cannot run (InfeasibleTest), as `parse` does.
 
     Returns
     -------
@@ -332,7 +354,7 @@ def load(path: str | Path) -> TestSpec:
         raise SpecError(f"spec file {p} does not exist") from None
     except tomllib.TOMLDecodeError as e:
         raise SpecError(f"{p}: not valid TOML: {e}") from None
-    return parse(doc, p.stem)
+    return parse(doc, p.stem, check=check)
 
 
 def _toml_value(v: Any) -> str:

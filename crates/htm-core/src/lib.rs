@@ -6,6 +6,7 @@ pub mod crack;
 pub mod cyclic;
 pub mod engine;
 pub mod error;
+pub mod feasibility;
 pub mod friction;
 pub mod hydraulics;
 pub mod machine;

@@ -5,18 +5,15 @@ import math
 from pathlib import Path
 from typing import Any
 
+from htm.report import pyplot, save
+
 
 def life_plot(path: Path, rows: list[dict[str, Any]], fields: list[str], title: str) -> Path:
     """One panel per field: life [cycles] of each test (valid ●, not valid ×) against the field."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     fields = fields or ["idx"]
     ncol = min(3, len(fields))
     nrow = math.ceil(len(fields) / ncol)
-    fig, axes = plt.subplots(nrow, ncol, figsize=(4.2 * ncol, 3.4 * nrow), squeeze=False)
+    fig, axes = pyplot().subplots(nrow, ncol, figsize=(4.2 * ncol, 3.4 * nrow), squeeze=False)
     for ax, f in zip(axes.flat, fields):
         for valid, marker, label in ((True, "o", "valid"), (False, "x", "not valid")):
             pts = [(r[f], r["life_cycles"]) for r in rows if r["valid"] == valid and r["life_cycles"] and f in r]
@@ -31,7 +28,4 @@ def life_plot(path: Path, rows: list[dict[str, Any]], fields: list[str], title: 
     axes.flat[0].legend(fontsize=8)
     fig.suptitle(title)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save(fig, path)

@@ -12,7 +12,8 @@ from htm.errors import SpecError
 from htm.fatigue.data import Setup, check_a_n, read_a_n
 from htm.fatigue.e647 import reduce
 from htm.fatigue.laws import Model, Points, fit_life, fit_rate, life_errors
-from htm.fatigue.report import e647_report, md_table, plot_a_n, plot_dadn_dk, write_reduced_csv
+from htm.fatigue.report import e647_report, plot_a_n, plot_dadn_dk, write_reduced_csv
+from htm.report import md_table
 
 
 def _geometry_args(p: argparse.ArgumentParser, loads_required: bool = True) -> None:

@@ -1,11 +1,9 @@
-"""Reports: plots (matplotlib, Agg), the E647 reduction report, and the fatigue test report
+"""Fatigue reports (drawn and written with `htm.report`): plots, the E647 reduction report, and the fatigue test report
 (Table B.1-style table, a–N, da/dN–ΔK with the fitted law, ±2 % force-band statistics, specimen and
 loading data, validity summary) in Markdown and standalone HTML with embedded plots."""
 from __future__ import annotations
 
-import base64
 import csv
-import html
 from pathlib import Path
 
 import numpy as np
@@ -13,17 +11,9 @@ import numpy as np
 from htm.fatigue.data import CrackData, Setup
 from htm.fatigue.e647 import Reduced, paris_region_ii, reduce, summary, threshold
 from htm.fatigue.laws import Model, Points, fit_rate
+from htm.report import md_table, pyplot, save, write
 
 REDUCED_COLUMNS = ("cycles", "a_m", "a_fit_m", "dadn_m_per_cycle", "delta_k_mpa_sqrt_m", "kmax_mpa_sqrt_m", "valid", "reasons")
-
-
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def write_reduced_csv(path: Path, reds: list[Reduced], with_specimen: bool) -> None:
@@ -44,7 +34,7 @@ def _g(v: float) -> str:
 
 def plot_a_n(path: Path, datas: list[CrackData], reds: list[Reduced] | None = None, model: Model | None = None,
              setup: Setup | None = None) -> Path:
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     for d in datas:
         ax.plot(d.cycles, d.a_m * 1e3, ".", ms=2.5, label=None if len(datas) > 6 else f"specimen {d.specimen}")
@@ -61,14 +51,12 @@ def plot_a_n(path: Path, datas: list[CrackData], reds: list[Reduced] | None = No
     if len(datas) <= 6:
         ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save(fig, path)
 
 
 def plot_dadn_dk(path: Path, reds: list[Reduced], models: dict[str, Model] | None = None, r_ratio: float = 0.0,
                  band: float | None = None) -> Path:
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6.4, 4.6))
     for rd in reds:
         m = rd.mask(False)
@@ -90,13 +78,11 @@ def plot_dadn_dk(path: Path, reds: list[Reduced], models: dict[str, Model] | Non
     ax.set_ylabel("da/dN [m/cycle]")
     ax.grid(alpha=0.3, which="both")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save(fig, path)
 
 
 def plot_residual(path: Path, x: np.ndarray, r: np.ndarray, bins: list[dict], xlabel: str, bins_after: list[dict] | None = None) -> Path:
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6.4, 3.8))
     ax.plot(x, r, ".", ms=1.5, alpha=0.3, color="0.5")
     ax.errorbar([b["x_mean"] for b in bins], [b["residual_mean"] for b in bins],
@@ -110,52 +96,7 @@ def plot_residual(path: Path, x: np.ndarray, r: np.ndarray, bins: list[dict], xl
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
-
-
-def md_table(header: list[str], rows: list[list]) -> str:
-    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    out += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
-    return "\n".join(out)
-
-
-def markdown_to_html(md: str, images: dict[str, Path], title: str) -> str:
-    """Minimal Markdown (headings, tables, lists, paragraphs, images) to standalone HTML; images are
-    embedded as base64 PNG."""
-    body: list[str] = []
-    lines = md.splitlines()
-    i = 0
-    while i < len(lines):
-        ln = lines[i]
-        if ln.startswith("|"):
-            rows = []
-            while i < len(lines) and lines[i].startswith("|"):
-                if not set(lines[i].replace("|", "").strip()) <= set("-: "):
-                    rows.append([c.strip() for c in lines[i].strip().strip("|").split("|")])
-                i += 1
-            body.append("<table>" + "".join(
-                "<tr>" + "".join(f"<{'th' if j == 0 else 'td'}>{html.escape(c)}</{'th' if j == 0 else 'td'}>" for c in r) + "</tr>"
-                for j, r in enumerate(rows)) + "</table>")
-            continue
-        if ln.startswith("!["):
-            name = ln[ln.index("(") + 1:ln.index(")")]
-            p = images.get(name)
-            if p is not None and Path(p).exists():
-                data = base64.b64encode(Path(p).read_bytes()).decode()
-                body.append(f'<p><img alt="{html.escape(name)}" src="data:image/png;base64,{data}"></p>')
-        elif ln.startswith("#"):
-            lvl = len(ln) - len(ln.lstrip("#"))
-            body.append(f"<h{lvl}>{html.escape(ln[lvl:].strip())}</h{lvl}>")
-        elif ln.startswith("- "):
-            body.append(f"<ul><li>{html.escape(ln[2:])}</li></ul>")
-        elif ln.strip():
-            body.append(f"<p>{html.escape(ln)}</p>")
-        i += 1
-    css = ("body{font-family:sans-serif;max-width:60em;margin:2em auto;}table{border-collapse:collapse;font-size:90%}"
-           "td,th{border:1px solid #bbb;padding:2px 6px;text-align:right}img{max-width:100%}")
-    return f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title><style>{css}</style></head><body>{''.join(body)}</body></html>"
+    return save(fig, path)
 
 
 def e647_report(out: Path, datas: list[CrackData], setup: Setup, reds: list[Reduced], n: int) -> Path:
@@ -210,12 +151,51 @@ def force_band(pmax_meas: np.ndarray, pmin_meas: np.ndarray, pmax_n: float, pmin
             "rms_peak_dev_rel": float(np.sqrt(np.mean(e_max ** 2))) if len(e_max) else float("nan"), "band": band}
 
 
+def force_errors(table: dict, setup: Setup, band: float) -> tuple[np.ndarray, dict] | None:
+    """Per-cycle force errors of a test table: the engine's `df_err_pct` and `peak_err_pct` when
+    given (ΔF error over ΔF, peak error over Fmax), else from measured `pmax_n`/`pmin_n` against the
+    setup's targets. Returns (mask of cycles outside ±band, the worst errors [%]) or None."""
+    if "df_err_pct" in table and "peak_err_pct" in table:
+        df = np.abs(np.asarray(table["df_err_pct"], float))
+        pk = np.abs(np.asarray(table["peak_err_pct"], float))
+    elif "pmax_n" in table and "pmin_n" in table:
+        fmax, fmin = np.asarray(table["pmax_n"], float), np.asarray(table["pmin_n"], float)
+        df = 100 * np.abs((fmax - fmin) / setup.delta_p_n - 1)
+        pk = 100 * np.abs(fmax / setup.pmax_n - 1)
+    else:
+        return None
+    outside = ~((df <= 100 * band) & (pk <= 100 * band))  # NaN (no measurement) counts as outside
+    worst = {"max_abs_df_err_pct": float(np.nanmax(df)) if len(df) else float("nan"),
+             "max_abs_peak_err_pct": float(np.nanmax(pk)) if len(pk) else float("nan"),
+             "cycles_outside": int(outside.sum()), "cycles": int(len(df)), "band_pct": 100 * band}
+    return outside, worst
+
+
+def mark_force_band(rd: Reduced, cycles_outside: np.ndarray, n: int) -> int:
+    """Mark invalid (reason `force_band`) the reduced points whose incremental-polynomial window
+    (2n+1 readings) spans a cycle whose force left the band; returns how many were marked."""
+    bad = np.sort(np.asarray(cycles_outside, float))
+    k = len(rd)
+    marked = 0
+    for i in range(k):
+        lo, hi = rd.cycles[max(0, i - n)], rd.cycles[min(k - 1, i + n)]
+        if np.searchsorted(bad, hi, side="right") > np.searchsorted(bad, lo, side="left"):
+            if rd.valid[i]:
+                marked += 1
+            rd.valid[i] = False
+            rd.reasons[i] = ";".join(filter(None, [rd.reasons[i], "force_band"]))
+    return marked
+
+
 def write_test_report(out: str | Path, table: dict, setup: Setup, *, specimen_info: dict | None = None,
-                loading_info: dict | None = None, n: int = 3, law: str = "paris", title: str = "Fatigue crack growth test") -> dict:
+                loading_info: dict | None = None, n: int = 3, law: str = "paris", title: str = "Fatigue crack growth test",
+                band: float = 0.02) -> dict:
     """The report of a test run (to be called by `htm run`): `table` has per-cycle or a–N columns
-    `cycles`, `a_m` and optionally `pmax_n`, `pmin_n` (measured peak/valley force per cycle).
-    Writes OUT/report.md, OUT/report.html (plots embedded), OUT/reduced.csv and the plots; returns
-    paths and the numbers reported."""
+    `cycles`, `a_m` and optionally `pmax_n`, `pmin_n` (measured peak/valley force per cycle) and
+    the engine's `df_err_pct`, `peak_err_pct`. Points whose cycles left the ±`band` force band are
+    invalid (`force_band`); the report states the real force error. Writes OUT/report.md,
+    OUT/report.html (plots embedded), OUT/reduced.csv and the plots; returns paths and the numbers
+    reported."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     cycles = np.asarray(table["cycles"], float)
@@ -228,15 +208,18 @@ def write_test_report(out: str | Path, table: dict, setup: Setup, *, specimen_in
             keep.append(i)
     thin = CrackData(data.specimen, cycles[keep], a[keep])
     rd = reduce(thin, setup, n=n)
+    errs = force_errors(table, setup, band)
+    marked = mark_force_band(rd, cycles[errs[0]], n) if errs is not None else 0
     write_reduced_csv(out / "reduced.csv", [rd], False)
-    pts = Points.from_reduced([rd], only_valid=True)
-    model = fit_rate(law, pts, setup.r_ratio, window_points=2 * n + 1)
-    rms = model.fit["rms_log10_rate"]
+    model: Model | None = None
+    if rd.valid.any():  # a test that left the force band may have no valid point: reported, not fitted
+        model = fit_rate(law, Points.from_reduced([rd], only_valid=True), setup.r_ratio, window_points=2 * n + 1)
+    rms = model.fit["rms_log10_rate"] if model is not None else float("nan")
     a_n = plot_a_n(out / "a_n.png", [data], model=model, setup=setup)
-    dadn = plot_dadn_dk(out / "dadn_dk.png", [rd], {f"{law} fit": model}, setup.r_ratio, band=2 * rms)
+    dadn = plot_dadn_dk(out / "dadn_dk.png", [rd], {f"{law} fit": model} if model is not None else None, setup.r_ratio, band=2 * rms)
     fb = None
     if "pmax_n" in table and "pmin_n" in table:
-        fb = force_band(table["pmax_n"], table["pmin_n"], setup.pmax_n, setup.pmax_n * setup.r_ratio)
+        fb = force_band(table["pmax_n"], table["pmin_n"], setup.pmax_n, setup.pmax_n * setup.r_ratio, band)
     s = summary(rd)
     th = threshold(rd)
     spec_rows = [["geometry", setup.geometry.upper()], ["W [mm]", f"{setup.width_m * 1e3:.3f}"],
@@ -247,28 +230,41 @@ def write_test_report(out: str | Path, table: dict, setup: Setup, *, specimen_in
            f"{rd.dadn_m_per_cycle[i] * 1e3:.3e}" if np.isfinite(rd.dadn_m_per_cycle[i]) else "",
            f"{rd.delta_k_pa_sqrt_m[i] / 1e6:.3f}" if np.isfinite(rd.delta_k_pa_sqrt_m[i]) else "",
            "yes" if rd.valid[i] else rd.reasons[i]] for i in range(len(rd))]
-    params = ", ".join(f"{k} = {v:.5g}" + (f" ± {model.se[k]:.2g}" if k in model.se else "") for k, v in model.params.items())
+    if model is not None:
+        params = ", ".join(f"{k} = {v:.5g}" + (f" ± {model.se[k]:.2g}" if k in model.se else "") for k, v in model.params.items())
+        fitted = (f"{params}; RMS log10 da/dN error {rms:.4f} over {model.fit['npoints']} valid points "
+                  "(band in the plot: ±2 RMS).")
+    else:
+        fitted = "Not fitted: no valid reduced point."
     lines = [f"# {title}", "", "## Specimen", "", md_table(["quantity", "value"], spec_rows), "",
              "## Loading", "", md_table(["quantity", "value"], load_rows), ""]
+    if errs is not None:
+        w = errs[1]
+        pct = f"±{w['band_pct']:g} %"
+        if w["cycles_outside"] == 0:
+            verdict = f"The force stayed inside the {pct} band on every cycle"
+        else:
+            verdict = (f"The force left the {pct} band on {w['cycles_outside']:,} of {w['cycles']:,} cycles; "
+                       f"{marked} reduced point{'s' if marked != 1 else ''} over those cycles are marked invalid (force_band)")
+        lines += [f"## Force control ({pct} band, ISO 12108)", "",
+                  f"{verdict}: measured max |ΔF error| {w['max_abs_df_err_pct']:.3f} %, "
+                  f"max |peak error| {w['max_abs_peak_err_pct']:.3f} %.", ""]
     if fb is not None:
-        lines += ["## Force control (±2 % band)", "",
-                  md_table(["cycles", "inside ±2 %", "max peak dev", "max valley dev", "RMS peak dev"],
+        lines += [md_table(["cycles", f"fraction inside ±{100 * band:g} %", "max peak dev / ΔP", "max valley dev / ΔP", "RMS peak dev / ΔP"],
                            [[fb["cycles"], f"{100 * fb['fraction_inside']:.2f} %", f"{100 * fb['max_peak_dev_rel']:.3f} %",
                              f"{100 * fb['max_valley_dev_rel']:.3f} %", f"{100 * fb['rms_peak_dev_rel']:.3f} %"]]), ""]
     lines += ["## Validity summary", "",
               f"{s['valid']} of {s['points']} reduced points valid; invalid: "
               + (", ".join(f"{k} ({v})" for k, v in sorted(s["reasons"].items())) or "none") + ". "
               + (f"ΔK_th (E647) = {th['delta_k_th_pa_sqrt_m'] / 1e6:.3g} MPa·√m." if th["reached"] else "ΔK_th not reached."), "",
-              f"## Fitted law ({law})", "", f"{params}; RMS log10 da/dN error {rms:.4f} over {model.fit['npoints']} valid points "
-              f"(band in the plot: ±2 RMS).", "",
+              f"## Fitted law ({law})", "", fitted, "",
               "## Plots", "", f"![a-N]({a_n.name})", "", f"![da/dN-dK]({dadn.name})", "",
               "## Reduced data (E647 Table X1.2 / thesis Table B.1 layout)", "",
               md_table(["row", "N", "a [mm]", "â [mm]", "da/dN [mm/cycle]", "ΔK [MPa·√m]", "valid"], b1), ""]
     md = "\n".join(lines)
-    (out / "report.md").write_text(md)
-    (out / "report.html").write_text(markdown_to_html(md, {a_n.name: a_n, dadn.name: dadn}, title))
-    return {"markdown": out / "report.md", "html": out / "report.html", "reduced": out / "reduced.csv",
-            "model": model, "force_band": fb, "validity": s}
+    md_path, html_path = write(out, md, title, [a_n, dadn])
+    return {"markdown": md_path, "html": html_path, "reduced": out / "reduced.csv",
+            "model": model, "force_band": fb, "force_errors": errs[1] if errs is not None else None, "validity": s}
 
 
 def spec_test_report(out_dir: Path, spec, table: dict, title: str) -> str | None:
@@ -288,8 +284,10 @@ def spec_test_report(out_dir: Path, spec, table: dict, title: str) -> str | None
     pmax = ph.delta_f_n / (1 - ph.r_ratio) if ph.r_ratio >= 0 else ph.delta_f_n
     setup = Setup(spec.geometry, spec.width_m, spec.thickness_m, pmax, ph.r_ratio, spec.material["yield_strength_pa"])
     try:
-        write_test_report(out_dir, {"cycles": table["cycle"][test], "a_m": table["a_m"][test],
-                                    "pmax_n": table["fmax_n"][test], "pmin_n": table["fmin_n"][test]}, setup, title=title)
+        cols = {"cycles": "cycle", "a_m": "a_m", "pmax_n": "fmax_n", "pmin_n": "fmin_n", "df_err_pct": "df_err_pct",
+                "peak_err_pct": "peak_err_pct"}
+        write_test_report(out_dir, {k: np.asarray(table[c])[test] for k, c in cols.items() if c in table}, setup,
+                          title=title, band=ph.tolerance)
     except HtmError as e:  # too little growth for the E647 reduction: the test itself stands
         return f"not written: {e}"
     return str(Path(out_dir) / "report.md")

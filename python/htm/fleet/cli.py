@@ -103,14 +103,11 @@ def cmd_fleet_trend(args: argparse.Namespace) -> int:
 def _plot(path: Path, machine: str, hist: dict[str, list[tuple[str, float]]], verdicts: dict[str, dict[str, Any]]) -> None:
     import math
 
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from htm.report import pyplot, save
 
     ncol = min(3, len(hist))
     nrow = math.ceil(len(hist) / ncol)
-    fig, axes = plt.subplots(nrow, ncol, figsize=(4.2 * ncol, 2.8 * nrow), squeeze=False)
+    fig, axes = pyplot().subplots(nrow, ncol, figsize=(4.2 * ncol, 2.8 * nrow), squeeze=False)
     for ax, (p, pts) in zip(axes.flat, hist.items()):
         dates, vals = zip(*pts)
         v = verdicts[p]
@@ -124,9 +121,7 @@ def _plot(path: Path, machine: str, hist: dict[str, list[tuple[str, float]]], ve
         ax.set_visible(False)
     fig.suptitle(f"{machine}: identified parameters by date (band: earlier mean ± 3 σ)")
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    save(fig, path, dpi=100)
 
 
 def register(sub: argparse._SubParsersAction) -> None:

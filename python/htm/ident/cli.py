@@ -41,17 +41,14 @@ def cmd_identify(args: argparse.Namespace) -> int:
 
 
 def _plot(result: dict, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from htm.report import pyplot, save
 
     v = np.array(result["points"]["v_m_s"])
     f = np.array(result["points"]["f_n"])
     fit = result["friction"]["stribeck_sig"]["params"]
     vv = np.linspace(v.min(), v.max(), 400)
     model = stribeck_basis(vv, fit["stribeck_m_s"], SMOOTHING_M_S) @ [fit["viscous_n_s_m"], fit["coulomb_n"], fit["static_n"]]
-    fig, ax = plt.subplots(figsize=(6, 4))
+    fig, ax = pyplot().subplots(figsize=(6, 4))
     ax.plot(v * 1e3, f, "o", label="F_h - F_g at constant velocity")
     ax.plot(vv * 1e3, model + fit["offset_n"], "-", label="Stribeck (sig) + offset")
     ax.plot(vv * 1e3, model, "--", label="Stribeck (sig), offset removed")
@@ -59,8 +56,7 @@ def _plot(result: dict, path: Path) -> None:
     ax.set_ylabel("force [N]")
     ax.legend()
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    save(fig, path, dpi=100)
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -11,6 +11,7 @@ import numpy as np
 from htm.ident.loop import filled
 from htm.ident.records import Record
 from htm.ident.search import Result
+from htm.report import pyplot, save
 
 # Frequency-response estimates: segment length [s] (resolution 1/SEGMENT_S), the share of the
 # command's peak spectral density below which a frequency is not excited enough to show, and the
@@ -92,12 +93,7 @@ def append_loop_section(out: Path, rec: Record, report: dict[str, Any], res: Res
 
 
 def _plot(path: Path, f: np.ndarray, curves: dict[str, np.ndarray], linear: np.ndarray) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, (a1, a2) = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    fig, (a1, a2) = pyplot().subplots(2, 1, figsize=(8, 6), sharex=True)
     for (name, h), style in zip(curves.items(), ("k.", "-", "-")):
         a1.plot(f, np.abs(h), style, ms=3, lw=1, label=name)
         a2.plot(f, np.degrees(np.unwrap(np.angle(h))), style, ms=3, lw=1)
@@ -112,5 +108,4 @@ def _plot(path: Path, f: np.ndarray, curves: dict[str, np.ndarray], linear: np.n
     a2.grid(True, which="both", lw=0.3)
     fig.suptitle("the machine's displacement loop: position over command")
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    save(fig, path, dpi=90)

@@ -10,6 +10,7 @@ import numpy as np
 from htm.ident import features as ft
 from htm.ident.records import Record
 from htm.ident.search import Finding, Result
+from htm.report import pyplot, save
 
 # Engineering units for a person reading report.md: (scale from SI, unit).
 _ENG = {"y": (1e3, "mm"), "v": (1e3, "mm/s"), "p_a": (1e-5, "bar"), "p_b": (1e-5, "bar"), "p_s": (1e-5, "bar"), "f": (1e-3, "kN")}
@@ -109,17 +110,8 @@ def _write_markdown(out: Path, rec: Record, report: dict[str, Any], before: dict
     (out / "report.md").write_text("\n".join(lines) + "\n")
 
 
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def _plot_residuals(path: Path, rec: Record, before: dict, after: dict, sigma: dict) -> None:
-    plt = _plt()
+    plt = pyplot()
     channels = ft.measured_channels(rec.columns)
     t = np.asarray(rec.columns["t"], dtype=float)
     fig, axes = plt.subplots(len(channels), 1, figsize=(9, 1.8 * len(channels)), sharex=True, squeeze=False)
@@ -134,12 +126,11 @@ def _plot_residuals(path: Path, rec: Record, before: dict, after: dict, sigma: d
     axes[-1, 0].set_xlabel("t [s]")
     fig.suptitle("residual = prediction − measurement")
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    save(fig, path, dpi=90)
 
 
 def _plot_finding(path: Path, rec: Record, f: Finding) -> None:
-    plt = _plt()
+    plt = pyplot()
     c = f.focus
     k, unit = _ENG[c]
     t = np.asarray(rec.columns["t"], dtype=float)
@@ -159,5 +150,4 @@ def _plot_finding(path: Path, rec: Record, f: Finding) -> None:
     a2.set_ylabel(f"{c} residual [{unit}]")
     fig.suptitle(f"{f.cand.label}: residual before/after and its signature")
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    save(fig, path, dpi=90)

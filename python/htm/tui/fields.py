@@ -132,9 +132,10 @@ def effective(doc: dict[str, Any]) -> dict[str, Any]:
 
 
 def validate(doc: dict[str, Any], name: str = "test") -> tuple[specmod.TestSpec | None, str | None, str | None]:
-    """(spec, None, None) when valid, else (None, field id or None, message)."""
+    """(spec, None, None) when valid, else (None, field id or None, message). What the rig can
+    do is not judged here: the Setup tab shows the feasibility check beside the form."""
     try:
-        return specmod.parse(effective(doc), name), None, None
+        return specmod.parse(effective(doc), name, check=False), None, None
     except SpecError as e:
         msg = str(e)
         return None, field_of(msg), msg
@@ -148,3 +149,11 @@ def field_of(msg: str) -> str | None:
     if "first loading phase" in msg or "Kmax" in msg:
         return "loading-delta_f_n" if "delta_f" in msg or "force" in msg else "loading-delta_k_pa_sqrt_m"
     return None
+
+
+def field_of_check(name: str, doc: dict[str, Any]) -> str:
+    """The form field a refused feasibility check asks to change: the frequency for the rate
+    limits, the load (ΔF or ΔK) for the others."""
+    if name in ("frequency", "valve_flow"):
+        return "loading-frequency_hz"
+    return "loading-delta_f_n" if doc.get("loading", {}).get("mode", "constant_force") == "constant_force" else "loading-delta_k_pa_sqrt_m"

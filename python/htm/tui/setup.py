@@ -1,11 +1,13 @@
-"""Setup: every spec field with validation as you type, presets, TOML load/save, and
-"simulate this test" on the fast engine (predicted life and force-error statistics)."""
+"""Setup: every spec field with validation as you type, what the rig can do with the test (the
+feasibility check of `htm run --check`), presets, TOML load/save, and "simulate this test" on the
+fast engine (predicted life and force-error statistics)."""
 from __future__ import annotations
 
 import tomllib
 from pathlib import Path
 from typing import Any
 
+from rich.markup import escape
 from textual import on, work
 from textual.app import ComposeResult
 from textual.containers import Horizontal, Vertical, VerticalScroll
@@ -14,6 +16,7 @@ from textual.widgets import Button, Input, Label, Select, Static
 
 from htm import spec as specmod
 from htm.errors import HtmError
+from htm.feasibility import TITLES
 from htm.tui import fields as F
 
 DEFAULT_SPEC = Path(__file__).resolve().parents[3] / "examples" / "ct_constant_force.toml"
@@ -47,6 +50,7 @@ class SetupPane(Vertical):
     SetupPane .unit { width: 22; padding: 1 0 0 1; color: $text-muted; }
     SetupPane .err { width: 1fr; padding: 1 0 0 1; color: $error; }
     SetupPane #setup-status { height: auto; padding: 0 1; }
+    SetupPane #setup-check { height: auto; padding: 0 1; }
     SetupPane #setup-bar { height: 3; }
     SetupPane #setup-bar Select { width: 34; }
     SetupPane #setup-bar Input { width: 1fr; }
@@ -75,6 +79,7 @@ class SetupPane(Vertical):
             yield Button("Save", id="save")
             yield Button("Simulate", id="simulate", variant="primary")
         yield Static("", id="setup-status")
+        yield Static("", id="setup-check")
         yield Static("", id="sim-result")
         with VerticalScroll(id="form"):
             for f in F.FIELDS:
@@ -143,6 +148,7 @@ class SetupPane(Vertical):
             self.query_one(f"#row-{f.id}").display = F.visible(f, self.doc)
             self.query_one(f"#err-{f.id}", Static).update(self.bad.get(f.id, ""))
         status = self.query_one("#setup-status", Static)
+        self.query_one("#setup-check", Static).update("")  # shown again for a valid spec
         if self.bad:
             self.spec = None
             status.update(f"[b red]✗[/] {len(self.bad)} field(s) unreadable")
@@ -151,11 +157,24 @@ class SetupPane(Vertical):
             if self.spec is not None:
                 status.update(f"[b green]✓[/] valid: {self.spec.geometry.upper()} W {self.spec.width_m * 1e3:.1f} mm, "
                               f"{self.spec.phases[-1].mode}, {self.spec.waveform} {self.spec.frequency_hz:g} Hz")
+                self._check(self.spec)
             else:
                 status.update(f"[b red]✗[/] {msg}")
                 if fid:
                     self.query_one(f"#err-{fid}", Static).update(msg or "")
         self.post_message(self.SpecChanged(self.spec))
+
+    def _check(self, spec: specmod.TestSpec) -> None:
+        """Show every limit; a refused test cannot be run or simulated unless its spec overrides."""
+        feas = spec.feasibility()
+        colour = {"ok": "green", "marginal": "yellow", "refused": "red"}
+        lines = [f"[b {colour[c.status]}]{c.status.upper():<8}[/] {TITLES[c.name]}: {escape(c.text)}" for c in feas.checks]
+        self.query_one("#setup-check", Static).update("[b]can the rig run it?[/] " + escape(feas.verdict()) + "\n" + "\n".join(lines))
+        if not feas.feasible and not spec.override_limits:
+            self.spec = None
+            self.query_one("#setup-status", Static).update(f"[b red]✗[/] {escape(feas.refusal())}")
+            for c in feas.refused:
+                self.query_one(f"#err-{F.field_of_check(c.name, self.doc)}", Static).update(escape(c.text))
 
     # ---- files and simulation -------------------------------------------------------------
     @on(Button.Pressed, "#load")
@@ -199,7 +218,8 @@ class SetupPane(Vertical):
             s = summary(spec, out, wall, "jump")
             text = (f"[b]predicted life[/] {s['cycles']:,} cycles → {s['end_reason']}, a = {s['final_a_m'] * 1e3:.2f} mm "
                     f"(a/W {s['final_a_over_w']:.3f})\n[b]force error[/] max |ΔF| {s['max_abs_df_err_pct']:.2f} %, "
-                    f"max |peak| {s['max_abs_peak_err_pct']:.2f} % (band ±2 %)   [dim]{wall:.2f} s wall[/]")
+                    f"max |peak| {s['max_abs_peak_err_pct']:.2f} %: {'inside' if s['force_in_band'] else '[b red]OUTSIDE[/]'} the band "
+                    f"±{s['force_tolerance_pct']:g} %   [dim]{wall:.2f} s wall[/]")
         except HtmError as e:
             text = f"[red]simulation refused: {e}[/]"
         self.app.call_from_thread(self.query_one("#sim-result", Static).update, text)

@@ -15,6 +15,7 @@ use crate::Error;
 mod control;
 mod engine;
 mod fatigue;
+mod feasibility;
 mod ident;
 mod outer_loop;
 mod replay;
@@ -22,6 +23,7 @@ mod replay;
 // Submodules add their own classes and functions here.
 pub(crate) fn register_extensions(m: &Bound<'_, PyModule>) -> PyResult<()> {
     fatigue::register(m)?;
+    feasibility::register(m)?;
     control::register(m)?;
     engine::register(m)?;
     ident::register(m)?;
