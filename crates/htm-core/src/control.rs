@@ -388,13 +388,17 @@ impl PositionForce {
         Ok(PositionForce { ctrl, k_ref_n_m, y0_m, u_offset_v: 0.0 })
     }
 
-    /// Command for one sample from the (compensated) force setpoint and the measurements.
+    /// Command for one sample from the (compensated) force setpoint and the measured position `y` [m].
     #[inline]
-    pub fn command(&self, sp: &Setpoint, m: &Outputs, ts: f64) -> f64 {
+    pub fn command(&self, sp: &Setpoint, y: f64, ts: f64) -> f64 {
         let r = self.y0_m + (sp.mid_n + sp.amp_n * sp.s) / self.k_ref_n_m;
         let r_next = self.y0_m + (sp.mid_next_n + sp.amp_n * sp.s_next) / self.k_ref_n_m;
-        let u = self.ctrl.command(r, r_next, ts, m) + self.u_offset_v;
-        if let Controller::PositionPff { u_max_v, .. } = self.ctrl { u.clamp(-u_max_v, u_max_v) } else { u }
+        match self.ctrl {
+            Controller::PositionPff { kp_v_per_m, kff_v_per_m_s, u_max_v } => {
+                (kp_v_per_m * (r - y) + kff_v_per_m_s * (r_next - r) / ts + self.u_offset_v).clamp(-u_max_v, u_max_v)
+            }
+            Controller::ForceP { .. } => 0.0,
+        }
     }
 
     /// Update the stiffness from one cycle's force and position ranges [N], [m].

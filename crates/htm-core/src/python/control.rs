@@ -25,7 +25,9 @@ fn cycle_dict<'py>(py: Python<'py>, r: &CycleResult) -> PyResult<Bound<'py, PyDi
     let d = PyDict::new(py);
     d.set_item("cycle", r.cycle)?;
     d.set_item("phase", r.phase)?;
-    d.set_item("starting", r.starting)?;
+    d.set_item("starting", r.events & crate::engine::events::START != 0)?;
+    d.set_item("judged", r.judged)?;
+    d.set_item("events", r.events)?;
     for (k, v) in [
         ("fmax_n", r.fmax_n), ("fmin_n", r.fmin_n), ("fmax_target_n", r.fmax_target_n), ("fmin_target_n", r.fmin_target_n),
         ("peak_err_pct", r.peak_err_pct), ("df_err_pct", r.df_err_pct), ("a_m", r.a_m), ("delta_k_pa_sqrt_m", r.delta_k),
