@@ -423,7 +423,8 @@ impl CycleMachine {
         let ph = cfg.phases[self.phase_i];
         let learn = matches!(self.stage, Stage::Starting | Stage::Running);
         if self.compensate && learn && rmax - rmin >= PeakValley::MIN_AMPLITUDE_FRACTION * 2.0 * self.amp_t {
-            self.pv.update(rmax, rmin, fmax, fmin);
+            let gain = if self.starting || self.ramping_in { PeakValley::RAMP_GAIN } else { PeakValley::GAIN };
+            self.pv.update(rmax, rmin, fmax, fmin, gain);
         }
         if let Drive::Position(pc) = &mut self.drive {
             pc.measured(fmax - fmin, ymax - ymin);
