@@ -146,9 +146,16 @@ class LiveRecorder:
         if self.status is not None:
             return
         self.status = status
-        results = {"cycles": self.cycle}
+        results: dict[str, Any] = {"cycles": self.cycle}
         if self.cycle:
             results["final_a_m"] = float(self._last_a)
+        lp = self.s.loop
+        if lp is not None and lp.test_no == self.test_no:  # this test's controller: its convergence
+            from htm.record import convergence
+
+            episodes = lp.ctrl.convergence()
+            convergence.log(self.w, episodes, self.spec.frequency_hz)
+            results.update(convergence.results(episodes))
         self.w.close(status, reason, results)
         self._report(reason)
 

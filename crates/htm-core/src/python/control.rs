@@ -158,6 +158,13 @@ impl PyCyclic {
     fn targets(&self) -> Option<(f64, f64, f64)> {
         self.inner.targets()
     }
+    /// Convergence of the loaded test so far (as `run_test`'s `convergence`); empty without one.
+    fn convergence<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
+        match self.inner.machine() {
+            Some(m) => super::engine::convergence_list(py, &m.convergence),
+            None => Ok(PyList::empty(py)),
+        }
+    }
     /// The last closed test cycle as a dict, or None.
     fn last_cycle<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
         self.inner.last.as_ref().map(|r| cycle_dict(py, r)).transpose()
