@@ -197,10 +197,12 @@ def e647_report(out: Path, datas: list[CrackData], setup: Setup, reds: list[Redu
     return p
 
 
-def force_band(pmax_meas: np.ndarray, pmin_meas: np.ndarray, pmax_n: float, pmin_n: float, band: float = 0.02) -> dict:
+def force_band(pmax_meas: np.ndarray, pmin_meas: np.ndarray, pmax_n, pmin_n, band: float = 0.02) -> dict:
     """ISO 12108 / E647 ±2 % force check: fraction of cycles whose peak and valley force stay within
-    ±band·ΔP... of their targets (band relative to the target amplitude), and the worst deviation."""
-    dp = abs(pmax_n - pmin_n) or abs(pmax_n)
+    ±band·ΔP of their targets (band relative to the target range), and the worst deviation. The
+    targets are numbers, or arrays of each cycle's (variable-amplitude loading)."""
+    pmax_n, pmin_n = np.asarray(pmax_n, float), np.asarray(pmin_n, float)
+    dp = np.where(np.abs(pmax_n - pmin_n) > 0, np.abs(pmax_n - pmin_n), np.abs(pmax_n))
     e_max = (np.asarray(pmax_meas) - pmax_n) / dp
     e_min = (np.asarray(pmin_meas) - pmin_n) / dp
     inside = (np.abs(e_max) <= band) & (np.abs(e_min) <= band)
@@ -210,8 +212,31 @@ def force_band(pmax_meas: np.ndarray, pmin_meas: np.ndarray, pmax_n: float, pmin
             "rms_peak_dev_rel": float(np.sqrt(np.mean(e_max ** 2))) if len(e_max) else float("nan"), "band": band}
 
 
+def rainflow_section(pmax: np.ndarray, pmin: np.ndarray, bins: int = 8) -> list[str]:
+    """Markdown: the rainflow count (ASTM E1049, the core's) of the measured peaks and valleys,
+    binned by force range."""
+    from htm import _core
+
+    series = np.column_stack([np.asarray(pmax, float), np.asarray(pmin, float)]).ravel()
+    counted = np.array(_core.rainflow(series.tolist()))
+    if not len(counted):
+        return []
+    rng, mean, cnt = counted[:, 0], counted[:, 1], counted[:, 2]
+    edges = np.linspace(0.0, rng.max() * (1 + 1e-9), bins + 1)
+    rows = []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        m = (rng >= lo) & (rng < hi)
+        if cnt[m].sum():
+            rows.append([f"{lo / 1e3:.3f} – {hi / 1e3:.3f}", f"{cnt[m].sum():g}", f"{np.average(mean[m], weights=cnt[m]) / 1e3:.3f}"])
+    return ["## Variable-amplitude loading: rainflow count (ASTM E1049)", "",
+            f"{cnt.sum():g} cycles counted from {len(series):,} measured reversals; the da/dN–ΔK reduction below uses "
+            "the reference level of [loading] and is indicative only under variable amplitude.", "",
+            md_table(["force range [kN]", "cycles", "mean force [kN]"], rows), ""]
+
+
 def write_test_report(out: str | Path, table: dict, setup: Setup, *, specimen_info: dict | None = None,
-                loading_info: dict | None = None, n: int = 3, law: str = "paris", title: str = "Fatigue crack growth test") -> dict:
+                loading_info: dict | None = None, n: int = 3, law: str = "paris", title: str = "Fatigue crack growth test",
+                variable_amplitude: bool = False) -> dict:
     """The report of a test run (to be called by `htm run`): `table` has per-cycle or a–N columns
     `cycles`, `a_m` and optionally `pmax_n`, `pmin_n` (measured peak/valley force per cycle).
     Writes OUT/report.md, OUT/report.html (plots embedded), OUT/reduced.csv and the plots; returns
@@ -236,7 +261,8 @@ def write_test_report(out: str | Path, table: dict, setup: Setup, *, specimen_in
     dadn = plot_dadn_dk(out / "dadn_dk.png", [rd], {f"{law} fit": model}, setup.r_ratio, band=2 * rms)
     fb = None
     if "pmax_n" in table and "pmin_n" in table:
-        fb = force_band(table["pmax_n"], table["pmin_n"], setup.pmax_n, setup.pmax_n * setup.r_ratio)
+        fb = force_band(table["pmax_n"], table["pmin_n"], table.get("pmax_target_n", setup.pmax_n),
+                        table.get("pmin_target_n", setup.pmax_n * setup.r_ratio))
     s = summary(rd)
     th = threshold(rd)
     spec_rows = [["geometry", setup.geometry.upper()], ["W [mm]", f"{setup.width_m * 1e3:.3f}"],
@@ -255,6 +281,8 @@ def write_test_report(out: str | Path, table: dict, setup: Setup, *, specimen_in
                   md_table(["cycles", "inside ±2 %", "max peak dev", "max valley dev", "RMS peak dev"],
                            [[fb["cycles"], f"{100 * fb['fraction_inside']:.2f} %", f"{100 * fb['max_peak_dev_rel']:.3f} %",
                              f"{100 * fb['max_valley_dev_rel']:.3f} %", f"{100 * fb['rms_peak_dev_rel']:.3f} %"]]), ""]
+    if variable_amplitude and "pmax_n" in table:
+        lines += rainflow_section(table["pmax_n"], table["pmin_n"])
     lines += ["## Validity summary", "",
               f"{s['valid']} of {s['points']} reduced points valid; invalid: "
               + (", ".join(f"{k} ({v})" for k, v in sorted(s["reasons"].items())) or "none") + ". "
@@ -288,8 +316,10 @@ def spec_test_report(out_dir: Path, spec, table: dict, title: str) -> str | None
     pmax = ph.delta_f_n / (1 - ph.r_ratio) if ph.r_ratio >= 0 else ph.delta_f_n
     setup = Setup(spec.geometry, spec.width_m, spec.thickness_m, pmax, ph.r_ratio, spec.material["yield_strength_pa"])
     try:
-        write_test_report(out_dir, {"cycles": table["cycle"][test], "a_m": table["a_m"][test],
-                                    "pmax_n": table["fmax_n"][test], "pmin_n": table["fmin_n"][test]}, setup, title=title)
+        cols = {"cycles": table["cycle"][test], "a_m": table["a_m"][test], "pmax_n": table["fmax_n"][test], "pmin_n": table["fmin_n"][test]}
+        if spec.variable_amplitude:  # each cycle judged against its own level
+            cols.update(pmax_target_n=table["fmax_target_n"][test], pmin_target_n=table["fmin_target_n"][test])
+        write_test_report(out_dir, cols, setup, title=title, variable_amplitude=spec.variable_amplitude)
     except HtmError as e:  # too little growth for the E647 reduction: the test itself stands
         return f"not written: {e}"
     return str(Path(out_dir) / "report.md")

@@ -232,8 +232,15 @@ pub fn targets(cfg: &TestConfig, ph: &Phase, a_phase0: f64, a: f64) -> Result<(f
             (dk / y, dk)
         }
     };
-    let fmax = if ph.r_ratio >= 0.0 { df / (1.0 - ph.r_ratio) } else { df };
-    Ok((fmax, ph.r_ratio * fmax, dk))
+    let (fmax, fmin) = force_range(df, ph.r_ratio);
+    Ok((fmax, fmin, dk))
+}
+
+/// Peak and valley [N] of a force range ΔF [N] at stress ratio R (E647: for R < 0 the range is
+/// the peak, ΔF = Fmax).
+pub fn force_range(delta_f_n: f64, r_ratio: f64) -> (f64, f64) {
+    let fmax = if r_ratio >= 0.0 { delta_f_n / (1.0 - r_ratio) } else { delta_f_n };
+    (fmax, r_ratio * fmax)
 }
 
 /// (ΔK, Kmax, R) from a measured peak and valley [N] (E647: for R < 0, ΔK = Kmax). The one

@@ -126,8 +126,24 @@ pub(super) fn config_from(d: &Bound<'_, PyDict>) -> PyResult<TestConfig> {
             settle_cycles: opt(d, "jump_settle_cycles", dj.settle_cycles)?,
             min_jump_cycles: opt(d, "jump_min_cycles", dj.min_jump_cycles)?,
         },
-        sequence: opt(d, "sequence", Vec::<(f64, f64, u64)>::new())?.into_iter().map(|(fmax_n, fmin_n, cycles)| Level { fmax_n, fmin_n, cycles }).collect(),
+        sequence: sequence_from(d)?,
     })
+}
+
+/// Variable-amplitude loading: `blocks` [(cycles, delta_f_n, r_ratio)] or `spectrum`
+/// [(fmax_n, fmin_n)], one cycle per pair.
+fn sequence_from(d: &Bound<'_, PyDict>) -> PyResult<Vec<Level>> {
+    let blocks: Vec<(u64, f64, f64)> = opt(d, "blocks", Vec::new())?;
+    let spectrum: Vec<(f64, f64)> = opt(d, "spectrum", Vec::new())?;
+    if !blocks.is_empty() && !spectrum.is_empty() {
+        return Err(InputError::new_err("variable amplitude: give blocks or a spectrum, not both"));
+    }
+    let mut seq: Vec<Level> = blocks.into_iter().map(|(cycles, df, r)| {
+        let (fmax_n, fmin_n) = engine::force_range(df, r);
+        Level { fmax_n, fmin_n, cycles }
+    }).collect();
+    seq.extend(spectrum.into_iter().map(|(fmax_n, fmin_n)| Level { fmax_n, fmin_n, cycles: 1 }));
+    Ok(seq)
 }
 
 fn mode_from(s: &str) -> PyResult<ExecMode> {
