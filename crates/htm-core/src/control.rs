@@ -309,20 +309,21 @@ impl Demod {
     }
 }
 
-/// Peak-valley compensation (vendors' "PVC" / amplitude control): the demodulation loops hold
-/// the force's fundamental and mean, while ISO 12108 judges its peaks and valleys; corners
-/// rounded by the finite bandwidth (triangle, trapezoid), the valve's nonlinearity near null and
-/// the loops' lag during the ramp-in put the two apart. Once per cycle the measured peak and
-/// valley are compared with the nominal setpoint's and the commanded half-range and mid-point
-/// are corrected by an integral law, so the error goes to zero over a few cycles.
+/// Peak-valley compensation (vendors' "PVC" / amplitude control), per reversal: the
+/// demodulation loops hold the force's fundamental and mean, while ISO 12108 judges its peaks and
+/// valleys; corners rounded by the finite bandwidth (triangle, trapezoid), the valve's
+/// nonlinearity and load-pressure asymmetry and the loops' lag during a ramp put the two apart.
+/// Once per cycle the measured peak and valley are compared with the nominal setpoint's, and the
+/// excursion into each (rise into the peak, fall into the valley) is corrected by an integral law
+/// on its own error, relative to that excursion: a variable-amplitude sequence, whose excursions
+/// differ from cycle to cycle, gets each reversal's correction in proportion to its own size.
 /// Plain data: it can be snapshotted with the rest of a run.
 #[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PeakValley {
-    /// relative correction of the commanded half-range (0 = none)
-    pub amp: f64,
-    /// correction of the commanded mid-point, as a fraction of the nominal half-range
-    pub mid: f64,
+    /// relative correction of the rise into the peak and of the fall into the valley (0 = none)
+    pub peak: f64,
+    pub valley: f64,
 }
 
 impl PeakValley {
@@ -343,26 +344,27 @@ impl PeakValley {
     pub const MIN_AMPLITUDE_FRACTION: f64 = 0.3;
 
     pub fn new() -> Self {
-        PeakValley { amp: 0.0, mid: 0.0 }
+        PeakValley { peak: 0.0, valley: 0.0 }
     }
 
-    /// The (mid-point, half-range) to command [N] for a nominal (mid, amp) [N].
+    /// The commanded half-excursion [N] of a nominal one `amp_n` [N] on the rising half of the
+    /// cycle (into the peak, `rising`) or the falling half (into the valley).
     #[inline]
-    pub fn apply(&self, mid_n: f64, amp_n: f64) -> (f64, f64) {
-        (mid_n + self.mid * amp_n, amp_n * (1.0 + self.amp))
+    pub fn apply(&self, amp_n: f64, rising: bool) -> f64 {
+        amp_n * (1.0 + if rising { self.peak } else { self.valley })
     }
 
-    /// Learn from one cycle: the nominal setpoint's peak and valley `r_max`, `r_min` and the
-    /// measured force peak and valley `f_max`, `f_min` [N] over the same cycle.
-    pub fn update(&mut self, r_max: f64, r_min: f64, f_max: f64, f_min: f64, gain: f64) {
-        let amp = 0.5 * (r_max - r_min);
-        if !(amp > 0.0 && f_max.is_finite() && f_min.is_finite()) {
+    /// Learn from one cycle: the nominal setpoint's peak and valley `r_max`, `r_min`, the measured
+    /// force peak and valley `f_max`, `f_min`, and the nominal excursions into the peak
+    /// (`rise`: from the previous valley) and into the valley (`fall`: from this peak) [N].
+    #[allow(clippy::too_many_arguments)]
+    pub fn update(&mut self, r_max: f64, r_min: f64, f_max: f64, f_min: f64, rise: f64, fall: f64, gain: f64) {
+        if !(rise > 0.0 && fall > 0.0 && f_max.is_finite() && f_min.is_finite()) {
             return;
         }
-        let e_amp = (amp - 0.5 * (f_max - f_min)) / amp;
-        let e_mid = (0.5 * (r_max + r_min) - 0.5 * (f_max + f_min)) / amp;
-        self.amp = (self.amp + gain * e_amp).clamp(-Self::LIMIT, Self::LIMIT);
-        self.mid = (self.mid + gain * e_mid).clamp(-Self::LIMIT, Self::LIMIT);
+        // the half-excursion moves the reversal: an error e [N] needs 2e/excursion of it
+        self.peak = (self.peak + gain * 2.0 * (r_max - f_max) / rise).clamp(-Self::LIMIT, Self::LIMIT);
+        self.valley = (self.valley + gain * 2.0 * (f_min - r_min) / fall).clamp(-Self::LIMIT, Self::LIMIT);
     }
 }
 

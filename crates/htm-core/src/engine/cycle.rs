@@ -162,7 +162,12 @@ pub struct CycleMachine {
     /// amplitude ramp: scale = from + (to − from)·smoothstep(pos/len), per sample
     ramp: (f64, f64, u64, u64),
     ramping_in: bool,
+    /// peak-valley compensation, and this cycle's rise into the peak relative to its range
+    /// (≠ 1 when the previous cycle's valley was another level's)
     pub pv: PeakValley,
+    k_rise: f64,
+    /// phase where the shape falls through zero: the rise's half ends there
+    x_fall: f64,
     compensate: bool,
     /// variable-amplitude cursor: level index and cycles left on it
     seq: (usize, u64),
@@ -238,7 +243,7 @@ impl CycleMachine {
             drive, stage: Stage::Starting, n, dt, k: 0, rot: (0.0, 1.0), step_rot: (step.sin(), step.cos()), s: 0.0,
             cycle: 0, a: cfg.a0_m, phase_i: 0, a_phase0: cfg.a0_m, f0, t: (0.0, 0.0, 0.0), mid_t: 0.0, amp_t: 0.0, next_mid: 0.0,
             starting: true, counting: true, full: false, ramp: (1.0, 1.0, 0, 0), ramping_in: false,
-            pv: PeakValley::new(),
+            pv: PeakValley::new(), k_rise: 1.0, x_fall: cfg.waveform.fall_crossing(),
             // peak-valley compensation corrects the force of both force and position control;
             // a fixed-gain force P is the thesis's uncompensated comparison case
             compensate: !matches!(cfg.controller, ControllerSpec::ForceP { .. }),
@@ -300,6 +305,7 @@ impl CycleMachine {
         }
         let ph = cfg.phases[self.phase_i];
         let a = self.a.min(cfg.specimen.a_range().1);
+        let prev_valley = self.t.1;
         if cfg.sequence.is_empty() {
             self.t = targets(cfg, &ph, self.a_phase0, a)?;
             self.next_mid = 0.5 * (self.t.0 + self.t.1);
@@ -312,6 +318,7 @@ impl CycleMachine {
         }
         self.mid_t = 0.5 * (self.t.0 + self.t.1);
         self.amp_t = 0.5 * (self.t.0 - self.t.1);
+        self.k_rise = if self.cycle == 0 { 1.0 } else { (self.t.0 - prev_valley) / (self.t.0 - self.t.1) };
         self.starting = self.cycle < cfg.envelope.start_cycles();
         if self.stage == Stage::Starting && !self.starting {
             self.stage = Stage::Running;
@@ -333,21 +340,30 @@ impl CycleMachine {
         if pos >= len { to } else { from + (to - from) * smoothstep(pos as f64 / len as f64) }
     }
 
-    /// The nominal (mid-point, half-range) [N] at cycle position x with amplitude scale `scale`.
+    /// The nominal (mid-point, half-range) [N] at cycle position x with amplitude scale `scale`,
+    /// and the commanded half-range with the peak-valley compensation (`compensated`).
     /// Between two levels of a sequence the falling half moves the mid-point to the next level's,
     /// so the setpoint is continuous and still meets this cycle's peak and valley.
     #[inline]
-    fn nominal(&self, cfg: &TestConfig, x: f64, scale: f64) -> (f64, f64) {
-        let (mut mid, mut amp) = (self.mid_t, self.amp_t);
+    fn setpoint(&self, cfg: &TestConfig, x: f64, scale: f64, compensated: bool) -> (f64, f64) {
+        let (mut mid, mut amp, mut sigma) = (self.mid_t, self.amp_t, scale);
         if self.starting {
             let (fm, fa) = cfg.envelope.start(self.cycle as f64 + x);
             mid = self.f0 + (self.mid_t - self.f0) * fm;
             amp *= fa;
-        } else if self.next_mid != self.mid_t && x > 0.5 {
-            mid = self.mid_t + (self.next_mid - self.mid_t) * (2.0 * x - 1.0);
+            sigma *= fa;
+        } else if self.next_mid != self.mid_t && x > self.x_fall {
+            mid = self.mid_t + (self.next_mid - self.mid_t) * (x - self.x_fall) / (1.0 - self.x_fall);
             amp = mid - self.t.1;
         }
-        (mid, amp * scale)
+        amp *= scale;
+        if compensated && self.compensate {
+            // the correction of each reversal in proportion to the excursion into it
+            let rising = x <= self.x_fall;
+            let k = if rising { self.k_rise } else { 1.0 };
+            amp += self.amp_t * sigma * (self.pv.apply(1.0, rising) - 1.0) * k;
+        }
+        (mid, amp)
     }
 
     /// The valve command for this period.
@@ -363,8 +379,8 @@ impl CycleMachine {
         let rot1 = (sn * cs + cn * ss, cn * cs - sn * ss);
         let s_next = if matches!(cfg.waveform, Waveform::Sine) { rot1.0 } else { cfg.waveform.shape(x1) };
         let pos = self.ramp.2;
-        let (nmid, namp) = self.nominal(cfg, x, self.scale_at(pos));
-        let (nmid1, namp1) = self.nominal(cfg, x1, self.scale_at(pos + 1));
+        let (sc, sc1) = (self.scale_at(pos), self.scale_at(pos + 1));
+        let (nmid1, namp1) = self.setpoint(cfg, x1, sc1, false);
         // the nominal setpoint's true peak and valley (mid ± amp where the shape peaks): the
         // sampled shape can miss the corner between two samples (a triangle at 20 Hz, 1 kHz)
         if s_next > self.s_hi {
@@ -375,9 +391,8 @@ impl CycleMachine {
             self.s_lo = s_next;
             self.acc[5] = nmid1 - namp1;
         }
-        let pv = if self.compensate { self.pv } else { PeakValley::new() };
-        let (mid, amp) = pv.apply(nmid, namp);
-        let (mid1, amp1) = pv.apply(nmid1, namp1);
+        let (mid, amp) = self.setpoint(cfg, x, sc, true);
+        let (mid1, amp1) = self.setpoint(cfg, x1, sc1, true);
         // the next sample's setpoint exactly, in terms of this sample's half-range (the loops'
         // feed-forward is then the setpoint's rate, ramps included)
         let sp = Setpoint { mid_n: mid, mid_next_n: mid1 + (amp1 - amp) * s_next, amp_n: amp, s: self.s, s_next, sin: sn, cos: cn };
@@ -424,7 +439,7 @@ impl CycleMachine {
         let learn = matches!(self.stage, Stage::Starting | Stage::Running);
         if self.compensate && learn && rmax - rmin >= PeakValley::MIN_AMPLITUDE_FRACTION * 2.0 * self.amp_t {
             let gain = if self.starting || self.ramping_in { PeakValley::RAMP_GAIN } else { PeakValley::GAIN };
-            self.pv.update(rmax, rmin, fmax, fmin, gain);
+            self.pv.update(rmax, rmin, fmax, fmin, self.k_rise * (rmax - rmin), rmax - rmin, gain);
         }
         if let Drive::Position(pc) = &mut self.drive {
             pc.measured(fmax - fmin, ymax - ymin);
