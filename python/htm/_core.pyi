@@ -7,7 +7,7 @@ import numpy.typing as npt
 __all__ = [
     "HtmError", "InputError", "ParameterError", "SolverError", "__version__",
     "Params", "Machine", "g_ct", "h_ct", "a_range", "stress_intensity", "size_criterion", "compliance_ct", "stiffness_ct",
-    "crack_length_from_compliance_ct", "growth_rate", "newman_f", "life", "life_curve", "crack_after", "pmax_from_delta_p",
+    "crack_length_from_compliance_ct", "growth_rate", "rainflow", "newman_f", "life", "life_curve", "crack_after", "pmax_from_delta_p",
     "CyclicController", "Detectors", "RigPlant", "Progress", "EVENTS", "run_test", "validate_test", "run_batch", "TestRun",
     "friction_force", "LoopParams", "loop_simulate", "replay",
 ]
