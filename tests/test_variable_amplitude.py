@@ -72,6 +72,10 @@ def test_blocks_in_simulation_follow_each_level_inside_the_band():
     lvl = np.round(rng_t).astype(int)
     ratio = np.median(dadn[lvl == 5340]) / np.median(dadn[lvl == 4450])
     assert ratio == pytest.approx((5340 / 4450) ** 3, rel=0.03)
+    # each block's convergence, logged once (first pass), from its own first cycle
+    conv = o["convergence"]
+    assert [(e["cause"], e["first_cycle"]) for e in conv] == [("start", 26), ("level", 51), ("level", 71)]
+    assert all(e["cycles_to_2pct"] == 0 for e in conv) and conv[1]["cycles_seen"] == 20
     with pytest.raises(SpecError, match="run.mode must be"):
         parse({**d, "run": {"mode": "jump"}})
 

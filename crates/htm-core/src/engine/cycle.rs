@@ -45,6 +45,8 @@ pub enum Cause {
     Start,
     Resume,
     StiffnessStep,
+    /// a new block of a variable-amplitude sequence (its first pass)
+    Level,
 }
 
 impl Cause {
@@ -53,6 +55,7 @@ impl Cause {
             Cause::Start => "start",
             Cause::Resume => "resume",
             Cause::StiffnessStep => "stiffness_step",
+            Cause::Level => "level",
         }
     }
 }
@@ -70,14 +73,19 @@ pub struct Episode {
     /// per band: full-amplitude cycles up to and including the last one outside it
     pub last_outside: [u64; 2],
     pub worst_first_df_pct: f64,
+    /// over (a variable-amplitude level changed): no more cycles are its
+    pub closed: bool,
 }
 
 impl Episode {
     fn new(cause: Cause) -> Self {
-        Episode { cause, first_cycle: 0, cycles_seen: 0, last_outside: [0, 0], worst_first_df_pct: 0.0 }
+        Episode { cause, first_cycle: 0, cycles_seen: 0, last_outside: [0, 0], worst_first_df_pct: 0.0, closed: false }
     }
 
     fn observe(&mut self, cycle: u64, df_err: f64) {
+        if self.closed {
+            return;
+        }
         if self.cycles_seen == 0 {
             self.first_cycle = cycle;
         }
@@ -462,13 +470,6 @@ impl CycleMachine {
         }
         self.cycle += 1;
         r.cycle = self.cycle;
-        if !cfg.sequence.is_empty() {
-            self.seq.1 -= 1;
-            if self.seq.1 == 0 {
-                self.seq.0 = (self.seq.0 + 1) % cfg.sequence.len();
-                self.seq.1 = cfg.sequence[self.seq.0].cycles;
-            }
-        }
         // crack growth from the measured peak and valley (the nominal R picks the E647 rule)
         let r_nom = if cfg.sequence.is_empty() { ph.r_ratio } else { tmin / tmax };
         let (dk, kmax, r_meas) = if fmax > 0.0 { measured_k(spec, self.a, fmax, fmin, r_nom)? } else { (0.0, 0.0, 0.0) };
@@ -538,11 +539,34 @@ impl CycleMachine {
             end.or((self.cycle >= cfg.limits.max_cycles).then_some(EndReason::CycleLimit))
         };
         r.events = ev;
+        if !cfg.sequence.is_empty() {
+            self.next_level(cfg);
+        }
         if let Some(e) = end {
             self.finish(cfg, e);
             r.events |= events::END;
         }
         Ok(Some(r))
+    }
+
+    /// One cycle of the sequence's level done: on to the next level when this one's are. Each
+    /// block's convergence is logged once, on the first pass (a spectrum's one-cycle levels are
+    /// the start's episode).
+    fn next_level(&mut self, cfg: &TestConfig) {
+        self.seq.1 -= 1;
+        if self.seq.1 > 0 {
+            return;
+        }
+        self.seq.0 = (self.seq.0 + 1) % cfg.sequence.len();
+        self.seq.1 = cfg.sequence[self.seq.0].cycles;
+        if self.seq.1 > 1 {
+            if let Some(e) = self.convergence.last_mut() {
+                e.closed = true;
+            }
+            if self.seq.0 != 0 && self.cycle < cfg.sequence.iter().map(|l| l.cycles).sum::<u64>() {
+                self.convergence.push(Episode::new(Cause::Level));
+            }
+        }
     }
 
     /// The test has ended (`reason`): a smooth stop, or at once to the valve null when the stroke
