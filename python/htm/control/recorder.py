@@ -189,11 +189,12 @@ def summary_markdown(spec: Any, row: dict[str, Any], table: dict[str, np.ndarray
              f"{spec.waveform} {spec.frequency_hz:g} Hz",
              f"- cycles recorded: {n:,}"]
     if n:
-        test = ~np.asarray(table.get("starting", np.zeros(n, bool)), dtype=bool)
+        # judged cycles: not the ramp-in, nor the ramp back in after a hold
+        test = np.asarray(table["judged"], dtype=bool) if "judged" in table else ~np.asarray(table.get("starting", np.zeros(n, bool)), dtype=bool)
         a = table["a_m"]
         lines.append(f"- crack: a = {spec.a0_m * 1e3:.3f} → {float(a[-1]) * 1e3:.3f} mm")
         if test.any():
-            lines.append(f"- force error after the ramp-in: max |ΔF| {np.nanmax(np.abs(table['df_err_pct'][test])):.3f} %, "
+            lines.append(f"- force error of the judged cycles: max |ΔF| {np.nanmax(np.abs(table['df_err_pct'][test])):.3f} %, "
                          f"max |peak| {np.nanmax(np.abs(table['peak_err_pct'][test])):.3f} % (ISO 12108 band ±2 %)")
     lines.append(f"- E647 reduction: {why or 'not applicable to this test'}")
     lines += ["", "## Events", ""]

@@ -308,7 +308,9 @@ def spec_test_report(out_dir: Path, spec, table: dict, title: str) -> str | None
     if not table or "cycle" not in table:
         return None
     test = (np.asarray(table["events"]).astype(np.uint32) & (1 | 128)) == 0
-    if "starting" in table:  # the device loop's rows flag the ramp-in instead of an event bit
+    if "judged" in table:  # the device loop's rows: not the ramp-in, nor a ramp back in after a hold
+        test &= np.asarray(table["judged"], dtype=bool)
+    elif "starting" in table:
         test &= ~np.asarray(table["starting"], dtype=bool)
     ph = spec.phases[-1]
     if spec.geometry not in ("ct", "mt") or test.sum() < 20 or ph.mode != "constant_force":
