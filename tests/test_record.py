@@ -278,6 +278,8 @@ def test_htm_run_records_store_and_rrd_that_read_back(tmp_path, capsys):
     assert np.array_equal(np.array(sig["Scalars:scalars"])[:, 0], raw["f_n"]) and "time" in sig and "cycle" in sig
     texts = [str(x) for x in ents["/events"]["TextLog:text"]]
     assert any("end" in x for x in texts) and any("test_started" in x for x in texts)
+    assert any("convergence" in x and "start (cycle" in x for x in texts), "the start's convergence is in the recording"
+    assert row["results"]["cycles_to_2pct"] is not None and row["results"]["convergence"][0]["cause"] == "start"
     capsys.readouterr()
     assert main(["db", "show", tid, "--store", str(store)]) == 0
     shown = capsys.readouterr().out

@@ -170,6 +170,32 @@ def test_no_false_trip_in_ten_thousand_cycles_and_demod_holds_two_percent():
         s.close()
 
 
+def test_resume_after_hold_ramps_back_into_the_band_without_a_trip():
+    """Hold, then resume at 20 Hz: the amplitude ramps back in over the start's amplitude cycles
+    (counted, not judged), the amplitude loop keeps the plant gain it learned, and the first
+    full-amplitude cycle is inside ±2 % — no amplitude_error trip; convergence after the resume is
+    logged beside the start's."""
+    spec = _spec(20.0)
+    s = Session().open(virtual_config("lockstep"), virtual=True, specimen=specimen_of(spec), thread=False)
+    try:
+        s.start(spec, record=False)
+        s.step(25 * 60)
+        s.hold()
+        s.step(25 * 10)
+        assert s.snapshot()["state"] == "holding"
+        s.resume()
+        s.step(25 * 60)
+        assert s.snapshot()["state"] == "running" and not _trips(s, 0), _trips(s, 0)
+        conv = s.loop.ctrl.convergence()
+        assert [e["cause"] for e in conv] == ["start", "resume"]
+        assert all(e["cycles_to_2pct"] == 0 and e["worst_first_df_pct"] < 2.0 for e in conv), conv
+        rows = s.cycles_since(0)
+        ramp = [r for r in rows if r["events"] & 512]
+        assert len(ramp) >= 15 and not any(r["judged"] for r in ramp), "the ramp back in is not judged"
+    finally:
+        s.close()
+
+
 def _spring_cycles(watch, cycles, k_n_m=1e8, mean_n=0.0, amp_n=3000.0, n=50, dt=0.002, k0=1):
     """Feed `watch` a specimen spring cycled sinusoidally; returns (last period, values)."""
     w = 2 * math.pi / (n * dt)

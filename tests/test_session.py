@@ -157,6 +157,9 @@ def test_every_test_of_a_session_is_recorded_with_its_own_rows_report_and_end_re
             assert (t["status"], t["end_reason"]) == ("stopped", "operator stop")
             report = Path(t["files"]["report"]["path"]).read_text()
             assert f"cycles recorded: {len(c)}" in report and "operator stop" in report
+            # the live test's convergence, as a simulated test's: results and an event
+            assert t["results"]["convergence"][0]["cause"] == "start" and t["results"]["cycles_to_2pct"] == 0
+            assert any(e["kind"] == "convergence" for e in t["events"])
 
 
 def test_a_start_after_a_stop_loads_the_supply_and_times_out_clearly_without_it():

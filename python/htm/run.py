@@ -141,6 +141,9 @@ def _finish(writer: Any, sess: Any, spec: TestSpec, mode: str, progress: bool) -
     s = summary(spec, out, wall, mode)
     s.pop("wall_time_s")
     tc = time.perf_counter()
+    from htm.record import convergence
+
+    convergence.log(writer, out["convergence"], spec.frequency_hz)
     writer.close("finished", out["end_reason"], s)
     out = dict(out, close_wall_s=time.perf_counter() - tc)
     out["table"] = writer.store.cycles(writer.id)
@@ -197,13 +200,15 @@ def _bar(cycles: int, limit: int, wall: float, done: bool = False) -> None:
 
 
 def summary(spec: TestSpec, out: dict[str, Any], wall: float, mode: str) -> dict[str, Any]:
+    from htm.record import convergence
+
     return {
         "spec": spec.name, "mode": mode, "cycles": int(out["cycles"]), "end_reason": out["end_reason"],
         "final_a_m": float(out["a_end_m"]), "final_a_over_w": float(out["a_end_m"]) / spec.width_m,
         "max_abs_df_err_pct": float(out["max_abs_df_err_pct"]), "max_abs_peak_err_pct": float(out["max_abs_peak_err_pct"]),
         "wall_time_s": wall, "cycles_simulated": int(out["cycles_simulated"]),
         "size_criterion_cycle": out["size_criterion_cycle"], "velocity_gain_m_s_per_v": out["velocity_gain_m_s_per_v"],
-        "demod_gains": out.get("demod_gains"),
+        "demod_gains": out.get("demod_gains"), **convergence.results(out.get("convergence", [])),
         **force_verdict(spec, out),
     }
 
@@ -235,6 +240,8 @@ def write_outputs(out_dir: Path, spec: TestSpec, out: dict[str, Any], wall: floa
 
 
 def summary_text(spec: TestSpec, s: dict[str, Any]) -> str:
+    from htm.record import convergence
+
     rows = [
         ("test", f"{spec.name}: {spec.geometry.upper()} W = {spec.width_m * 1e3:.1f} mm, B = {spec.thickness_m * 1e3:.2f} mm, "
                  f"{spec.waveform} {spec.frequency_hz:g} Hz, {spec.controller['type']} control, mode {s['mode']}"),
@@ -243,6 +250,7 @@ def summary_text(spec: TestSpec, s: dict[str, Any]) -> str:
         ("force error", f"max |ΔF| {s['max_abs_df_err_pct']:.3f} %, max |peak| {s['max_abs_peak_err_pct']:.3f} %: "
                         f"{'inside' if s['force_in_band'] else 'OUTSIDE'} the ISO 12108 band ±{s['force_tolerance_pct']:g} %"),
         ("rig limits", s["feasibility"] + (" (run anyway: override_limits)" if s["override_limits"] else "")),
+        *(("convergence", convergence.describe(e)) for e in s.get("convergence", [])),
         ("size criterion", "met throughout" if s["size_criterion_cycle"] is None else f"violated from cycle {s['size_criterion_cycle']:,}"),
         ("wall time", f"{s['wall_time_s']:.2f} s ({s['cycles'] / max(s['wall_time_s'], 1e-9):,.0f} cycles/s, "
                       f"{s['cycles_simulated']:,} cycles through the plant)"),

@@ -88,6 +88,10 @@ class TestSpec:
     rtol: float = 1e-4
     mode: str = "jump"
     stiffness_steps: list[tuple[int, float]] = field(default_factory=list)
+    # variable-amplitude loading ([variable_amplitude]): blocks (cycles, ΔF [N], R), or a spectrum
+    # of (peak, valley) [N] pairs, one cycle each; applied in turn and repeated to the end
+    blocks: list[tuple[int, float, float]] = field(default_factory=list)
+    spectrum: list[tuple[float, float]] = field(default_factory=list)
     override_limits: bool = False
 
     def feasibility(self) -> Feasibility:
@@ -122,7 +126,15 @@ class TestSpec:
             "size_criterion_action": self.end["size_criterion"], "tolerance_cycles": self.end["tolerance_cycles"],
             "tolerance_action": self.end["tolerance_action"], "stiffness_steps": list(self.stiffness_steps),
         }
+        if self.blocks:
+            cfg["blocks"] = list(self.blocks)
+        if self.spectrum:
+            cfg["spectrum"] = list(self.spectrum)
         return cfg
+
+    @property
+    def variable_amplitude(self) -> bool:
+        return bool(self.blocks or self.spectrum)
 
 
 # ---- parsing helpers -------------------------------------------------------------------------
@@ -203,12 +215,72 @@ def _loading(d: dict, where: str, end_a_m: float, tolerance: float) -> Loading:
     return ph
 
 
-def parse(doc: dict, name: str = "test", *, check: bool = True) -> TestSpec:
-    """Validate a parsed TOML document into a `TestSpec` (raises SpecError).
+def read_spectrum(path: Path) -> list[tuple[float, float]]:
+    """A load spectrum file: forces [N], one reversal a line (peak, valley, peak, …) or one cycle a
+    line as two columns `peak, valley` (comma or blanks); `#` starts a comment. Returns the
+    (peak, valley) of every cycle; a malformed file raises SpecError naming the line."""
+    try:
+        lines = path.read_text().splitlines()
+    except FileNotFoundError:
+        raise SpecError(f"variable_amplitude.spectrum_file: {path} does not exist") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise SpecError(f"variable_amplitude.spectrum_file: {path} cannot be read ({e})") from None
+    rows: list[tuple[int, list[float]]] = []
+    for i, line in enumerate(lines, 1):
+        text = line.split("#", 1)[0].replace(",", " ").split()
+        if not text:
+            continue
+        try:
+            vals = [float(x) for x in text]
+        except ValueError:
+            raise SpecError(f"{path}:{i}: {line.strip()!r} is not one or two numbers (forces in N)") from None
+        if len(vals) not in (1, 2) or not all(math.isfinite(v) for v in vals):
+            raise SpecError(f"{path}:{i}: {line.strip()!r}: one force (a reversal) or two (peak, valley) a line, finite, in N")
+        rows.append((i, vals))
+    if not rows:
+        raise SpecError(f"{path}: no forces in the spectrum file")
+    widths = {len(v) for _, v in rows}
+    if len(widths) > 1:
+        raise SpecError(f"{path}: mixes one-column (reversals) and two-column (peak, valley) lines")
+    if widths == {2}:
+        cycles = [(i, v[0], v[1]) for i, v in rows]
+    else:
+        if len(rows) % 2:
+            raise SpecError(f"{path}: {len(rows)} reversals; a spectrum of peaks and valleys needs an even number")
+        cycles = [(rows[k][0], rows[k][1][0], rows[k + 1][1][0]) for k in range(0, len(rows), 2)]
+    for i, p, v in cycles:
+        if not p > v:
+            raise SpecError(f"{path}:{i}: peak {p:g} N must exceed its valley {v:g} N")
+    return [(p, v) for _, p, v in cycles]
+
+
+def _variable_amplitude(va: dict, base: Path | None) -> tuple[list[tuple[int, float, float]], list[tuple[float, float]]]:
+    _keys(va, {"blocks", "spectrum_file"}, "variable_amplitude")
+    if ("blocks" in va) == ("spectrum_file" in va):
+        raise SpecError("variable_amplitude: give blocks = [[cycles, delta_f_n, r_ratio], ...] or spectrum_file = \"PATH\" (one of them)")
+    if "spectrum_file" in va:
+        p = Path(str(va["spectrum_file"]))
+        return [], read_spectrum(p if p.is_absolute() or base is None else base / p)
+    blocks = va["blocks"]
+    if not (isinstance(blocks, list) and blocks and all(isinstance(b, list) and len(b) == 3 for b in blocks)):
+        raise SpecError("variable_amplitude.blocks must be a non-empty list of [cycles, delta_f_n, r_ratio]")
+    out = []
+    for k, b in enumerate(blocks):
+        where = f"variable_amplitude.blocks[{k}]"
+        d = dict(zip(("cycles", "delta_f_n", "r_ratio"), b))
+        out.append((_int(d, "cycles", where, 1, MAX_COUNT), _num(d, "delta_f_n", where, 0.0, lo_open=True, unit="N"),
+                    _num(d, "r_ratio", where, -1.0, 1.0, hi_open=True)))
+    return out, []
+
+
+def parse(doc: dict, name: str = "test", base: Path | None = None, *, check: bool = True) -> TestSpec:
+    """Validate a parsed TOML document into a `TestSpec` (raises SpecError); a spectrum file is
+    read relative to `base` (the spec's folder).
 
     With `check` (the default) a test the rig cannot run raises InfeasibleTest naming the limit
     and the largest feasible value, unless the spec sets ``[run] override_limits = true``."""
-    _keys(doc, {"specimen", "material", "law", "loading", "precrack", "controller", "end", "start", "rig", "run", "stiffness_steps"}, "spec")
+    _keys(doc, {"specimen", "material", "law", "loading", "precrack", "controller", "end", "start", "rig", "run", "stiffness_steps",
+                "variable_amplitude"}, "spec")
     sp = _table(doc, "specimen", "specimen")
     _keys(sp, {"geometry", "width_m", "thickness_m", "a0_m"}, "specimen")
     geometry = _choice(sp, "geometry", "specimen", ("ct", "mt"))
@@ -298,6 +370,19 @@ def parse(doc: dict, name: str = "test", *, check: bool = True) -> TestSpec:
     override = run.get("override_limits", False)
     if not isinstance(override, bool):
         raise SpecError(f"run.override_limits = {override!r} must be true or false")
+    blocks: list[tuple[int, float, float]] = []
+    spectrum: list[tuple[float, float]] = []
+    va = _table(doc, "variable_amplitude", "variable_amplitude", required=False)
+    if va:
+        blocks, spectrum = _variable_amplitude(va, base)
+        if pre:
+            raise SpecError("variable_amplitude: a precrack phase is not supported with variable-amplitude loading "
+                            "(precrack at constant amplitude in a test of its own)")
+        if phases[-1].mode != "constant_force":
+            raise SpecError("variable_amplitude: [loading] mode must be constant_force (its delta_f_n and r_ratio are the "
+                            "reference level of the report)")
+        if run.get("mode", "full") != "full":
+            raise SpecError("variable_amplitude: run.mode must be \"full\" (a cycle jump assumes constant amplitude)")
     steps = doc.get("stiffness_steps", [])
     if not (isinstance(steps, list) and all(isinstance(s, list) and len(s) == 2 for s in steps)):
         raise SpecError("stiffness_steps must be a list of [cycle, factor] pairs")
@@ -306,8 +391,8 @@ def parse(doc: dict, name: str = "test", *, check: bool = True) -> TestSpec:
         waveform=waveform, waveform_shape=shape, frequency_hz=freq, control_rate_hz=rate, phases=phases,
         controller=controller, end=end_d, start=start, rig_overrides={k: float(v) for k, v in overrides.items()},
         rig_preset=preset, rtol=_num(run, "rtol", "run", 1e-8, 1e-2, default=1e-4),
-        mode=_choice(run, "mode", "run", ("full", "jump"), "jump"),
-        stiffness_steps=[(int(c), float(f)) for c, f in steps], override_limits=override,
+        mode=_choice(run, "mode", "run", ("full", "jump"), "full" if va else "jump"),
+        stiffness_steps=[(int(c), float(f)) for c, f in steps], blocks=blocks, spectrum=spectrum, override_limits=override,
     )
     # what only the core can judge (rig limits, Kmax vs K_IC, law constants): checked now, not later
     try:
@@ -326,7 +411,7 @@ def parse(doc: dict, name: str = "test", *, check: bool = True) -> TestSpec:
 def _explain(msg: str) -> str:
     """Map the core's config field names back to the spec's."""
     names = {"phases[0].": "first loading phase: ", "phases[1].": "loading: ", "start Kmax": "Kmax at the start of the phase",
-             "frequency_hz": "loading.frequency_hz", "a0_m": "specimen.a0_m"}
+             "frequency_hz": "loading.frequency_hz", "a0_m": "specimen.a0_m", "sequence[": "variable_amplitude level ["}
     for k, v in names.items():
         msg = msg.replace(f"`{k}", f"`{v}")
     return msg
@@ -354,7 +439,7 @@ def load(path: str | Path, *, check: bool = True) -> TestSpec:
         raise SpecError(f"spec file {p} does not exist") from None
     except tomllib.TOMLDecodeError as e:
         raise SpecError(f"{p}: not valid TOML: {e}") from None
-    return parse(doc, p.stem, check=check)
+    return parse(doc, p.stem, p.parent, check=check)
 
 
 def _toml_value(v: Any) -> str:
@@ -398,4 +483,4 @@ def save(doc: dict[str, Any], path: str | Path, name: str = "test") -> TestSpec:
     return spec
 
 
-__all__ = ["TestSpec", "Loading", "parse", "load", "dumps", "save", "thesis_rig"]
+__all__ = ["TestSpec", "Loading", "parse", "load", "dumps", "save", "thesis_rig", "read_spectrum"]

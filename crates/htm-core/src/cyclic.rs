@@ -1,19 +1,13 @@
 //! The per-period controller of the real-time loop: one call per control period turns the
-//! measured force and position into a valve command. A force test runs the engine's cyclic
-//! setpoint (waveform phase, smooth start, per-cycle peak/valley, peak-valley compensation) around
-//! a `ForceLoop`; a position mode (install, jog, move) limits the specimen force (specimen protect).
-//! Hold, resume and stop ramp the amplitude; the state machine is here so that the loop in Python
-//! only moves numbers.
-use crate::control::{Demod, DemodGains, ForceLoop, Setpoint};
-use crate::engine::{hydraulic_stiffness, measure_velocity_gain, series_stiffness, targets, ControllerSpec, EndReason, TestConfig};
+//! measured force and position into a valve command. A force test is the engine's cycle machine
+//! (`engine::cycle`: waveform phase, smooth start, compensation, per-cycle peak/valley, crack
+//! bookkeeping, hold/resume/stop ramps), the same code the simulator runs; a position mode
+//! (install, jog, move) limits the specimen force (specimen protect). The state machine is here
+//! so that the loop in Python only moves numbers.
+pub use crate::engine::CycleResult;
+use crate::control::DemodGains;
+use crate::engine::{CycleMachine, EndReason, Stage, TestConfig};
 use crate::error::{Error, Result};
-use crate::waveform::Waveform;
-
-/// Per-cycle integral gain of the peak-valley compensation (as the engine: the inner loops settle
-/// in ≈ 2 cycles).
-const PV_GAIN: f64 = 0.3;
-/// Amplitude ramp of `hold` [cycles]: quick, but no step in the force rate.
-const HOLD_CYCLES: f64 = 1.0;
 
 /// What the controller is doing.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -144,61 +138,11 @@ impl PositionLoop {
     }
 }
 
-/// One closed cycle of a force test (what the per-cycle table and the console show).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct CycleResult {
-    /// test cycles counted so far (this one included)
-    pub cycle: u64,
-    pub phase: usize,
-    pub fmax_n: f64,
-    pub fmin_n: f64,
-    pub fmax_target_n: f64,
-    pub fmin_target_n: f64,
-    pub peak_err_pct: f64,
-    pub df_err_pct: f64,
-    /// crack length before this cycle's growth [m]
-    pub a_m: f64,
-    pub delta_k: f64,
-    pub kmax: f64,
-    pub dadn_m: f64,
-    pub k_sp_n_m: f64,
-    pub ymin_m: f64,
-    pub ymax_m: f64,
-    pub ctrl_u1_v: f64,
-    pub ctrl_u2_v: f64,
-    /// start-up cycle (not judged against the tolerance)
-    pub starting: bool,
-}
-
+/// A loaded force test: its config and the cycle machine.
 #[derive(Debug, Clone)]
 struct ForceTest {
     cfg: TestConfig,
-    ctrl: ForceLoop,
-    n: usize,
-    k: usize,
-    cycle: u64,
-    n_start: u64,
-    a: f64,
-    phase_i: usize,
-    a_phase0: f64,
-    comp_amp: f64,
-    comp_mid: f64,
-    compensate: bool,
-    /// amplitude scale (hold/resume/stop ramps) and where it is going, per sample
-    scale: f64,
-    scale_target: f64,
-    scale_rate: f64,
-    f0: f64,
-    mid_t: f64,
-    amp_t: f64,
-    t: (f64, f64, f64),
-    counting: bool,
-    starting: bool,
-    acc: (f64, f64, f64, f64),
-    have_prev: bool,
-    sample_pos: (f64, f64),
-    gains: Option<DemodGains>,
-    velocity_gain: f64,
+    cm: CycleMachine,
 }
 
 /// The per-period controller (see the module doc).
@@ -287,48 +231,12 @@ impl Cyclic {
             return Err(Error::Parameter { field: "frequency_hz".into(), value: cfg.frequency_hz, allowed: "(0, inf) Hz".into() });
         }
         // the loop period is fixed: the cycle is a whole number of periods
-        let n = (self.rate_hz / cfg.frequency_hz).round().max(1.0) as usize;
-        cfg.frequency_hz = self.rate_hz / n as f64;
+        let n = (self.rate_hz / cfg.frequency_hz).round().max(1.0);
+        cfg.frequency_hz = self.rate_hz / n;
         cfg.control_rate_hz = self.rate_hz;
         cfg.validate()?;
-        let f0 = if f0.is_finite() { f0 } else { 0.0 };
-        let mut p = cfg.params.clone();
-        let ksp0 = cfg.specimen.stiffness(cfg.a0_m, &cfg.material)?;
-        p.specimen_stiffness_n_m = ksp0;
-        let y0 = p.specimen_zero_force_position_m;
-        let u_max = cfg.params.valve_max_command_v;
-        let (ctrl, kv, gains) = match cfg.controller {
-            ControllerSpec::ForceP { kp_v_per_n, u_offset_v } => (ForceLoop::ForceP { kp_v_per_n, u_offset_v, u_max_v: u_max }, f64::NAN, None),
-            ControllerSpec::Demod { velocity_gain_m_s_per_v } => {
-                let k_eff = series_stiffness(ksp0, hydraulic_stiffness(&cfg.params, y0));
-                let kv = match velocity_gain_m_s_per_v {
-                    Some(k) => k,
-                    None => {
-                        // as the engine: the model's gain at the opening the test needs
-                        let (fmax, fmin, _) = targets(&cfg, &cfg.phases[0], cfg.a0_m, cfg.a0_m)?;
-                        let need = |kv: f64| (0.5 * (fmax - fmin) * 2.0 * std::f64::consts::PI * cfg.frequency_hz / (k_eff * kv)).abs().clamp(0.005, 1.0);
-                        let mut kv = measure_velocity_gain(&cfg.params, 0.1)?;
-                        for _ in 0..2 {
-                            kv = measure_velocity_gain(&cfg.params, need(kv))?;
-                        }
-                        kv
-                    }
-                };
-                let g = DemodGains::design(k_eff, kv, cfg.frequency_hz, self.rate_hz)?;
-                (ForceLoop::Demod(Demod::new(g, cfg.waveform.stats(), u_max, f0)), kv, Some(g))
-            }
-            ControllerSpec::PositionPff { .. } => {
-                return Err(Error::Parameter { field: "controller.type".into(), value: f64::NAN, allowed: "demodulation or force_p on the real-time loop (position_pff runs in the simulation engine only)".into() });
-            }
-        };
-        let compensate = matches!(cfg.controller, ControllerSpec::Demod { .. });
-        let n_start = cfg.envelope.start_cycles();
-        let a0 = cfg.a0_m;
-        self.test = Some(ForceTest {
-            cfg, ctrl, n, k: 0, cycle: 0, n_start, a: a0, phase_i: 0, a_phase0: a0, comp_amp: 0.0, comp_mid: 0.0, compensate,
-            scale: 1.0, scale_target: 1.0, scale_rate: 0.0, f0, mid_t: 0.0, amp_t: 0.0, t: (0.0, 0.0, 0.0), counting: true, starting: true,
-            acc: (f64::MIN, f64::MAX, f64::MAX, f64::MIN), have_prev: false, sample_pos: (0.0, 0.0), gains, velocity_gain: kv,
-        });
+        let cm = CycleMachine::new(&cfg, self.rate_hz, f0)?;
+        self.test = Some(ForceTest { cfg, cm });
         self.end_reason = None;
         self.results = 0;
         self.last = None;
@@ -336,35 +244,23 @@ impl Cyclic {
         Ok(())
     }
 
-    fn ramp_amplitude(&mut self, target: f64, cycles: f64) {
-        if let Some(t) = &mut self.test {
-            t.scale_target = target;
-            t.scale_rate = 1.0 / (cycles.max(0.05) * t.n as f64);
-        }
-    }
-
     /// Freeze at the mean: the amplitude ramps to zero over one cycle; cycles stop counting.
     pub fn hold(&mut self) -> Result<()> {
-        match self.state {
-            State::Starting | State::Running => {
-                self.ramp_amplitude(0.0, HOLD_CYCLES);
-                self.state = State::Holding;
-                Ok(())
-            }
-            State::Holding => Ok(()),
-            s => Err(Error::Input(format!("hold needs a running test (state is {})", s.name()))),
+        let held = matches!(self.state, State::Starting | State::Running | State::Holding) && self.test.as_mut().is_some_and(|t| t.cm.hold());
+        if !held {
+            return Err(Error::Input(format!("hold needs a running test (state is {})", self.state.name())));
         }
+        self.sync_state();
+        Ok(())
     }
 
     /// Ramp the amplitude back in (over the start's amplitude cycles) after `hold`.
     pub fn resume(&mut self) -> Result<()> {
-        if self.state != State::Holding {
+        let resumed = self.state == State::Holding && self.test.as_mut().is_some_and(|t| t.cm.resume(&t.cfg));
+        if !resumed {
             return Err(Error::Input(format!("resume needs a held test (state is {})", self.state.name())));
         }
-        let cycles = self.test.as_ref().map(|t| t.cfg.envelope.amplitude_cycles.max(1.0)).unwrap_or(1.0);
-        self.ramp_amplitude(1.0, cycles);
-        let starting = self.test.as_ref().map(|t| t.cycle < t.n_start).unwrap_or(false);
-        self.state = if starting { State::Starting } else { State::Running };
+        self.sync_state();
         Ok(())
     }
 
@@ -372,9 +268,10 @@ impl Cyclic {
     pub fn stop(&mut self) {
         match self.state {
             State::Starting | State::Running | State::Holding => {
-                let cycles = self.test.as_ref().map(|t| t.cfg.envelope.stop_cycles.max(0.5)).unwrap_or(1.0);
-                self.ramp_amplitude(0.0, cycles);
-                self.state = State::Stopping;
+                if let Some(t) = &mut self.test {
+                    t.cm.stop(&t.cfg);
+                }
+                self.sync_state();
             }
             State::Stopping | State::Stopped | State::Idle => {}
             State::Position => {
@@ -404,156 +301,56 @@ impl Cyclic {
 
     fn test_step(&mut self, f: f64, y: f64) -> Result<f64> {
         let t = self.test.as_mut().expect("a force state has a test");
-        if t.have_prev && f.is_finite() {
-            t.acc.0 = t.acc.0.max(f);
-            t.acc.1 = t.acc.1.min(f);
-            t.acc.2 = t.acc.2.min(y);
-            t.acc.3 = t.acc.3.max(y);
+        let (u, closed) = t.cm.step(&t.cfg, f, y)?;
+        if let Some(r) = closed.filter(|r| r.counted) {
+            self.last = Some(r);
+            self.results += 1;
         }
-        if t.k == 0 {
-            if t.have_prev {
-                self.close_cycle()?;
-            }
-            self.begin_cycle()?;
-        }
-        let state = self.state;
-        let t = self.test.as_mut().unwrap();
-        if state == State::Stopped {
-            return Ok(self.u_null);
-        }
-        let n = t.n as f64;
-        let (x, x1) = (t.k as f64 / n, (t.k + 1) as f64 / n);
-        let next_scale = if t.scale < t.scale_target { (t.scale + t.scale_rate).min(t.scale_target) } else { (t.scale - t.scale_rate).max(t.scale_target) };
-        let set = |x: f64, scale: f64| -> (f64, f64) {
-            if t.starting {
-                let (fm, fa) = t.cfg.envelope.start(t.sample_pos.0 + x);
-                (t.f0 + (t.mid_t - t.f0) * fm, t.amp_t * fa * scale)
-            } else {
-                (t.mid_t + t.comp_mid * t.amp_t, t.amp_t * (1.0 + t.comp_amp) * scale)
-            }
-        };
-        let (mid, amp) = set(x, t.scale);
-        let (mid1, _) = set(x1, next_scale);
-        let w = 2.0 * std::f64::consts::PI;
-        let wave = &t.cfg.waveform;
-        let (s, s_next) = match wave {
-            Waveform::Sine => ((w * x).sin(), (w * x1).sin()),
-            _ => (wave.shape(x), wave.shape(x1)),
-        };
-        let sp = Setpoint { mid_n: mid, mid_next_n: mid1, amp_n: amp, s, s_next, sin: (w * x).sin(), cos: (w * x).cos() };
-        let u = if f.is_finite() { t.ctrl.command(&sp, f) } else { 0.0 };
-        t.scale = next_scale;
-        t.k = if t.k + 1 == t.n { 0 } else { t.k + 1 };
-        t.have_prev = true;
-        // the amplitude has reached zero: a stop ends at the learned null
-        if state == State::Stopping && t.scale <= 0.0 && t.k == 0 {
-            self.u_null = t.ctrl.summary().1.clamp(-1.0, 1.0);
-            self.state = State::Stopped;
-        }
+        self.sync_state();
         Ok(u)
     }
 
-    fn begin_cycle(&mut self) -> Result<()> {
-        let counting = matches!(self.state, State::Starting | State::Running);
-        let t = self.test.as_mut().unwrap();
-        let ph = t.cfg.phases[t.phase_i];
-        let a = t.a.min(t.cfg.specimen.a_range().1);
-        t.t = targets(&t.cfg, &ph, t.a_phase0, a)?;
-        t.mid_t = 0.5 * (t.t.0 + t.t.1);
-        t.amp_t = 0.5 * (t.t.0 - t.t.1);
-        t.starting = t.cycle < t.n_start;
-        t.sample_pos.0 = t.cycle as f64;
-        t.counting = counting;
-        t.acc = (f64::MIN, f64::MAX, f64::MAX, f64::MIN);
-        if self.state == State::Starting && !t.starting {
-            self.state = State::Running;
-        }
-        Ok(())
-    }
-
-    fn close_cycle(&mut self) -> Result<()> {
-        let t = self.test.as_mut().unwrap();
-        if !t.counting || t.acc.0 == f64::MIN {
-            return Ok(());
-        }
-        let (fmax, fmin) = (t.acc.0, t.acc.1);
-        let ph = t.cfg.phases[t.phase_i];
-        let spec = &t.cfg.specimen;
-        let (dk, kmax, r) = if fmax > 0.0 {
-            let kmax = spec.k(t.a, fmax)?;
-            let dk = if ph.r_ratio >= 0.0 { spec.k(t.a, fmax - fmin)? } else { kmax };
-            (dk, kmax, fmin / fmax)
-        } else {
-            (0.0, 0.0, 0.0)
-        };
-        let dadn = t.cfg.law.rate(dk, r, kmax);
-        let (tmax, tmin, _) = t.t;
-        let pe = (fmax - tmax) / tmax;
-        let de = ((fmax - fmin) - (tmax - tmin)) / (tmax - tmin);
-        if t.compensate && !t.starting && t.scale >= 1.0 {
-            let (amp_m, mid_m) = (0.5 * (fmax - fmin), 0.5 * (fmax + fmin));
-            t.comp_amp = (t.comp_amp + PV_GAIN * (t.amp_t - amp_m) / t.amp_t).clamp(-0.2, 0.2);
-            t.comp_mid = (t.comp_mid + PV_GAIN * (t.mid_t - mid_m) / t.amp_t).clamp(-0.2, 0.2);
-        }
-        t.cycle += 1;
-        let (u1, u2, _, _) = t.ctrl.summary();
-        let ksp = spec.stiffness(t.a, &t.cfg.material).unwrap_or(f64::NAN);
-        self.last = Some(CycleResult {
-            cycle: t.cycle, phase: t.phase_i, fmax_n: fmax, fmin_n: fmin, fmax_target_n: tmax, fmin_target_n: tmin,
-            peak_err_pct: pe * 100.0, df_err_pct: de * 100.0, a_m: t.a, delta_k: dk, kmax, dadn_m: dadn, k_sp_n_m: ksp,
-            ymin_m: t.acc.2, ymax_m: t.acc.3, ctrl_u1_v: u1, ctrl_u2_v: u2, starting: t.starting,
-        });
-        self.results += 1;
-        // end conditions, as the engine's (they stop smoothly)
-        let kic = t.cfg.material.fracture_toughness_pa_sqrt_m;
-        let a_max = spec.a_range().1;
-        let mut end = None;
-        if kmax >= kic {
-            end = Some(EndReason::Toughness);
-        } else if !dadn.is_finite() || t.a + dadn >= a_max {
-            end = Some(EndReason::Fracture);
-        } else {
-            t.a += dadn;
-            if t.a >= ph.end_a_m {
-                if t.phase_i + 1 == t.cfg.phases.len() {
-                    end = Some(EndReason::TargetCrack);
-                } else {
-                    t.phase_i += 1;
-                    t.a_phase0 = t.a;
-                }
+    /// The controller's state from the cycle machine's stage (and its end, once there is one).
+    fn sync_state(&mut self) {
+        let Some(t) = &self.test else { return };
+        self.end_reason = t.cm.end;
+        self.state = match t.cm.stage {
+            Stage::Starting => State::Starting,
+            Stage::Running => State::Running,
+            Stage::Holding => State::Holding,
+            Stage::Stopping => State::Stopping,
+            Stage::Stopped => {
+                self.u_null = t.cm.u_null;
+                State::Stopped
             }
-        }
-        if end.is_none() && t.cycle >= t.cfg.limits.max_cycles {
-            end = Some(EndReason::CycleLimit);
-        }
-        if let Some(e) = end {
-            self.end_reason = Some(e);
-            self.stop();
-        }
-        Ok(())
+        };
     }
 
     pub fn cycle(&self) -> u64 {
-        self.test.as_ref().map(|t| t.cycle).unwrap_or(0)
+        self.test.as_ref().map(|t| t.cm.cycle).unwrap_or(0)
     }
     pub fn a_m(&self) -> f64 {
-        self.test.as_ref().map(|t| t.a).unwrap_or(f64::NAN)
+        self.test.as_ref().map(|t| t.cm.a).unwrap_or(f64::NAN)
     }
     /// Test targets (Fmax, Fmin, ΔK) of the current cycle.
     pub fn targets(&self) -> Option<(f64, f64, f64)> {
-        self.test.as_ref().map(|t| t.t)
+        self.test.as_ref().map(|t| t.cm.targets())
     }
     pub fn samples_per_cycle(&self) -> usize {
-        self.test.as_ref().map(|t| t.n).unwrap_or(0)
+        self.test.as_ref().map(|t| t.cm.n).unwrap_or(0)
     }
     pub fn frequency_hz(&self) -> f64 {
         self.test.as_ref().map(|t| t.cfg.frequency_hz).unwrap_or(f64::NAN)
     }
     pub fn demod_gains(&self) -> Option<DemodGains> {
-        self.test.as_ref().and_then(|t| t.gains)
+        self.test.as_ref().and_then(|t| t.cm.gains)
     }
     pub fn velocity_gain(&self) -> f64 {
-        self.test.as_ref().map(|t| t.velocity_gain).unwrap_or(f64::NAN)
+        self.test.as_ref().map(|t| t.cm.velocity_gain).unwrap_or(f64::NAN)
+    }
+    /// The force test's cycle machine (convergence, compensation), if one is loaded.
+    pub fn machine(&self) -> Option<&CycleMachine> {
+        self.test.as_ref().map(|t| &t.cm)
     }
     pub fn reference_m(&self) -> f64 {
         self.pos.r
@@ -590,7 +387,7 @@ mod tests {
             let u = c.step(o.f, o.y).unwrap();
             o = m.step(u, 1.0 / 500.0).unwrap();
             if let Some(r) = c.last {
-                if !r.starting && r.cycle > 40 {
+                if r.judged && r.cycle > 40 {
                     worst = worst.max(r.peak_err_pct.abs()).max(r.df_err_pct.abs());
                 }
             }

@@ -13,6 +13,7 @@ pub mod machine;
 pub mod measure;
 pub mod outer_loop;
 pub mod params;
+pub mod rainflow;
 pub mod replay;
 pub mod rig;
 pub mod run;

@@ -510,7 +510,7 @@ impl Lag {
 
 /// `simulate` for every parameter set, spread over `threads` threads (0 = all cores).
 pub fn simulate_batch(ps: &[LoopParams], dt: f64, y_ref: &[f64], load: Option<&[f64]>, threads: usize) -> Vec<Result<LoopOutput>> {
-    crate::batch::map(ps, threads, |p| simulate(p, dt, y_ref, load))
+    crate::batch::par_map(ps, threads, |p| simulate(p, dt, y_ref, load))
 }
 
 #[cfg(test)]

@@ -2,7 +2,6 @@
 //! the declared controller fed by the simulated *measurements*; or, without a controller, the
 //! recorded command played open loop, its position put back on the measurement every horizon.
 //! Batches over parameter sets run on all cores (what a model fit by simulation error needs).
-use std::sync::atomic::{AtomicUsize, Ordering};
 
 use crate::control::Controller;
 use crate::error::{Error, Result};
@@ -243,24 +242,7 @@ impl<'a> Replay<'a> {
 
     /// Re-simulate with every parameter set, spread over `threads` threads (0 = all cores).
     pub fn run_batch(&self, ps: &[Params], threads: usize) -> Vec<Result<Replayed>> {
-        let threads = if threads == 0 { std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1) } else { threads };
-        let threads = threads.max(1).min(ps.len().max(1));
-        let next = AtomicUsize::new(0);
-        let mut slots: Vec<Option<Result<Replayed>>> = (0..ps.len()).map(|_| None).collect();
-        let results = std::sync::Mutex::new(&mut slots);
-        std::thread::scope(|s| {
-            for _ in 0..threads {
-                s.spawn(|| loop {
-                    let i = next.fetch_add(1, Ordering::Relaxed);
-                    if i >= ps.len() {
-                        break;
-                    }
-                    let r = self.run(&ps[i]);
-                    results.lock().unwrap()[i] = Some(r);
-                });
-            }
-        });
-        slots.into_iter().map(|r| r.expect("every slot filled")).collect()
+        crate::batch::par_map(ps, threads, |p| self.run(p))
     }
 
     /// True start position. Position control: where the sensor reads the first reference (the

@@ -2,6 +2,7 @@
 //! the force it actually sees (peaks and valleys found with a hysteresis), K_sp(a) fed back
 //! into the machine, and the plant-side faults (supply pressure, fracture).
 use crate::crack::Law;
+use crate::engine::measured_k;
 use crate::error::{Error, Result};
 use crate::machine::{Machine, Outputs};
 use crate::params::Params;
@@ -76,11 +77,12 @@ impl CrackingSpecimen {
             return;
         }
         let s = &self.specimen;
-        let (Ok(kmax), Ok(krange)) = (s.k(self.a_m, fmax), s.k(self.a_m, fmax - fmin.max(0.0))) else {
+        // the controller's rule (engine::measured_k) with the R the specimen sees
+        let Ok((krange, kmax, r)) = measured_k(s, self.a_m, fmax, fmin, fmin / fmax) else {
             self.fractured = true;
             return;
         };
-        let dadn = self.law.rate(krange, fmin / fmax, kmax);
+        let dadn = self.law.rate(krange, r, kmax);
         if kmax >= self.material.fracture_toughness_pa_sqrt_m || !dadn.is_finite() || self.a_m + dadn >= s.a_range().1 {
             self.fractured = true;
         } else {

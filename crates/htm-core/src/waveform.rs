@@ -62,6 +62,14 @@ impl Waveform {
         }
     }
 
+    /// Phase where the shape falls through zero (the peak's half of the cycle ends there).
+    pub fn fall_crossing(&self) -> f64 {
+        match *self {
+            Waveform::Sine | Waveform::Triangle => 0.5,
+            Waveform::Trapezoid { rise, hold } => rise + hold,
+        }
+    }
+
     /// Largest |ds/dφ| over a cycle (per cycle): the peak force rate is amp·f·max_slope, so the
     /// piston speed a shape needs, and with it the valve flow, scales with this (sine 2π,
     /// triangle 4, trapezoid 2/rise).

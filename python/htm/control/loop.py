@@ -144,7 +144,8 @@ class ControlLoop:
             r["period"] = self.k
             r["test"] = self.test_no
             self.cycles.append(r)
-            val[CH["amplitude_error_pct"]] = 0.0 if r["starting"] else r["df_err_pct"]
+            # judged cycles only: the ramp-in and the ramp back in after a hold are not
+            val[CH["amplitude_error_pct"]] = r["df_err_pct"] if r["judged"] else 0.0
         elif st not in ("running", "holding"):
             val[CH["amplitude_error_pct"]] = 0.0
         val[CH["transducer_age_periods"]] = m.age_periods

@@ -146,9 +146,16 @@ class LiveRecorder:
         if self.status is not None:
             return
         self.status = status
-        results = {"cycles": self.cycle}
+        results: dict[str, Any] = {"cycles": self.cycle}
         if self.cycle:
             results["final_a_m"] = float(self._last_a)
+        lp = self.s.loop
+        if lp is not None and lp.test_no == self.test_no:  # this test's controller: its convergence
+            from htm.record import convergence
+
+            episodes = lp.ctrl.convergence()
+            convergence.log(self.w, episodes, self.spec.frequency_hz)
+            results.update(convergence.results(episodes))
         self.w.close(status, reason, results)
         self._report(reason)
 
@@ -182,7 +189,8 @@ def summary_markdown(spec: Any, row: dict[str, Any], table: dict[str, np.ndarray
              f"{spec.waveform} {spec.frequency_hz:g} Hz",
              f"- cycles recorded: {n:,}"]
     if n:
-        test = ~np.asarray(table.get("starting", np.zeros(n, bool)), dtype=bool)
+        # judged cycles: not the ramp-in, nor the ramp back in after a hold
+        test = np.asarray(table["judged"], dtype=bool) if "judged" in table else ~np.asarray(table.get("starting", np.zeros(n, bool)), dtype=bool)
         a = table["a_m"]
         lines.append(f"- crack: a = {spec.a0_m * 1e3:.3f} → {float(a[-1]) * 1e3:.3f} mm")
         if test.any():

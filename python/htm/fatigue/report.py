@@ -138,10 +138,12 @@ def e647_report(out: Path, datas: list[CrackData], setup: Setup, reds: list[Redu
     return p
 
 
-def force_band(pmax_meas: np.ndarray, pmin_meas: np.ndarray, pmax_n: float, pmin_n: float, band: float = 0.02) -> dict:
+def force_band(pmax_meas: np.ndarray, pmin_meas: np.ndarray, pmax_n, pmin_n, band: float = 0.02) -> dict:
     """ISO 12108 / E647 ±2 % force check: fraction of cycles whose peak and valley force stay within
-    ±band·ΔP... of their targets (band relative to the target amplitude), and the worst deviation."""
-    dp = abs(pmax_n - pmin_n) or abs(pmax_n)
+    ±band·ΔP of their targets (band relative to the target range), and the worst deviation. The
+    targets are numbers, or arrays of each cycle's (variable-amplitude loading)."""
+    pmax_n, pmin_n = np.asarray(pmax_n, float), np.asarray(pmin_n, float)
+    dp = np.where(np.abs(pmax_n - pmin_n) > 0, np.abs(pmax_n - pmin_n), np.abs(pmax_n))
     e_max = (np.asarray(pmax_meas) - pmax_n) / dp
     e_min = (np.asarray(pmin_meas) - pmin_n) / dp
     inside = (np.abs(e_max) <= band) & (np.abs(e_min) <= band)
@@ -187,9 +189,31 @@ def mark_force_band(rd: Reduced, cycles_outside: np.ndarray, n: int) -> int:
     return marked
 
 
+def rainflow_section(pmax: np.ndarray, pmin: np.ndarray, bins: int = 8) -> list[str]:
+    """Markdown: the rainflow count (ASTM E1049, the core's) of the measured peaks and valleys,
+    binned by force range."""
+    from htm import _core
+
+    series = np.column_stack([np.asarray(pmax, float), np.asarray(pmin, float)]).ravel()
+    counted = np.array(_core.rainflow(series.tolist()))
+    if not len(counted):
+        return []
+    rng, mean, cnt = counted[:, 0], counted[:, 1], counted[:, 2]
+    edges = np.linspace(0.0, rng.max() * (1 + 1e-9), bins + 1)
+    rows = []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        m = (rng >= lo) & (rng < hi)
+        if cnt[m].sum():
+            rows.append([f"{lo / 1e3:.3f} – {hi / 1e3:.3f}", f"{cnt[m].sum():g}", f"{np.average(mean[m], weights=cnt[m]) / 1e3:.3f}"])
+    return ["## Variable-amplitude loading: rainflow count (ASTM E1049)", "",
+            f"{cnt.sum():g} cycles counted from {len(series):,} measured reversals; the da/dN–ΔK reduction below uses "
+            "the reference level of [loading] and is indicative only under variable amplitude.", "",
+            md_table(["force range [kN]", "cycles", "mean force [kN]"], rows), ""]
+
+
 def write_test_report(out: str | Path, table: dict, setup: Setup, *, specimen_info: dict | None = None,
                 loading_info: dict | None = None, n: int = 3, law: str = "paris", title: str = "Fatigue crack growth test",
-                band: float = 0.02) -> dict:
+                band: float = 0.02, variable_amplitude: bool = False) -> dict:
     """The report of a test run (to be called by `htm run`): `table` has per-cycle or a–N columns
     `cycles`, `a_m` and optionally `pmax_n`, `pmin_n` (measured peak/valley force per cycle) and
     the engine's `df_err_pct`, `peak_err_pct`. Points whose cycles left the ±`band` force band are
@@ -219,7 +243,8 @@ def write_test_report(out: str | Path, table: dict, setup: Setup, *, specimen_in
     dadn = plot_dadn_dk(out / "dadn_dk.png", [rd], {f"{law} fit": model} if model is not None else None, setup.r_ratio, band=2 * rms)
     fb = None
     if "pmax_n" in table and "pmin_n" in table:
-        fb = force_band(table["pmax_n"], table["pmin_n"], setup.pmax_n, setup.pmax_n * setup.r_ratio, band)
+        fb = force_band(table["pmax_n"], table["pmin_n"], table.get("pmax_target_n", setup.pmax_n),
+                        table.get("pmin_target_n", setup.pmax_n * setup.r_ratio), band)
     s = summary(rd)
     th = threshold(rd)
     spec_rows = [["geometry", setup.geometry.upper()], ["W [mm]", f"{setup.width_m * 1e3:.3f}"],
@@ -253,6 +278,8 @@ def write_test_report(out: str | Path, table: dict, setup: Setup, *, specimen_in
         lines += [md_table(["cycles", f"fraction inside ±{100 * band:g} %", "max peak dev / ΔP", "max valley dev / ΔP", "RMS peak dev / ΔP"],
                            [[fb["cycles"], f"{100 * fb['fraction_inside']:.2f} %", f"{100 * fb['max_peak_dev_rel']:.3f} %",
                              f"{100 * fb['max_valley_dev_rel']:.3f} %", f"{100 * fb['rms_peak_dev_rel']:.3f} %"]]), ""]
+    if variable_amplitude and "pmax_n" in table:
+        lines += rainflow_section(table["pmax_n"], table["pmin_n"])
     lines += ["## Validity summary", "",
               f"{s['valid']} of {s['points']} reduced points valid; invalid: "
               + (", ".join(f"{k} ({v})" for k, v in sorted(s["reasons"].items())) or "none") + ". "
@@ -276,7 +303,9 @@ def spec_test_report(out_dir: Path, spec, table: dict, title: str) -> str | None
     if not table or "cycle" not in table:
         return None
     test = (np.asarray(table["events"]).astype(np.uint32) & (1 | 128)) == 0
-    if "starting" in table:  # the device loop's rows flag the ramp-in instead of an event bit
+    if "judged" in table:  # the device loop's rows: not the ramp-in, nor a ramp back in after a hold
+        test &= np.asarray(table["judged"], dtype=bool)
+    elif "starting" in table:
         test &= ~np.asarray(table["starting"], dtype=bool)
     ph = spec.phases[-1]
     if spec.geometry not in ("ct", "mt") or test.sum() < 20 or ph.mode != "constant_force":
@@ -286,8 +315,10 @@ def spec_test_report(out_dir: Path, spec, table: dict, title: str) -> str | None
     try:
         cols = {"cycles": "cycle", "a_m": "a_m", "pmax_n": "fmax_n", "pmin_n": "fmin_n", "df_err_pct": "df_err_pct",
                 "peak_err_pct": "peak_err_pct"}
+        if spec.variable_amplitude:  # each cycle judged against its own level
+            cols.update(pmax_target_n="fmax_target_n", pmin_target_n="fmin_target_n")
         write_test_report(out_dir, {k: np.asarray(table[c])[test] for k, c in cols.items() if c in table}, setup,
-                          title=title, band=ph.tolerance)
+                          title=title, band=ph.tolerance, variable_amplitude=spec.variable_amplitude)
     except HtmError as e:  # too little growth for the E647 reduction: the test itself stands
         return f"not written: {e}"
     return str(Path(out_dir) / "report.md")

@@ -8,61 +8,12 @@
 //! saved without anyone remembering to, and one that cannot be saved fails to compile.
 use std::time::{Duration, Instant};
 
-use super::{advance, finish, start, Cursor, EndReason, ExecMode, Outcome, RawCapture, Records, Run, TestConfig};
-use crate::control::{DemodGains, ForceLoop, PeakValley, PositionForce};
+use super::sim::Sim;
+use super::{EndReason, ExecMode, Outcome, RawCapture, Records, TestConfig};
 use crate::error::{Error, Result};
-use crate::machine::Machine;
 
 const MAGIC: &[u8; 8] = b"HTMSNAP\0";
-const VERSION: u32 = 2; // 2: peak-valley compensation state and position control
-
-/// Everything `Run` owns, plus the loop cursor: the saved state of a paused test.
-#[derive(Clone, serde::Serialize, serde::Deserialize)]
-struct State {
-    m: Machine,
-    ctrl: ForceLoop,
-    n: usize,
-    dt: f64,
-    a: f64,
-    ksp_factor: f64,
-    y0: f64,
-    cycle: u64,
-    max_df: f64,
-    max_peak: f64,
-    out_count: u64,
-    size_cycle: Option<u64>,
-    simulated: u64,
-    pv: PeakValley,
-    compensate: bool,
-    position: Option<PositionForce>,
-    raw: RawCapture,
-    cur: Cursor,
-    kv: f64,
-    gains: Option<DemodGains>,
-}
-
-impl State {
-    fn from_run(r: Run, cur: Cursor, kv: f64, gains: Option<DemodGains>) -> (Self, Records) {
-        let s = State {
-            m: r.m, ctrl: r.ctrl, n: r.n, dt: r.dt, a: r.a, ksp_factor: r.ksp_factor, y0: r.y0, cycle: r.cycle,
-            max_df: r.max_df, max_peak: r.max_peak, out_count: r.out_count, size_cycle: r.size_cycle,
-            simulated: r.simulated, pv: r.pv, compensate: r.compensate, position: r.position,
-            raw: r.raw, cur, kv, gains,
-        };
-        (s, r.rec)
-    }
-
-    fn into_run(self, cfg: &TestConfig) -> (Run<'_>, Cursor, f64, Option<DemodGains>) {
-        let r = Run {
-            raw: self.raw,
-            cfg, m: self.m, ctrl: self.ctrl, n: self.n, dt: self.dt, a: self.a, ksp_factor: self.ksp_factor, y0: self.y0,
-            cycle: self.cycle, rec: Records::default(), max_df: self.max_df, max_peak: self.max_peak,
-            out_count: self.out_count, size_cycle: self.size_cycle, simulated: self.simulated, progress: None, cancel: None,
-            pv: self.pv, compensate: self.compensate, position: self.position,
-        };
-        (r, self.cur, self.kv, self.gains)
-    }
-}
+const VERSION: u32 = 3; // 3: the cycle machine (one state for the simulator and the real-time loop)
 
 /// What one `Session::advance` produced: the new per-cycle rows, the raw samples kept (see
 /// `RAW_COLUMNS`), and the end reason once the test is over (its smooth-stop rows included).
@@ -77,8 +28,9 @@ pub struct Chunk {
 pub struct Session {
     cfg: TestConfig,
     mode: ExecMode,
-    /// `None` once the test is over or after an error inside a chunk
-    state: Option<State>,
+    /// the simulator itself (its state is the snapshot); `None` once the test is over or after
+    /// an error inside a chunk
+    state: Option<Sim>,
     outcome: Option<Outcome>,
 }
 
@@ -99,8 +51,7 @@ fn mode_byte(mode: ExecMode) -> u8 {
 impl Session {
     /// Validate `cfg` and bring the test to rest, ready for cycle 1.
     pub fn new(cfg: TestConfig, mode: ExecMode, raw: RawCapture) -> Result<Self> {
-        let (run, kv, gains) = start(&cfg, None, None, raw)?;
-        let (state, _) = State::from_run(run, Cursor::new(&cfg), kv, gains);
+        let state = Sim::start(&cfg, mode, raw)?;
         Ok(Session { cfg, mode, state: Some(state), outcome: None })
     }
 
@@ -111,7 +62,7 @@ impl Session {
     /// Cycles applied so far.
     pub fn cycle(&self) -> u64 {
         match (&self.state, &self.outcome) {
-            (Some(s), _) => s.cycle,
+            (Some(s), _) => s.cm.cycle,
             (None, Some(o)) => o.cycles,
             _ => 0,
         }
@@ -120,7 +71,7 @@ impl Session {
     /// Crack length now [m].
     pub fn a_m(&self) -> f64 {
         match (&self.state, &self.outcome) {
-            (Some(s), _) => s.a,
+            (Some(s), _) => s.cm.a,
             (None, Some(o)) => o.a_end_m,
             _ => f64::NAN,
         }
@@ -137,22 +88,22 @@ impl Session {
         if let Some(o) = &self.outcome {
             return Ok(Chunk { end: Some(o.end_reason), ..Default::default() });
         }
-        let st = self.state.take().ok_or_else(|| Error::Input("the test stopped on an earlier error; restore it from a snapshot".into()))?;
-        let (mut run, mut cur, kv, gains) = st.into_run(&self.cfg);
-        let until = run.cycle.saturating_add(max_cycles);
+        let mut sim = self.state.take().ok_or_else(|| Error::Input("the test stopped on an earlier error; restore it from a snapshot".into()))?;
+        let until = sim.cm.cycle.saturating_add(max_cycles);
         let deadline = Instant::now().checked_add(max_wall);
-        match advance(&mut run, self.mode, &mut cur, until, deadline)? {
+        let end = sim.advance(&self.cfg, self.mode, until, deadline, None, None)?;
+        let raw = sim.raw.take();
+        match end {
             None => {
-                let raw = run.raw.take();
-                let (st, records) = State::from_run(run, cur, kv, gains);
-                self.state = Some(st);
+                let records = std::mem::take(&mut sim.rec);
+                self.state = Some(sim);
                 Ok(Chunk { records, raw, end: None })
             }
             Some(end) => {
-                let mut o = finish(&mut run, end, &cur, kv, gains)?;
+                let mut o = sim.outcome();
                 let records = std::mem::take(&mut o.records);
                 self.outcome = Some(o);
-                Ok(Chunk { records, raw: run.raw.take(), end: Some(end) })
+                Ok(Chunk { records, raw, end: Some(end) })
             }
         }
     }
@@ -186,7 +137,7 @@ impl Session {
         if snapshot[20] != mode_byte(mode) {
             return Err(bad("it was taken in the other exec mode (full/jump)"));
         }
-        let state: State = postcard::from_bytes(&snapshot[21..]).map_err(|e| bad(&format!("state does not decode ({e})")))?;
+        let state: Sim = postcard::from_bytes(&snapshot[21..]).map_err(|e| bad(&format!("state does not decode ({e})")))?;
         Ok(Session { cfg, mode, state: Some(state), outcome: None })
     }
 }

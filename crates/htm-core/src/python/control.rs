@@ -25,7 +25,9 @@ fn cycle_dict<'py>(py: Python<'py>, r: &CycleResult) -> PyResult<Bound<'py, PyDi
     let d = PyDict::new(py);
     d.set_item("cycle", r.cycle)?;
     d.set_item("phase", r.phase)?;
-    d.set_item("starting", r.starting)?;
+    d.set_item("starting", r.events & crate::engine::events::START != 0)?;
+    d.set_item("judged", r.judged)?;
+    d.set_item("events", r.events)?;
     for (k, v) in [
         ("fmax_n", r.fmax_n), ("fmin_n", r.fmin_n), ("fmax_target_n", r.fmax_target_n), ("fmin_target_n", r.fmin_target_n),
         ("peak_err_pct", r.peak_err_pct), ("df_err_pct", r.df_err_pct), ("a_m", r.a_m), ("delta_k_pa_sqrt_m", r.delta_k),
@@ -155,6 +157,13 @@ impl PyCyclic {
     #[getter]
     fn targets(&self) -> Option<(f64, f64, f64)> {
         self.inner.targets()
+    }
+    /// Convergence of the loaded test so far (as `run_test`'s `convergence`); empty without one.
+    fn convergence<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
+        match self.inner.machine() {
+            Some(m) => super::engine::convergence_list(py, &m.convergence),
+            None => Ok(PyList::empty(py)),
+        }
     }
     /// The last closed test cycle as a dict, or None.
     fn last_cycle<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {

@@ -9,7 +9,7 @@ use pyo3::types::{PyDict, PyList};
 
 use super::fatigue::law_from;
 use super::{InputError, PyParams};
-use crate::engine::{self, Action, ControllerSpec, ExecMode, JumpConfig, Limits, Mode, Outcome, Phase, TestConfig};
+use crate::engine::{self, Action, ControllerSpec, Episode, ExecMode, JumpConfig, Level, Limits, Mode, Outcome, Phase, TestConfig};
 use crate::params::Params;
 use crate::specimen::{Geometry, Material, Specimen};
 use crate::waveform::{Envelope, Waveform};
@@ -126,7 +126,24 @@ pub(super) fn config_from(d: &Bound<'_, PyDict>) -> PyResult<TestConfig> {
             settle_cycles: opt(d, "jump_settle_cycles", dj.settle_cycles)?,
             min_jump_cycles: opt(d, "jump_min_cycles", dj.min_jump_cycles)?,
         },
+        sequence: sequence_from(d)?,
     })
+}
+
+/// Variable-amplitude loading: `blocks` [(cycles, delta_f_n, r_ratio)] or `spectrum`
+/// [(fmax_n, fmin_n)], one cycle per pair.
+fn sequence_from(d: &Bound<'_, PyDict>) -> PyResult<Vec<Level>> {
+    let blocks: Vec<(u64, f64, f64)> = opt(d, "blocks", Vec::new())?;
+    let spectrum: Vec<(f64, f64)> = opt(d, "spectrum", Vec::new())?;
+    if !blocks.is_empty() && !spectrum.is_empty() {
+        return Err(InputError::new_err("variable amplitude: give blocks or a spectrum, not both"));
+    }
+    let mut seq: Vec<Level> = blocks.into_iter().map(|(cycles, df, r)| {
+        let (fmax_n, fmin_n) = engine::force_range(df, r);
+        Level { fmax_n, fmin_n, cycles }
+    }).collect();
+    seq.extend(spectrum.into_iter().map(|(fmax_n, fmin_n)| Level { fmax_n, fmin_n, cycles: 1 }));
+    Ok(seq)
 }
 
 fn mode_from(s: &str) -> PyResult<ExecMode> {
@@ -156,8 +173,27 @@ fn outcome_dict<'py>(py: Python<'py>, o: Outcome) -> PyResult<Bound<'py, PyDict>
         gd.set_item("window", g.window)?;
         d.set_item("demod_gains", gd)?;
     }
+    d.set_item("convergence", convergence_list(py, &o.convergence)?)?;
+    d.set_item("worst_first_cycles_df_pct", o.convergence.iter().find(|e| e.cycles_seen > 0).map(|e| e.worst_first_df_pct))?;
     d.set_item("table", records_dict(py, o.records)?)?;
     Ok(d)
+}
+
+/// Convergence episodes as dicts: cause, first_cycle, cycles_seen, cycles_to_2pct,
+/// cycles_to_0p5pct (None while not inside), worst_first_df_pct.
+pub(super) fn convergence_list<'py>(py: Python<'py>, eps: &[Episode]) -> PyResult<Bound<'py, PyList>> {
+    let l = PyList::empty(py);
+    for e in eps {
+        let d = PyDict::new(py);
+        d.set_item("cause", e.cause.name())?;
+        d.set_item("first_cycle", e.first_cycle)?;
+        d.set_item("cycles_seen", e.cycles_seen)?;
+        d.set_item("cycles_to_2pct", e.cycles_to(0))?;
+        d.set_item("cycles_to_0p5pct", e.cycles_to(1))?;
+        d.set_item("worst_first_df_pct", e.worst_first_df_pct)?;
+        l.append(d)?;
+    }
+    Ok(l)
 }
 
 /// Run one fatigue test (config dict, SI) in `mode` "full" or "jump"; the GIL is released.

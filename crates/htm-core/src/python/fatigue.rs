@@ -179,7 +179,14 @@ fn pmax_from_delta_p(delta_p_n: f64, r_ratio: f64) -> PyResult<f64> {
     Ok(Load::from_delta_p(delta_p_n, r_ratio)?.pmax_n)
 }
 
+/// Rainflow count (ASTM E1049) of a load history: a list of (range, mean, count), count 1 or 0.5.
+#[pyfunction]
+fn rainflow(series: Vec<f64>) -> Vec<(f64, f64, f64)> {
+    crate::rainflow::rainflow(&series)
+}
+
 pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(rainflow, m)?)?;
     m.add_function(wrap_pyfunction!(g_ct, m)?)?;
     m.add_function(wrap_pyfunction!(h_ct, m)?)?;
     m.add_function(wrap_pyfunction!(a_range, m)?)?;

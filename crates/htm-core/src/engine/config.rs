@@ -1,0 +1,410 @@
+//! What a fatigue test is: its configuration and validation, the force targets of a cycle, the
+//! per-cycle table and the outcome, and the plant facts the controller design needs.
+use crate::control::DemodGains;
+use crate::crack::Law;
+use crate::error::{Error, Result};
+use crate::machine::Machine;
+use crate::params::Params;
+use crate::specimen::{Material, Specimen};
+use crate::waveform::{Envelope, Waveform};
+/// How the force range is set each cycle.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Mode {
+    /// constant force range ΔF [N]
+    ConstantForce { delta_f_n: f64 },
+    /// constant ΔK [Pa·√m]: ΔF follows a
+    ConstantDeltaK { delta_k: f64 },
+    /// ΔK = ΔK0·exp(C·(a − a_phase_start)), C [1/m] ≥ −80 (E647: −0.08 mm⁻¹)
+    KGradient { delta_k0: f64, c_per_m: f64 },
+}
+
+/// The E647 limit on the normalised K-gradient for decreasing-ΔK tests [1/m] (−0.08 mm⁻¹).
+pub const E647_MIN_K_GRADIENT_PER_M: f64 = -80.0;
+
+/// One phase of a test (a precrack, then the test proper), ending at crack length `end_a_m`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Phase {
+    pub mode: Mode,
+    pub r_ratio: f64,
+    pub end_a_m: f64,
+    /// force tolerance as a fraction (ISO 12108: 0.02 test, 0.05 precrack)
+    pub tolerance: f64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ControllerSpec {
+    /// demodulation amplitude/mean controller; velocity gain of the valve [m/s per V], signed by
+    /// polarity; `None` = measured on the plant (see `measure_velocity_gain`)
+    Demod { velocity_gain_m_s_per_v: Option<f64> },
+    ForceP { kp_v_per_n: f64, u_offset_v: f64 },
+    /// position P + velocity feed-forward (thesis 4.1), the force setpoint turned into a position
+    /// through the measured specimen stiffness (`PositionForce`); gains from the valve's velocity
+    /// gain unless given
+    PositionPff { velocity_gain_m_s_per_v: Option<f64>, kp_v_per_m: Option<f64>, kff_v_per_m_s: Option<f64>, u_offset_v: f64 },
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Action {
+    Flag,
+    Stop,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Limits {
+    pub max_cycles: u64,
+    pub size_criterion: Action,
+    /// consecutive out-of-tolerance cycles allowed before `tolerance_action`
+    pub tolerance_cycles: u64,
+    pub tolerance_action: Action,
+    /// margin kept from either end of the stroke [m]
+    pub stroke_margin_m: f64,
+}
+
+/// Cycle-jump step control.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct JumpConfig {
+    /// largest crack growth per jump [m]
+    pub max_da_m: f64,
+    /// largest relative change of ΔK and of K_sp per jump
+    pub max_rel_change: f64,
+    /// cycles resolved after a jump before the next (the controller settles)
+    pub settle_cycles: u64,
+    /// smallest jump worth taking [cycles]
+    pub min_jump_cycles: u64,
+}
+
+impl Default for JumpConfig {
+    fn default() -> Self {
+        JumpConfig { max_da_m: 0.5e-3, max_rel_change: 0.01, settle_cycles: 3, min_jump_cycles: 20 }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ExecMode {
+    Full,
+    Jump,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct TestConfig {
+    pub params: Params,
+    pub rtol: f64,
+    pub specimen: Specimen,
+    pub material: Material,
+    pub law: Law,
+    pub a0_m: f64,
+    pub waveform: Waveform,
+    pub frequency_hz: f64,
+    pub control_rate_hz: f64,
+    pub phases: Vec<Phase>,
+    pub controller: ControllerSpec,
+    pub envelope: Envelope,
+    pub limits: Limits,
+    /// (cycle, factor): from that cycle on K_sp = factor·K_sp(a) (step drops, thesis Fig. 4.6)
+    pub stiffness_steps: Vec<(u64, f64)>,
+    pub jump: JumpConfig,
+    /// variable-amplitude loading (empty = constant amplitude from the phases): force levels
+    /// applied in turn and repeated to the end; a level replaces the phase's force range
+    pub sequence: Vec<Level>,
+}
+
+/// One level of a variable-amplitude sequence: peak and valley [N] for `cycles` cycles (a block;
+/// a spectrum file gives one cycle per level).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Level {
+    pub fmax_n: f64,
+    pub fmin_n: f64,
+    pub cycles: u64,
+}
+
+/// Why a test ended.
+#[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EndReason {
+    TargetCrack,
+    Toughness,
+    SizeCriterion,
+    StrokeLimit,
+    CycleLimit,
+    ForceTolerance,
+    Fracture,
+    Cancelled,
+}
+
+impl EndReason {
+    pub fn name(self) -> &'static str {
+        match self {
+            EndReason::TargetCrack => "target_crack_length",
+            EndReason::Toughness => "kmax_reached_toughness",
+            EndReason::SizeCriterion => "size_criterion",
+            EndReason::StrokeLimit => "stroke_limit",
+            EndReason::CycleLimit => "cycle_limit",
+            EndReason::ForceTolerance => "force_out_of_tolerance",
+            EndReason::Fracture => "fracture",
+            EndReason::Cancelled => "cancelled",
+        }
+    }
+}
+
+/// Event bits of the per-cycle table (exported to Python by name as `htm._core.EVENTS`).
+pub mod events {
+    pub const START: u32 = 1;
+    pub const OUT_OF_TOLERANCE: u32 = 2;
+    pub const TOLERANCE_EXCEEDED: u32 = 4;
+    pub const SIZE_CRITERION: u32 = 8;
+    pub const JUMP: u32 = 16;
+    pub const STIFFNESS_STEP: u32 = 32;
+    pub const PHASE_CHANGE: u32 = 64;
+    pub const STOP: u32 = 128;
+    pub const END: u32 = 256;
+    /// the amplitude ramps back in after a hold (counted, not judged against the tolerance)
+    pub const RAMP: u32 = 512;
+
+    /// Every bit by its name, the one list the bindings export.
+    pub const NAMED: [(&str, u32); 10] = [
+        ("start", START),
+        ("out_of_tolerance", OUT_OF_TOLERANCE),
+        ("tolerance_exceeded", TOLERANCE_EXCEEDED),
+        ("size_criterion", SIZE_CRITERION),
+        ("jump", JUMP),
+        ("stiffness_step", STIFFNESS_STEP),
+        ("phase_change", PHASE_CHANGE),
+        ("stop", STOP),
+        ("end", END),
+        ("ramp", RAMP),
+    ];
+}
+
+/// The per-cycle table (struct of columns). Rows with `JUMP` summarise a jump (forces predicted
+/// from the last resolved cycle); `STOP` rows are the smooth stop after the end.
+#[derive(Debug, Clone, Default)]
+pub struct Records {
+    pub cycle: Vec<u64>,
+    pub phase: Vec<u8>,
+    pub fmax_n: Vec<f64>,
+    pub fmin_n: Vec<f64>,
+    pub fmax_target_n: Vec<f64>,
+    pub fmin_target_n: Vec<f64>,
+    pub peak_err_pct: Vec<f64>,
+    pub df_err_pct: Vec<f64>,
+    pub a_m: Vec<f64>,
+    pub delta_k: Vec<f64>,
+    pub delta_k_target: Vec<f64>,
+    pub kmax: Vec<f64>,
+    pub dadn_m: Vec<f64>,
+    pub k_sp_n_m: Vec<f64>,
+    pub ctrl_u1_v: Vec<f64>,
+    pub ctrl_u2_v: Vec<f64>,
+    pub events: Vec<u32>,
+}
+
+#[derive(Debug, Clone)]
+pub struct Outcome {
+    pub records: Records,
+    pub end_reason: EndReason,
+    /// cycles applied to the end (start-up included, smooth stop excluded)
+    pub cycles: u64,
+    pub a_end_m: f64,
+    /// worst |ΔF| and |peak| errors over resolved test cycles (start-up excluded) [%]
+    pub max_abs_df_err_pct: f64,
+    pub max_abs_peak_err_pct: f64,
+    pub cycles_simulated: u64,
+    pub size_criterion_cycle: Option<u64>,
+    pub velocity_gain_m_s_per_v: f64,
+    pub demod_gains: Option<DemodGains>,
+    /// how fast |ΔF error| came into the band after the start, each resume and stiffness step
+    pub convergence: Vec<super::cycle::Episode>,
+}
+
+fn param(field: &str, value: f64, allowed: &str) -> Error {
+    Error::Parameter { field: field.into(), value, allowed: allowed.into() }
+}
+
+/// Force targets (Fmax, Fmin) [N] and the scheduled ΔK for phase `ph` at crack length `a`.
+pub fn targets(cfg: &TestConfig, ph: &Phase, a_phase0: f64, a: f64) -> Result<(f64, f64, f64)> {
+    let s = &cfg.specimen;
+    let y = s.k(a, 1.0)?; // K per newton
+    let (df, dk) = match ph.mode {
+        Mode::ConstantForce { delta_f_n } => (delta_f_n, delta_f_n * y),
+        Mode::ConstantDeltaK { delta_k } => (delta_k / y, delta_k),
+        Mode::KGradient { delta_k0, c_per_m } => {
+            let dk = delta_k0 * (c_per_m * (a - a_phase0)).exp();
+            (dk / y, dk)
+        }
+    };
+    let (fmax, fmin) = force_range(df, ph.r_ratio);
+    Ok((fmax, fmin, dk))
+}
+
+/// Peak and valley [N] of a force range ΔF [N] at stress ratio R (E647: for R < 0 the range is
+/// the peak, ΔF = Fmax).
+pub fn force_range(delta_f_n: f64, r_ratio: f64) -> (f64, f64) {
+    let fmax = if r_ratio >= 0.0 { delta_f_n / (1.0 - r_ratio) } else { delta_f_n };
+    (fmax, r_ratio * fmax)
+}
+
+/// (ΔK, Kmax, R) from a measured peak and valley [N] (E647: for R < 0, ΔK = Kmax). The one
+/// rule for the controller's bookkeeping and for the virtual rig's specimen (which knows no
+/// nominal R and passes the measured one).
+#[inline]
+pub fn measured_k(s: &Specimen, a: f64, fmax: f64, fmin: f64, r_nominal: f64) -> Result<(f64, f64, f64)> {
+    let kmax = s.k(a, fmax)?;
+    let dk = if r_nominal >= 0.0 { s.k(a, fmax - fmin)? } else { kmax };
+    Ok((dk, kmax, if fmax != 0.0 { fmin / fmax } else { 0.0 }))
+}
+
+impl TestConfig {
+    /// Checks everything before anything runs; errors name the field, value and allowed range.
+    pub fn validate(&self) -> Result<()> {
+        self.params.validate()?;
+        self.specimen.validate()?;
+        self.material.validate()?;
+        self.law.validate()?;
+        self.waveform.validate()?;
+        let (alo, ahi) = self.specimen.a_range();
+        if !(self.a0_m >= alo - 1e-12 && self.a0_m <= ahi) {
+            return Err(param("a0_m", self.a0_m, &format!("[{alo}, {ahi}] m (a/W in 0.2–0.975 for C(T))")));
+        }
+        if !(self.frequency_hz.is_finite() && self.frequency_hz > 0.0) {
+            return Err(param("frequency_hz", self.frequency_hz, "(0, inf) Hz"));
+        }
+        if !(self.control_rate_hz.is_finite() && self.control_rate_hz >= 16.0 * self.frequency_hz) {
+            return Err(param("control_rate_hz", self.control_rate_hz, &format!("≥ 16 samples per cycle: ≥ {} Hz", 16.0 * self.frequency_hz)));
+        }
+        if self.phases.is_empty() {
+            return Err(Error::Input("a test needs at least one phase".into()));
+        }
+        let mut a_prev = self.a0_m;
+        for (i, ph) in self.phases.iter().enumerate() {
+            let f = |n: &str| format!("phases[{i}].{n}");
+            if !(ph.r_ratio.is_finite() && ph.r_ratio >= -1.0 && ph.r_ratio < 1.0) {
+                return Err(param(&f("r_ratio"), ph.r_ratio, "[-1, 1)"));
+            }
+            if !(ph.end_a_m > a_prev && ph.end_a_m <= ahi) {
+                return Err(param(&f("end_a_m"), ph.end_a_m, &format!("({a_prev}, {ahi}] m")));
+            }
+            if !(ph.tolerance > 0.0 && ph.tolerance <= 0.2) {
+                return Err(param(&f("tolerance"), ph.tolerance, "(0, 0.2]"));
+            }
+            match ph.mode {
+                Mode::ConstantForce { delta_f_n } if !(delta_f_n.is_finite() && delta_f_n > 0.0) => return Err(param(&f("delta_f_n"), delta_f_n, "(0, inf) N")),
+                Mode::ConstantDeltaK { delta_k } if !(delta_k.is_finite() && delta_k > 0.0) => return Err(param(&f("delta_k"), delta_k, "(0, inf) Pa·√m")),
+                Mode::KGradient { delta_k0, c_per_m } => {
+                    if !(delta_k0.is_finite() && delta_k0 > 0.0) {
+                        return Err(param(&f("delta_k0"), delta_k0, "(0, inf) Pa·√m"));
+                    }
+                    if !(c_per_m.is_finite() && c_per_m >= E647_MIN_K_GRADIENT_PER_M) {
+                        return Err(param(&f("k_gradient_per_m"), c_per_m, "≥ −80 1/m (ASTM E647: C ≥ −0.08 mm⁻¹)"));
+                    }
+                }
+                _ => {}
+            }
+            let (fmax, _, dk) = targets(self, ph, a_prev, a_prev)?;
+            let kmax = self.specimen.k(a_prev, fmax)?;
+            let kic = self.material.fracture_toughness_pa_sqrt_m;
+            if kmax >= kic && self.sequence.is_empty() {
+                return Err(param(&f("start Kmax"), kmax, &format!("< K_IC = {kic} Pa·√m (ΔK at start {dk} Pa·√m)")));
+            }
+            a_prev = ph.end_a_m;
+        }
+        if self.limits.max_cycles == 0 {
+            return Err(param("limits.max_cycles", 0.0, "≥ 1"));
+        }
+        // what the rig can drive (resonance, valve flow, force, stroke, size criterion) is
+        // `feasibility::assess`: a forced test runs past it
+        for (i, l) in self.sequence.iter().enumerate() {
+            if !(l.fmax_n.is_finite() && l.fmin_n.is_finite() && l.fmax_n > l.fmin_n) {
+                return Err(param(&format!("sequence[{i}].fmax_n"), l.fmax_n, &format!("finite, > the valley {} N", l.fmin_n)));
+            }
+            if l.cycles == 0 {
+                return Err(param(&format!("sequence[{i}].cycles"), 0.0, "≥ 1"));
+            }
+            let kmax = self.specimen.k(self.a0_m, l.fmax_n)?;
+            let kic = self.material.fracture_toughness_pa_sqrt_m;
+            if kmax >= kic {
+                return Err(param(&format!("sequence[{i}] start Kmax"), kmax, &format!("< K_IC = {kic} Pa·√m")));
+            }
+        }
+        if !self.sequence.is_empty() && self.sequence.iter().map(|l| l.cycles).sum::<u64>() == 0 {
+            return Err(Error::Input("sequence: no cycles".into()));
+        }
+        for &(c, fac) in &self.stiffness_steps {
+            if !(fac > 0.0 && fac <= 1.0) {
+                return Err(param(&format!("stiffness_steps[cycle {c}]"), fac, "(0, 1]"));
+            }
+        }
+        if let ControllerSpec::PositionPff { velocity_gain_m_s_per_v, kp_v_per_m, kff_v_per_m_s, u_offset_v } = self.controller {
+            if !u_offset_v.is_finite() {
+                return Err(param("controller.u_offset_v", u_offset_v, "finite"));
+            }
+            for (name, v) in [("velocity_gain_m_s_per_v", velocity_gain_m_s_per_v), ("kp_v_per_m", kp_v_per_m)] {
+                if let Some(v) = v {
+                    if !(v.is_finite() && v != 0.0) {
+                        return Err(param(&format!("controller.{name}"), v, "non-zero, finite (negative on the thesis rig)"));
+                    }
+                }
+            }
+            if let Some(v) = kff_v_per_m_s.filter(|v| !v.is_finite()) {
+                return Err(param("controller.kff_v_per_m_s", v, "finite (0 = no feed-forward)"));
+            }
+        }
+        if let ControllerSpec::ForceP { kp_v_per_n, u_offset_v } = self.controller {
+            if !(kp_v_per_n.is_finite() && kp_v_per_n != 0.0) {
+                return Err(param("controller.kp_v_per_n", kp_v_per_n, "non-zero, finite (negative on the thesis rig)"));
+            }
+            if !u_offset_v.is_finite() {
+                return Err(param("controller.u_offset_v", u_offset_v, "finite"));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Small-signal velocity gain [m/s per V] of the free piston (no specimen), measured on the plant
+/// model itself around the command that holds it still: the gain rule's k_v. It bisects the
+/// command for zero velocity (the hydraulic null), then takes the speed at null ± `delta_v`.
+pub fn measure_velocity_gain(params: &Params, delta_v: f64) -> Result<f64> {
+    let mut p = params.clone();
+    p.specimen_stiffness_n_m = 0.0;
+    let speed = |u: f64| -> Result<f64> {
+        let mut m = Machine::new(p.clone())?.with_rtol(1e-5)?;
+        for _ in 0..100 {
+            m.step(u, 1e-3)?;
+        }
+        Ok(m.outputs().v)
+    };
+    let umax = p.valve_max_command_v;
+    let (mut lo, mut hi) = (-0.5 * umax, 0.5 * umax);
+    let (mut vlo, _) = (speed(lo)?, 0);
+    for _ in 0..30 {
+        let mid = 0.5 * (lo + hi);
+        let vm = speed(mid)?;
+        if vm.signum() == vlo.signum() {
+            lo = mid;
+            vlo = vm;
+        } else {
+            hi = mid;
+        }
+    }
+    let null = 0.5 * (lo + hi);
+    let k = (speed(null + delta_v)? - speed(null - delta_v)?) / (2.0 * delta_v);
+    if !(k.is_finite() && k != 0.0) {
+        return Err(Error::Solver("could not measure the valve velocity gain".into()));
+    }
+    Ok(k)
+}
+
+/// Oil-column stiffness of the cylinder at piston position `y` [N/m]: β·(A_A²/V_A + A_B²/V_B).
+pub fn hydraulic_stiffness(p: &Params, y: f64) -> f64 {
+    let y = y.clamp(0.0, p.stroke_m);
+    let va = p.dead_volume_a_m3 + p.area_a_m2 * y;
+    let vb = p.dead_volume_b_m3 + p.area_b_m2 * (p.stroke_m - y);
+    p.bulk_modulus_pa * (p.area_a_m2 * p.area_a_m2 / va + p.area_b_m2 * p.area_b_m2 / vb)
+}
+
+/// Two springs in series [N/m]: the valve's flow compresses the oil column and stretches the
+/// specimen, so the force rate per unit flow sees 1/(1/K_sp + 1/K_oil), not K_sp alone.
+pub fn series_stiffness(k1: f64, k2: f64) -> f64 {
+    1.0 / (1.0 / k1 + 1.0 / k2)
+}
+

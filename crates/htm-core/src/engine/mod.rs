@@ -1,0 +1,95 @@
+//! The fatigue test engine: plant + force controller + specimen + crack growth, cycle by cycle.
+//! Each cycle's measured force peak and valley give ΔK and Kmax, the growth law advances a, and
+//! K_sp(a) goes back into the plant.
+//!
+//! * `config`: what a test is (spec, validation, targets, the per-cycle table, the outcome);
+//! * `cycle`: the cycle machine, the one per-period/per-cycle logic the simulator and the
+//!   real-time loop (`crate::cyclic`) both run;
+//! * `sim`: the simulator around it (plant, K_sp(a) feedback, cycle jump);
+//! * `batch`: many tests on all cores; `session`: a test in resumable chunks; `raw`: raw windows.
+use std::sync::atomic::{AtomicBool, AtomicU64};
+
+use crate::error::Result;
+
+mod batch;
+pub mod config;
+pub mod cycle;
+mod raw;
+mod session;
+mod sim;
+
+pub use batch::run_batch;
+pub use config::*;
+pub use cycle::{Cause, CycleMachine, CycleResult, Episode, Stage};
+pub use raw::{RawCapture, RAW_COLUMNS};
+pub use session::{Chunk, Session};
+
+/// Run one test. `progress` receives the cycle count as it goes; `cancel` stops it.
+pub fn run_test(cfg: &TestConfig, mode: ExecMode, progress: Option<&AtomicU64>, cancel: Option<&AtomicBool>) -> Result<Outcome> {
+    let mut sim = sim::Sim::start(cfg, mode, RawCapture::default())?;
+    sim.advance(cfg, mode, u64::MAX, None, progress, cancel)?.expect("an unbounded advance runs to the end");
+    Ok(sim.outcome())
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+    use crate::crack::Law;
+    use crate::params::Params;
+    use crate::specimen::{Geometry, Material, Specimen};
+    use crate::waveform::{Envelope, Waveform};
+
+    /// Table B.1's C(T) (B = 6.35 mm, W = 50.8 mm, ΔP = 4.45 kN, R = 0.1) on the thesis rig, with
+    /// a Paris law through Table B.1's row 4 (8.21e-5 mm/cycle at 19.3 MPa·√m, m = 3) scaled by `c_scale`.
+    pub fn table_b1(freq: f64, rate: f64, a_end_over_w: f64, c_scale: f64) -> TestConfig {
+        let w = 50.8e-3;
+        TestConfig {
+            params: Params::default(),
+            rtol: 1e-4,
+            specimen: Specimen::new(Geometry::CT, w, 6.35e-3).unwrap(),
+            material: Material::default(),
+            law: Law::Paris { c: c_scale * 8.21e-8 / 19.3e6f64.powi(3), m: 3.0 },
+            a0_m: 15.2e-3,
+            waveform: Waveform::Sine,
+            frequency_hz: freq,
+            control_rate_hz: rate,
+            phases: vec![Phase { mode: Mode::ConstantForce { delta_f_n: 4.45e3 }, r_ratio: 0.1, end_a_m: a_end_over_w * w, tolerance: 0.02 }],
+            controller: ControllerSpec::Demod { velocity_gain_m_s_per_v: None },
+            envelope: Envelope { mean_cycles: 5.0, amplitude_cycles: 20.0, stop_cycles: 3.0 },
+            limits: Limits { max_cycles: 10_000_000, size_criterion: Action::Flag, tolerance_cycles: 10, tolerance_action: Action::Flag, stroke_margin_m: 1e-3 },
+            stiffness_steps: vec![],
+            jump: JumpConfig::default(),
+            sequence: vec![],
+        }
+    }
+
+    #[test]
+    fn demod_holds_two_percent_as_the_crack_grows_and_jump_agrees() {
+        let cfg = table_b1(10.0, 1000.0, 0.35, 30.0);
+        let o = run_test(&cfg, ExecMode::Full, None, None).unwrap();
+        assert_eq!(o.end_reason, EndReason::TargetCrack);
+        assert!(o.max_abs_df_err_pct < 2.0 && o.max_abs_peak_err_pct < 2.0, "{} {}", o.max_abs_df_err_pct, o.max_abs_peak_err_pct);
+        let r = &o.records;
+        let n = r.cycle.len();
+        assert!(r.k_sp_n_m[n - 1] < 0.8 * r.k_sp_n_m[0], "K_sp must fall as the crack grows");
+        assert!(r.events[..20].iter().all(|e| e & events::START != 0));
+        let j = run_test(&cfg, ExecMode::Jump, None, None).unwrap();
+        assert!(j.cycles_simulated * 3 < o.cycles_simulated, "jump resolved {} of {}", j.cycles_simulated, o.cycles);
+        let err = (j.cycles as f64 / o.cycles as f64 - 1.0).abs();
+        assert!(err < 0.01, "jump {} vs full {}", j.cycles, o.cycles);
+    }
+
+    #[test]
+    fn bad_configs_fail_before_running() {
+        let mut c = table_b1(10.0, 1000.0, 0.35, 1.0);
+        c.phases[0].mode = Mode::KGradient { delta_k0: 10e6, c_per_m: -100.0 };
+        assert!(run_test(&c, ExecMode::Full, None, None).unwrap_err().to_string().contains("k_gradient_per_m"));
+        let mut c = table_b1(10.0, 1000.0, 0.35, 1.0);
+        c.phases[0].r_ratio = 1.0;
+        assert!(c.validate().unwrap_err().to_string().contains("r_ratio"));
+        let mut c = table_b1(10.0, 1000.0, 0.35, 1.0);
+        c.material.fracture_toughness_pa_sqrt_m = 15e6;
+        assert!(c.validate().unwrap_err().to_string().contains("K_IC"));
+    }
+}
+
