@@ -213,7 +213,7 @@ pub struct Outcome {
     pub velocity_gain_m_s_per_v: f64,
     pub demod_gains: Option<DemodGains>,
     /// how fast |ΔF error| came into the band after the start, each resume and stiffness step
-    pub convergence: Vec<super::cycle::Episode>,
+    pub convergence: Vec<super::convergence::Episode>,
 }
 
 fn param(field: &str, value: f64, allowed: &str) -> Error {

@@ -13,6 +13,7 @@ use crate::error::Result;
 
 mod batch;
 pub mod config;
+pub mod convergence;
 pub mod cycle;
 mod raw;
 mod session;
@@ -20,7 +21,8 @@ mod sim;
 
 pub use batch::run_batch;
 pub use config::*;
-pub use cycle::{Cause, CycleMachine, CycleResult, Episode, Stage};
+pub use convergence::{Cause, Episode};
+pub use cycle::{CycleMachine, CycleResult, Stage};
 pub use raw::{RawCapture, RAW_COLUMNS};
 pub use session::{Chunk, Session};
 

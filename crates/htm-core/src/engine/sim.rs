@@ -5,7 +5,8 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Instant;
 
 use super::config::{events, measured_k, targets, Action, EndReason, ExecMode, Outcome, Records, TestConfig};
-use super::cycle::{Cause, CycleMachine, CycleResult, Stage};
+use super::convergence::Cause;
+use super::cycle::{CycleMachine, CycleResult, Stage};
 use super::raw::RawCapture;
 use crate::error::{Error, Result};
 use crate::machine::{Machine, Y};
