@@ -10,7 +10,6 @@ import numpy as np
 
 from htm.campaign import lifeband
 from htm.campaign import spec as campaign_spec
-from htm.campaign.lifeband_cli import _read
 
 ROOT = Path(__file__).resolve().parents[1]
 SPEC = ROOT / "examples" / "virkler_mt.toml"
@@ -19,7 +18,7 @@ VIRKLER = ROOT / "data" / "virkler_2024t3" / "virkler_a_vs_n_specimens_1_40.csv"
 
 
 def virkler():
-    return _read(str(VIRKLER), "a_half_crack_mm")
+    return lifeband.read_data(VIRKLER, "a_half_crack_mm")
 
 
 def test_joint_scatter_keeps_the_correlation(tmp_path):
