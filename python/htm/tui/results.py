@@ -42,6 +42,7 @@ class ResultsPane(Vertical):
         self.selected: str | None = None
         self.life_band_samples = 200  # Monte Carlo draws (simulated tests) of the band
         self.life_band: dict[str, Any] | None = None  # the last band shown
+        self._lb_busy = False
 
     def compose(self) -> ComposeResult:
         yield DataTable(id="results-table", cursor_type="row", zebra_stripes=True)
@@ -170,6 +171,9 @@ class ResultsPane(Vertical):
     def action_life_band(self) -> None:
         """Predict the selected test's life from the specimen set, and update it from the test's points."""
         out = self.query_one("#lifeband-result", Static)
+        if self._lb_busy:  # a thread cannot be cancelled: one band at a time
+            self.notify("life band: still computing the last one", severity="warning")
+            return
         if self.selected is None:
             out.update("[red]life band: select a test in the list first[/]")
             return
@@ -190,6 +194,7 @@ class ResultsPane(Vertical):
         self.life_band = None
         out.update(f"[yellow]life band of {self.selected}: fitting the set's specimens and running "
                    f"{self.life_band_samples} simulated tests…[/]")
+        self._lb_busy = True
         self._life_band(self.selected, data, upto, spec, self.life_band_samples)
 
     @work(thread=True, exclusive=True, group="life-band")
@@ -204,6 +209,7 @@ class ResultsPane(Vertical):
         self.app.call_from_thread(self._show_life_band, res, text)
 
     def _show_life_band(self, res: dict[str, Any] | None, text: str) -> None:
+        self._lb_busy = False
         self.life_band = res
         self.query_one("#lifeband-result", Static).update(text)
 
