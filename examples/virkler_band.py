@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from htm.campaign import engine
-from htm.campaign.lifeband_cli import _read, build, evaluate
+from htm.campaign.lifeband import build, evaluate, read_data
 from htm.record.store import Store
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -30,7 +30,7 @@ def main() -> int:
     args = ap.parse_args()
     t0 = time.perf_counter()
     data = ROOT / "data" / "virkler_2024t3" / "virkler_a_vs_n_specimens_1_40.csv"
-    datas = _read(str(data), "a_half_crack_mm")
+    datas = read_data(data, "a_half_crack_mm")
     out = Path(args.out)
     folds, rows = [], []
     with Store(out / "store") as store:

@@ -10,7 +10,6 @@ import numpy as np
 
 from htm.campaign import lifeband
 from htm.campaign import spec as campaign_spec
-from htm.campaign.lifeband_cli import _read
 
 ROOT = Path(__file__).resolve().parents[1]
 SPEC = ROOT / "examples" / "virkler_mt.toml"
@@ -19,7 +18,7 @@ VIRKLER = ROOT / "data" / "virkler_2024t3" / "virkler_a_vs_n_specimens_1_40.csv"
 
 
 def virkler():
-    return _read(str(VIRKLER), "a_half_crack_mm")
+    return lifeband.read_data(VIRKLER, "a_half_crack_mm")
 
 
 def test_joint_scatter_keeps_the_correlation(tmp_path):
@@ -83,3 +82,24 @@ def test_life_band_cli_builds_a_band_and_updates_from_early_data(tmp_path):
     u = s["early_update"]
     assert u["points"] == int(k.sum()) and u["p5"] <= u["median"] <= u["p95"]
     assert "updated from" in r.stdout and "held-out specimens: " in r.stdout
+
+
+def test_a_tests_table_gives_its_early_points_thinned_and_cut():
+    """The console's update reads a test's per-cycle table: one point per new crack size, up to the
+    cycles asked, at most `max_points`; fewer than 2 is a SpecError."""
+    from htm.errors import SpecError
+
+    cycles = np.arange(1, 1001)
+    a = 0.009 + 1e-6 * (cycles // 10)  # grows every 10 cycles: 101 sizes, the last at cycle 1000
+    d = lifeband.early_from_table("t", cycles, a, max_points=30)
+    assert len(d.cycles) == 30 and d.cycles[0] == 1 and d.cycles[-1] == 1000
+    assert np.all(np.diff(d.a_m) > 0) and np.all(np.diff(d.cycles) > 0)
+    d = lifeband.early_from_table("t", cycles, a, up_to_cycles=95)
+    assert list(d.cycles) == [1, 10, 20, 30, 40, 50, 60, 70, 80, 90]
+    for upto in (5, 9):
+        try:
+            lifeband.early_from_table("t", cycles, a, up_to_cycles=upto)
+        except SpecError as e:
+            assert "1 a–N point with a growing crack up to" in str(e) and "at least 2" in str(e)
+        else:
+            raise AssertionError("one point was accepted")

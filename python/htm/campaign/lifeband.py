@@ -11,6 +11,7 @@ to run.
 from __future__ import annotations
 
 import copy
+import tempfile
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,7 +22,7 @@ from scipy.optimize import least_squares
 
 from htm import _core
 from htm import spec as test_spec
-from htm.errors import SpecError
+from htm.errors import RecordError, SpecError
 from htm.fatigue.data import CrackData, Setup
 from htm.fatigue.laws import Model, fit_life
 
@@ -170,3 +171,110 @@ def first_points(d: CrackData, cycles: float) -> CrackData:
     """The points of `d` measured up to `cycles` (a running test's data so far)."""
     k = d.cycles <= cycles
     return CrackData(d.specimen, d.cycles[k], d.a_m[k])
+
+
+def read_data(path: str | Path, a_mm_column: str | None = None) -> list[CrackData]:
+    """A specimen set's a–N CSV (`read_a_n`), with a in mm in the column `a_mm_column` when it is
+    not named a_mm (e.g. Virkler's a_half_crack_mm). A missing or unreadable file is a RecordError."""
+    from htm.fatigue.data import read_a_n
+
+    if not a_mm_column:
+        return read_a_n(path)
+    try:
+        text = Path(path).read_text()
+    except FileNotFoundError:
+        raise RecordError(f"{path}: no such file") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise RecordError(f"{path}: cannot read it ({e})") from None
+    head, _, rest = text.partition("\n")
+    cols = [c.strip() for c in head.split(",")]
+    if a_mm_column not in cols:
+        return read_a_n(path)  # this file names its columns as usual (a_m / a_mm), or the reader says what is missing
+    with tempfile.TemporaryDirectory() as tmp:
+        p = Path(tmp) / Path(path).name
+        p.write_text(",".join("a_mm" if c == a_mm_column else c for c in cols) + "\n" + rest)
+        return read_a_n(p)
+
+
+def build(spec_path: Path, datas: list, hold_out: set[str], samples: int, seed: int, store: Any, runner: Any,
+          out: Path, progress: bool) -> dict[str, Any]:
+    """Fit the specimens not held out, run the campaign, and return the band and what it rests on."""
+    from htm.campaign import engine
+    from htm.campaign import spec as campaign_spec
+
+    spec = test_spec.load(spec_path)
+    setup = setup_of(spec)
+    a0, af = spec.a0_m, spec.phases[-1].end_a_m
+    fit_set = [d for d in datas if d.specimen not in hold_out]
+    if len(fit_set) < 3:
+        raise SpecError(f"life band: {len(fit_set)} specimens left to fit; at least 3 are needed")
+    unknown = hold_out - {d.specimen for d in datas}
+    if unknown:
+        raise SpecError(f"--hold-out: no specimen {', '.join(sorted(unknown))} in the data")
+    models = paris_fits(fit_set, setup)
+    j = joint(models, fit_set)
+    base = with_paris_base(spec_path, out)
+    cpath = out / "campaign.toml"
+    cpath.write_text(campaign_text(base, j, samples, seed, f"life-band-{spec.name}"))
+    c = campaign_spec.load(cpath)
+    s = engine.run(c, store, runner, progress=progress)
+    rows = engine.table(store, c.id)
+    ok = [r for r in rows if r["end_reason"] == "target_crack_length"]
+    life = np.array([r["life_cycles"] for r in ok], float)
+    if len(life) == 0:
+        raise SpecError(f"life band: none of the {len(rows)} simulated tests reached a = {af * 1e3:.2f} mm")
+    return {"campaign": c.id, "run": s, "setup": setup, "a0_m": a0, "af_m": af, "joint": j, "fit_set": fit_set,
+            "rows": ok, "life": life, "band": quantiles(life), "tests_not_reaching_af": len(rows) - len(ok)}
+
+
+def evaluate(res: dict[str, Any], held: list, early_fraction: float) -> list[dict[str, Any]]:
+    """For each held-out specimen: its measured life against the band, and the early-data update
+    from its points up to `early_fraction` of the band's median life."""
+    lo, med, hi = res["band"]
+    draws = [{"law.c": r["law.c"], "law.m": r["law.m"]} for r in res["rows"]]
+    out = []
+    for d in held:
+        actual = life_between(d, res["a0_m"], res["af_m"])
+        if actual is None:
+            continue
+        early = first_points(d, early_fraction * med)
+        w = early_weights(draws, early, res["setup"], res["a0_m"], res["joint"].point_sigma_cycles)
+        ulo, umed, uhi = quantiles(res["life"], w)
+        out.append({"specimen": d.specimen, "life": actual, "in_band": lo <= actual <= hi,
+                    "err_no_update": (med - actual) / actual, "early_points": len(early.cycles),
+                    "early_a_mm": float(early.a_m[-1] * 1e3), "updated": (ulo, umed, uhi),
+                    "err_update": (umed - actual) / actual, "in_updated_band": ulo <= actual <= uhi,
+                    "effective_draws": effective_samples(w)})
+    return out
+
+
+def update(res: dict[str, Any], early: CrackData) -> dict[str, Any]:
+    """The band of `build`'s result updated from a running specimen's first points `early`:
+    5 %, median, 95 % of the reweighted draws, the points used and the effective draws left."""
+    draws = [{"law.c": r["law.c"], "law.m": r["law.m"]} for r in res["rows"]]
+    w = early_weights(draws, early, res["setup"], res["a0_m"], res["joint"].point_sigma_cycles)
+    lo, med, hi = quantiles(res["life"], w)
+    return {"p5": lo, "median": med, "p95": hi, "points": len(early.cycles), "effective_draws": effective_samples(w)}
+
+
+def early_from_table(name: str, cycles: np.ndarray, a_m: np.ndarray, up_to_cycles: float | None = None,
+                     max_points: int = 40) -> CrackData:
+    """A test's a–N so far from its per-cycle table (store `cycles`: one row per cycle or jump): the
+    first cycle at each new crack size, up to `up_to_cycles`, thinned to `max_points` evenly in cycles
+    (the first and last kept). Too few points is a SpecError saying how many there are."""
+    n, a = np.asarray(cycles, float), np.asarray(a_m, float)
+    keep = np.isfinite(n) & np.isfinite(a)
+    if up_to_cycles is not None:
+        keep &= n <= up_to_cycles
+    n, a = n[keep], a[keep]
+    if len(a):
+        grown = np.concatenate([[True], np.diff(a) > 0])  # the crack's first cycle at each size
+        n, a = n[grown], a[grown]
+    if len(a) < 2:
+        where = f" up to {up_to_cycles:,.0f} cycles" if up_to_cycles is not None else ""
+        raise SpecError(f"test {name}: {len(a)} a–N point{'s' * (len(a) != 1)} with a growing crack{where}; "
+                        "the update needs at least 2")
+    if len(a) > max_points:
+        idx = np.unique(np.round(np.linspace(0, len(a) - 1, max_points)).astype(int))
+        n, a = n[idx], a[idx]
+    return CrackData(name, n, a)

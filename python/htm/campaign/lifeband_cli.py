@@ -4,94 +4,22 @@ from __future__ import annotations
 
 import argparse
 import json
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-from htm.errors import SpecError
-
-
-def _read(path: str, a_mm_column: str | None):
-    from htm.fatigue.data import read_a_n
-
-    if not a_mm_column:
-        return read_a_n(path)
-    text = Path(path).read_text()
-    head, _, rest = text.partition("\n")
-    cols = [c.strip() for c in head.split(",")]
-    if a_mm_column not in cols:
-        return read_a_n(path)  # this file names its columns as usual (a_m / a_mm), or the reader says what is missing
-    with tempfile.TemporaryDirectory() as tmp:
-        p = Path(tmp) / Path(path).name
-        p.write_text(",".join("a_mm" if c == a_mm_column else c for c in cols) + "\n" + rest)
-        return read_a_n(p)
-
-
-def build(spec_path: Path, datas: list, hold_out: set[str], samples: int, seed: int, store: Any, runner: Any,
-          out: Path, progress: bool) -> dict[str, Any]:
-    """Fit the specimens not held out, run the campaign, and return the band and what it rests on."""
-    from htm import spec as test_spec
-    from htm.campaign import engine, lifeband
-    from htm.campaign import spec as campaign_spec
-
-    spec = test_spec.load(spec_path)
-    setup = lifeband.setup_of(spec)
-    a0, af = spec.a0_m, spec.phases[-1].end_a_m
-    fit_set = [d for d in datas if d.specimen not in hold_out]
-    if len(fit_set) < 3:
-        raise SpecError(f"life band: {len(fit_set)} specimens left to fit; at least 3 are needed")
-    unknown = hold_out - {d.specimen for d in datas}
-    if unknown:
-        raise SpecError(f"--hold-out: no specimen {', '.join(sorted(unknown))} in the data")
-    models = lifeband.paris_fits(fit_set, setup)
-    j = lifeband.joint(models, fit_set)
-    base = lifeband.with_paris_base(spec_path, out)
-    cpath = out / "campaign.toml"
-    cpath.write_text(lifeband.campaign_text(base, j, samples, seed, f"life-band-{spec.name}"))
-    c = campaign_spec.load(cpath)
-    s = engine.run(c, store, runner, progress=progress)
-    rows = engine.table(store, c.id)
-    ok = [r for r in rows if r["end_reason"] == "target_crack_length"]
-    life = np.array([r["life_cycles"] for r in ok], float)
-    return {"campaign": c.id, "run": s, "setup": setup, "a0_m": a0, "af_m": af, "joint": j, "fit_set": fit_set,
-            "rows": ok, "life": life, "band": lifeband.quantiles(life), "tests_not_reaching_af": len(rows) - len(ok)}
-
-
-def evaluate(res: dict[str, Any], held: list, early_fraction: float) -> list[dict[str, Any]]:
-    """For each held-out specimen: its measured life against the band, and the early-data update
-    from its points up to `early_fraction` of the band's median life."""
-    from htm.campaign import lifeband
-
-    lo, med, hi = res["band"]
-    draws = [{"law.c": r["law.c"], "law.m": r["law.m"]} for r in res["rows"]]
-    out = []
-    for d in held:
-        actual = lifeband.life_between(d, res["a0_m"], res["af_m"])
-        if actual is None:
-            continue
-        early = lifeband.first_points(d, early_fraction * med)
-        w = lifeband.early_weights(draws, early, res["setup"], res["a0_m"], res["joint"].point_sigma_cycles)
-        ulo, umed, uhi = lifeband.quantiles(res["life"], w)
-        out.append({"specimen": d.specimen, "life": actual, "in_band": lo <= actual <= hi,
-                    "err_no_update": (med - actual) / actual, "early_points": len(early.cycles),
-                    "early_a_mm": float(early.a_m[-1] * 1e3), "updated": (ulo, umed, uhi),
-                    "err_update": (umed - actual) / actual, "in_updated_band": ulo <= actual <= uhi,
-                    "effective_draws": lifeband.effective_samples(w)})
-    return out
 
 
 def cmd_life_band(args: argparse.Namespace) -> int:
     from htm.campaign import engine, lifeband
     from htm.record.store import Store
 
-    datas = _read(args.data, args.a_mm_column)
+    datas = lifeband.read_data(args.data, args.a_mm_column)
     hold = {s.strip() for s in (args.hold_out or "").split(",") if s.strip()}
     out = Path(args.out)
     early = None
     if args.early:
-        early = _read(args.early, args.a_mm_column)[0]
+        early = lifeband.read_data(args.early, args.a_mm_column)[0]
     with Store(args.store) as store:
         if args.cluster:
             from htm.campaign import cluster
@@ -101,7 +29,7 @@ def cmd_life_band(args: argparse.Namespace) -> int:
         else:
             client, runner = None, engine.local_runner()
         try:
-            res = build(Path(args.spec), datas, hold, args.samples, args.seed, store, runner, out, not args.quiet)
+            res = lifeband.build(Path(args.spec), datas, hold, args.samples, args.seed, store, runner, out, not args.quiet)
         finally:
             if client is not None:
                 client.close()
@@ -120,7 +48,7 @@ def cmd_life_band(args: argparse.Namespace) -> int:
           f"median {med:,.0f} cycles, 5–95 % {lo:,.0f} .. {hi:,.0f}")
     held = [d for d in datas if d.specimen in hold]
     if held:
-        ev = evaluate(res, held, args.early_fraction)
+        ev = lifeband.evaluate(res, held, args.early_fraction)
         cov = float(np.mean([e["in_band"] for e in ev]))
         e0 = np.array([e["err_no_update"] for e in ev])
         e1 = np.array([e["err_update"] for e in ev])
@@ -136,13 +64,11 @@ def cmd_life_band(args: argparse.Namespace) -> int:
                         "mean_updated_band_width_rel": float(np.mean([(e["updated"][2] - e["updated"][0]) / e["life"] for e in ev])),
                         "band_width_rel": float((hi - lo) / med), "specimens": ev})
     if early is not None:
-        draws = [{"law.c": r["law.c"], "law.m": r["law.m"]} for r in res["rows"]]
-        w = lifeband.early_weights(draws, early, res["setup"], res["a0_m"], j.point_sigma_cycles)
-        ulo, umed, uhi = lifeband.quantiles(res["life"], w)
-        print(f"updated from {args.early}'s {len(early.cycles)} points (to a = {early.a_m[-1] * 1e3:.2f} mm at "
-              f"{early.cycles[-1]:,.0f} cycles): median {umed:,.0f} cycles, 5–95 % {ulo:,.0f} .. {uhi:,.0f} "
-              f"({lifeband.effective_samples(w):.0f} effective draws)")
-        summary["early_update"] = {"median": umed, "p5": ulo, "p95": uhi, "points": len(early.cycles)}
+        u = lifeband.update(res, early)
+        print(f"updated from {args.early}'s {u['points']} points (to a = {early.a_m[-1] * 1e3:.2f} mm at "
+              f"{early.cycles[-1]:,.0f} cycles): median {u['median']:,.0f} cycles, 5–95 % {u['p5']:,.0f} .. {u['p95']:,.0f} "
+              f"({u['effective_draws']:.0f} effective draws)")
+        summary["early_update"] = {k: u[k] for k in ("median", "p5", "p95", "points")}
     (out / "life_band.json").write_text(json.dumps(summary, indent=2, default=float))
     print(f"outputs: {out / 'life_band.json'}, {out / 'campaign.toml'}")
     return 0

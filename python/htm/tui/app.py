@@ -60,6 +60,7 @@ Like a controller handset: the keys act on the tab you are in; E-stop works ever
 | ctrl+r | Run | reset interlocks whose condition has gone |
 | ctrl+l | Results | refresh the list of tests |
 | v | Results | open the selected test's rerun recording |
+| b | Results | the selected test's life band, updated from its own first points |
 | q | anywhere | quit (the loop stops safely: valve null, amplifier off) |
 
 Escape closes this screen.

@@ -1,5 +1,6 @@
 """Results: browse the test store, read a test's report and events, open its rerun recording,
-export its tables."""
+export its tables, and predict a test's life as a band from a specimen set, updated from its own
+first a–N points (`htm.campaign.lifeband`, as `htm life-band`)."""
 from __future__ import annotations
 
 import shutil
@@ -7,7 +8,7 @@ import subprocess
 from pathlib import Path
 from typing import Any
 
-from textual import on
+from textual import on, work
 from textual.app import ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal, Vertical, VerticalScroll
@@ -15,14 +16,23 @@ from textual.widgets import Button, DataTable, Input, Markdown, Static
 
 from htm.errors import HtmError
 
+# the specimen set shipped in the repository (40 Virkler 2024-T3 M(T) panels), when htm runs from it
+VIRKLER = Path(__file__).resolve().parents[3] / "data" / "virkler_2024t3" / "virkler_a_vs_n_specimens_1_40.csv"
+A_MM_COLUMN = "a_half_crack_mm"  # Virkler's a in mm; files with a_m or a_mm columns are read as usual
+
 
 class ResultsPane(Vertical):
     can_focus = True
-    BINDINGS = [Binding("ctrl+l", "refresh", "refresh list"), Binding("v", "view", "open recording")]
+    BINDINGS = [Binding("ctrl+l", "refresh", "refresh list"), Binding("v", "view", "open recording"),
+                Binding("b", "life_band", "life band")]
     DEFAULT_CSS = """
     ResultsPane #results-table { height: 12; }
     ResultsPane #results-bar { height: 3; }
     ResultsPane #results-bar Input { width: 40; }
+    ResultsPane #lifeband-bar { height: 3; }
+    ResultsPane #lb-data { width: 1fr; }
+    ResultsPane #lb-upto { width: 26; }
+    ResultsPane #lb-spec { width: 30; }
     ResultsPane #results-detail { height: 1fr; border: round $accent; }
     """
 
@@ -30,6 +40,9 @@ class ResultsPane(Vertical):
         super().__init__(**kw)
         self.store_root = store_root
         self.selected: str | None = None
+        self.life_band_samples = 200  # Monte Carlo draws (simulated tests) of the band
+        self.life_band: dict[str, Any] | None = None  # the last band shown
+        self._lb_busy = False
 
     def compose(self) -> ComposeResult:
         yield DataTable(id="results-table", cursor_type="row", zebra_stripes=True)
@@ -38,7 +51,14 @@ class ResultsPane(Vertical):
             yield Button("Open recording (v)", id="view")
             yield Input(placeholder="export folder", id="export-dir")
             yield Button("Export", id="export")
+        with Horizontal(id="lifeband-bar"):
+            yield Input(placeholder="specimen set a–N CSV" + (" (blank: Virkler 2024-T3, data/)" if VIRKLER.exists() else ""),
+                        id="lb-data")
+            yield Input(placeholder="early: up to cycles", id="lb-upto")
+            yield Input(placeholder="spec (blank: the test's)", id="lb-spec")
+            yield Button("Life band (b)", id="lifeband")
         with VerticalScroll(id="results-detail"):
+            yield Static("", id="lifeband-result")
             yield Static("", id="results-summary")
             yield Markdown("", id="results-report")
 
@@ -145,3 +165,98 @@ class ResultsPane(Vertical):
             self.notify(f"export failed: {e}", severity="error")
             return
         self.notify(f"exported {self.selected} to {out}")
+
+    # ---- life band ---------------------------------------------------------------------------
+    @on(Button.Pressed, "#lifeband")
+    def action_life_band(self) -> None:
+        """Predict the selected test's life from the specimen set, and update it from the test's points."""
+        out = self.query_one("#lifeband-result", Static)
+        if self._lb_busy:  # a thread cannot be cancelled: one band at a time
+            self.notify("life band: still computing the last one", severity="warning")
+            return
+        if self.selected is None:
+            out.update("[red]life band: select a test in the list first[/]")
+            return
+        data = self.query_one("#lb-data", Input).value.strip() or (str(VIRKLER) if VIRKLER.exists() else "")
+        upto_text = self.query_one("#lb-upto", Input).value.strip().replace(",", "").replace("_", "")
+        spec = self.query_one("#lb-spec", Input).value.strip() or None
+        if not data:
+            out.update("[red]life band: enter the specimen set's a–N CSV (cycles, a_m or a_mm, specimen)[/]")
+            return
+        try:
+            upto = float(upto_text) if upto_text else None
+        except ValueError:
+            out.update(f"[red]life band: early points up to `{upto_text}` cycles is not a number[/]")
+            return
+        if upto is not None and upto <= 0:
+            out.update("[red]life band: early points up to cycles must be > 0[/]")
+            return
+        self.life_band = None
+        out.update(f"[yellow]life band of {self.selected}: fitting the set's specimens and running "
+                   f"{self.life_band_samples} simulated tests…[/]")
+        self._lb_busy = True
+        self._life_band(self.selected, data, upto, spec, self.life_band_samples)
+
+    @work(thread=True, exclusive=True, group="life-band")
+    def _life_band(self, test_id: str, data: str, upto: float | None, spec: str | None, samples: int) -> None:
+        try:
+            res = self._compute_life_band(test_id, data, upto, spec, samples)
+            text = self._life_band_text(res)
+        except (HtmError, OSError, ValueError) as e:
+            res, text = None, f"[red]life band: {e}[/]"
+        except Exception as e:  # never a traceback in the console
+            res, text = None, f"[red]life band failed: {type(e).__name__}: {e}[/]"
+        self.app.call_from_thread(self._show_life_band, res, text)
+
+    def _show_life_band(self, res: dict[str, Any] | None, text: str) -> None:
+        self._lb_busy = False
+        self.life_band = res
+        self.query_one("#lifeband-result", Static).update(text)
+
+    def _compute_life_band(self, test_id: str, data: str, upto: float | None, spec: str | None,
+                           samples: int) -> dict[str, Any]:
+        from htm.campaign import engine, lifeband
+        from htm.errors import SpecError
+
+        datas = lifeband.read_data(data, A_MM_COLUMN)
+        with self._store() as st:
+            t = st.get(test_id)
+            out = st.root / "life-band" / test_id
+            if spec is None:
+                if t["spec_format"] != "toml":
+                    raise SpecError(f"test {test_id} keeps its spec as the engine's {t['spec_format']} config, not a "
+                                    "spec file: enter the test's spec (TOML) in the spec field")
+                out.mkdir(parents=True, exist_ok=True)
+                spec_path = out / "test_spec.toml"
+                spec_path.write_text(t["spec"])
+            else:
+                spec_path = Path(spec)
+                if not spec_path.is_file():
+                    raise SpecError(f"{spec}: no such spec file")
+            table = st.cycles(test_id)
+            if "a_m" not in table or len(table["a_m"]) == 0:
+                raise SpecError(f"test {test_id} has no a–N points in the store yet")
+            early = lifeband.early_from_table(test_id, table["cycle"], table["a_m"], upto)
+            res = lifeband.build(spec_path, datas, set(), samples, 1, st, engine.local_runner(), out, progress=False)
+        res["update"] = lifeband.update(res, early)
+        res["early"] = early
+        res["test"] = {"id": test_id, "status": t["status"], "cycles": int(table["cycle"][-1]),
+                       "a_m": float(table["a_m"][-1])}
+        res["spanning"] = sum(lifeband.life_between(d, res["a0_m"], res["af_m"]) is not None for d in datas)
+        res["data"] = data
+        return res
+
+    @staticmethod
+    def _life_band_text(res: dict[str, Any]) -> str:
+        lo, med, hi = res["band"]
+        u, e, t = res["update"], res["early"], res["test"]
+        lines = [f"[b]life band[/] of {t['id']}: a {res['a0_m'] * 1e3:.2f} → {res['af_m'] * 1e3:.2f} mm, "
+                 f"{res['joint'].n_specimens} specimens of {Path(res['data']).name}, {len(res['life'])} simulated tests",
+                 f"  before update  median {med:,.0f} cycles, 5–95 % {lo:,.0f} .. {hi:,.0f} (width {hi - lo:,.0f})",
+                 f"  updated        median {u['median']:,.0f} cycles, 5–95 % {u['p5']:,.0f} .. {u['p95']:,.0f} "
+                 f"(width {u['p95'] - u['p5']:,.0f}) from the test's {u['points']} points to a = {e.a_m[-1] * 1e3:.2f} mm "
+                 f"at {e.cycles[-1]:,.0f} cycles ({u['effective_draws']:.0f} effective draws)",
+                 f"  test so far    {t['cycles']:,} cycles, a = {t['a_m'] * 1e3:.2f} mm ({t['status']})"]
+        if res["spanning"] == 0:
+            lines.append("[yellow]  none of the set's specimens spans this test's a0 → af: is it the set of this test?[/]")
+        return "\n".join(lines)

@@ -1,0 +1,113 @@
+"""The console's life band (Results tab, key b): a stored test's life predicted from a specimen set and
+updated from the test's own first points, computed off the UI thread; bad input is a message."""
+import asyncio
+import time
+from pathlib import Path
+
+import pytest
+from textual.widgets import DataTable, Input, Static
+
+from htm.tui.app import HtmApp
+from htm.tui.results import VIRKLER, ResultsPane
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+async def until(pilot, cond, timeout: float = 120.0, step: float = 0.1) -> None:
+    t0 = time.monotonic()
+    while not cond():
+        if time.monotonic() - t0 > timeout:
+            raise AssertionError("condition not reached in time")
+        await pilot.pause(step)
+
+
+def text(app, sel: str) -> str:
+    return str(app.query_one(sel, Static).content)
+
+
+@pytest.fixture()
+def store(tmp_path, monkeypatch):
+    monkeypatch.setenv("HTM_STORE", str(tmp_path / "store"))
+    return tmp_path / "store"
+
+
+@pytest.fixture()
+def virkler_test(store, tmp_path):
+    """A simulated Virkler M(T) test in the store, its law inside the set's scatter."""
+    from htm.cli import main as htm_main
+
+    spec = tmp_path / "virkler_run.toml"
+    spec.write_text((ROOT / "examples" / "virkler_mt.toml").read_text()
+                    .replace("c = 1.0e-30", "c = 1.585e-29").replace("m = 3.0\n", "m = 3.08\n"))
+    assert htm_main(["run", str(spec), "--out", str(tmp_path / "run"), "--quiet", "--no-recording",
+                     "--store", str(store)]) == 0
+    return store
+
+
+def open_results(app, pilot):
+    async def go():
+        await pilot.press("f5")
+        await pilot.pause()
+        assert app.query_one("#results-table", DataTable).row_count == 1
+        await pilot.press("down", "up")
+        await until(pilot, lambda: app.query_one(ResultsPane).selected is not None)
+    return go()
+
+
+def test_life_band_of_a_stored_test_narrows_with_its_early_points(virkler_test):
+    assert VIRKLER.exists()
+
+    async def go():
+        app = HtmApp(session_factory=lambda: None, store=virkler_test)
+        async with app.run_test(size=(160, 50)) as pilot:
+            await open_results(app, pilot)
+            pane = app.query_one(ResultsPane)
+            pane.life_band_samples = 40
+            assert app.query_one("#lb-data", Input).value == ""  # blank: the repo's Virkler set
+            app.query_one("#lb-upto", Input).value = "80000"
+            await pilot.click("#lifeband")
+            await pilot.pause()
+            assert "running 40 simulated tests" in text(app, "#lifeband-result")
+            await until(pilot, lambda: pane.life_band is not None or "[red]" in text(app, "#lifeband-result"))
+            shown = text(app, "#lifeband-result")
+            res = pane.life_band
+            assert res is not None, shown
+            lo, med, hi = res["band"]
+            u = res["update"]
+            assert len(res["life"]) == 40 and res["joint"].n_specimens == 40 and res["data"] == str(VIRKLER)
+            assert lo < med < hi and u["p5"] <= u["median"] <= u["p95"]
+            assert u["p95"] - u["p5"] < hi - lo  # the test's own points narrow the band
+            assert res["early"].cycles[-1] <= 80_000 and u["points"] >= 2
+            # what the pane shows is that band, before and after, and the test's cycles so far
+            assert f"median {med:,.0f} cycles, 5–95 % {lo:,.0f} .. {hi:,.0f}" in shown
+            assert f"median {u['median']:,.0f} cycles, 5–95 % {u['p5']:,.0f} .. {u['p95']:,.0f}" in shown
+            assert f"test so far    {res['test']['cycles']:,} cycles" in shown and "(finished)" in shown
+            # the test ran to af: its life sits near the updated median, closer than the prior one
+            life = res["test"]["cycles"]
+            assert abs(u["median"] - life) < abs(med - life)
+    asyncio.run(go())
+
+
+def test_life_band_bad_input_is_a_message(virkler_test, tmp_path):
+    async def go():
+        app = HtmApp(session_factory=lambda: None, store=virkler_test)
+        async with app.run_test(size=(160, 50)) as pilot:
+            await open_results(app, pilot)
+            pane = app.query_one(ResultsPane)
+            pane.life_band_samples = 8
+            app.query_one("#lb-data", Input).value = str(tmp_path / "missing.csv")
+            await pilot.click("#lifeband")
+            await until(pilot, lambda: "[red]" in text(app, "#lifeband-result"))
+            assert "missing.csv: no such file" in text(app, "#lifeband-result") and pane.life_band is None
+            # too few early points: the table starts at cycle 1, one point
+            app.query_one("#lb-data", Input).value = str(VIRKLER)
+            app.query_one("#lb-upto", Input).value = "1"
+            await pilot.click("#lifeband")
+            await until(pilot, lambda: "needs at least 2" in text(app, "#lifeband-result")
+                        or "updated" in text(app, "#lifeband-result"))
+            assert "the update needs at least 2" in text(app, "#lifeband-result") and pane.life_band is None
+            app.query_one("#lb-upto", Input).value = "soon"
+            await pilot.click("#lifeband")
+            await pilot.pause()
+            assert "is not a number" in text(app, "#lifeband-result")
+    asyncio.run(go())
