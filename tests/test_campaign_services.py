@@ -180,7 +180,7 @@ def test_fleet_diagnosis_on_dask_into_postgresql(tmp_path):
     assert r.returncode == 0, r.stderr
     assert "frame-a 2026-03-01 run1:" in r.stdout and "sensor_offset" in r.stdout
     again = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=env)
-    assert "1 already in the store, diagnosing 0" in again.stdout, again.stdout + again.stderr
+    assert "1 already diagnosed in the store, diagnosing 0" in again.stdout, again.stdout + again.stderr
     with Store(pg) as s:
         h = catalogue.history(s, "frame-a")
         s.db.execute("DELETE FROM fleet_params WHERE machine = 'frame-a'")  # the database outlives this test
