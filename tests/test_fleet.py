@@ -83,7 +83,9 @@ def test_records_added_to_the_store_are_diagnosed_from_it_once(tmp_path, capsys)
         held = catalogue.stored(s)
         assert list(held) == [("frame-a", "2026-03-01", "run1"), ("frame-b", "2026-03-02", "morning")]
         assert held[("frame-a", "2026-03-01", "run1")] == kept
-        assert s.db.execute("SELECT samples FROM fleet_records WHERE record = 'run1'").fetchone()[0] == len(rec_a.columns["t"])
+        assert s.db.execute("SELECT samples, bytes, path FROM fleet_records WHERE record = 'run1'").fetchone() == (
+            len(rec_a.columns["t"]), kept.stat().st_size, "fleet/frame-a/2026-03-01/run1.parquet")
+    assert sorted(p.name for p in kept.parent.iterdir()) == ["run1.json", "run1.parquet"]  # nothing left aside
     # the same record under the same machine, date and name again: refused, nothing changed
     code, _, err = htm_here(capsys, "fleet", "add", str(table_a), "--machine", "frame-a", "--date", "2026-03-01", "--store", str(store))
     assert code == 2 and "already in the store" in err and "Traceback" not in err
@@ -167,3 +169,25 @@ def test_a_version_4_catalogue_gains_the_records_table_and_keeps_its_diagnoses(t
     with Store(root) as s:
         assert s.db.version() == SCHEMA_VERSION == 5
         assert catalogue.stored(s) == {} and catalogue.history(s, "frame-a") == {"moving_mass_kg": [("2026-01-01", 52.0)]}
+
+
+def test_an_add_that_fails_writing_leaves_no_row_and_the_next_add_succeeds(tmp_path, monkeypatch):
+    import os
+
+    rec, _ = proving_record(tmp_path / "in", "run1", 5)
+    real = os.replace
+
+    def full_disk(src, dst):
+        raise OSError(28, "No space left on device")
+
+    with Store(tmp_path / "store") as s:
+        monkeypatch.setattr(catalogue.os, "replace", full_disk)
+        try:
+            catalogue.put_record(s, rec, "frame-a", "2026-03-01", "run1")
+            raise AssertionError("the add did not fail")
+        except OSError:
+            pass
+        assert catalogue.stored(s) == {}  # rolled back with the files
+        monkeypatch.setattr(catalogue.os, "replace", real)
+        row = catalogue.put_record(s, rec, "frame-a", "2026-03-01", "run1")
+        assert list(catalogue.stored(s)) == [("frame-a", "2026-03-01", "run1")] and row["bytes"] > 0

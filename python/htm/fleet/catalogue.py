@@ -7,7 +7,9 @@ from __future__ import annotations
 
 import datetime
 import json
+import os
 import re
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -75,15 +77,22 @@ def put_record(store: Any, record: Any, machine: str, date: str, name: str | Non
     if (machine, date, name) in stored(store):
         raise RecordError(f"record {machine} {date} {name} is already in the store {store_label(store)} "
                           "(give another --name, or another --machine / --date)")
-    base = store.root / FLEET_DIR / machine / date / name
-    for leftover in (base.with_name(name + ".parquet"), base.with_name(name + ".json")):
-        leftover.unlink(missing_ok=True)  # an add interrupted before its catalogue row: not in the store
-    table, _ = write_record(record, base, parquet=True)
-    row = {"machine": machine, "date": date, "record": name, "path": str(table.relative_to(store.root)),
-           "columns": ",".join(record.columns), "samples": len(record.columns["t"]), "bytes": table.stat().st_size,
+    folder = store.root / FLEET_DIR / machine / date
+    folder.mkdir(parents=True, exist_ok=True)
+    row = {"machine": machine, "date": date, "record": name, "path": f"{FLEET_DIR}/{machine}/{date}/{name}.parquet",
+           "columns": ",".join(record.columns), "samples": len(record.columns["t"]), "bytes": 0,
            "added_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
-    with store._tx():
+    # the row first (a concurrent add of the same record fails on its key before any file is touched),
+    # the files written aside and moved into place inside the same transaction: a failure leaves no
+    # row, and at most files no row names, which the next add of that record replaces
+    with store._tx(), tempfile.TemporaryDirectory(dir=folder, prefix=".adding-") as tmp:
         store.db.execute("INSERT INTO fleet_records VALUES (?, ?, ?, ?, ?, ?, ?, ?)", tuple(row.values()))
+        table, meta = write_record(record, Path(tmp) / name, parquet=True)
+        row["bytes"] = table.stat().st_size
+        os.replace(meta, folder / meta.name)
+        os.replace(table, folder / table.name)
+        store.db.execute("UPDATE fleet_records SET bytes = ? WHERE machine = ? AND date = ? AND record = ?",
+                         (row["bytes"], machine, date, name))
     return row
 
 
