@@ -180,8 +180,36 @@ def test_fleet_diagnosis_on_dask_into_postgresql(tmp_path):
     assert r.returncode == 0, r.stderr
     assert "frame-a 2026-03-01 run1:" in r.stdout and "sensor_offset" in r.stdout
     again = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=env)
-    assert "1 already in the store, diagnosing 0" in again.stdout, again.stdout + again.stderr
+    assert "1 already diagnosed in the store, diagnosing 0" in again.stdout, again.stdout + again.stderr
     with Store(pg) as s:
         h = catalogue.history(s, "frame-a")
         s.db.execute("DELETE FROM fleet_params WHERE machine = 'frame-a'")  # the database outlives this test
     assert abs(h["sensor_offset_p_a"][0][1] - 4e5) < 1e5 and h["moving_mass_kg"][0][0] == "2026-03-01"
+
+
+def test_fleet_records_added_to_postgresql_are_diagnosed_on_dask(tmp_path):
+    from htm.fleet import catalogue
+    from htm.ident import proving, records
+
+    pg, dask = service("HTM_TEST_PG"), service("HTM_TEST_DASK")
+    rec, _ = proving.make_record({"sensor_offset": {"channel": "p_a", "offset_pa": 4e5}}, seed=1, duration_s=4)
+    table, _ = records.write_record(rec, tmp_path / "in" / "run1")
+    env = dict(os.environ, HTM_STORE_FILES=str(tmp_path / "files"))  # the records' Parquet on the shared path
+    add = [sys.executable, "-m", "htm.cli", "fleet", "add", str(table), "--machine", "frame-s", "--date", "2026-04-01", "--store", pg]
+    r = subprocess.run(add, capture_output=True, text=True, timeout=120, env=env)
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "files" / "fleet" / "frame-s" / "2026-04-01" / "run1.parquet").is_file()
+    cmd = [sys.executable, "-m", "htm.cli", "fleet", "diagnose", "--from-store", "--store", pg, "--cluster", dask, "--work-s", "1"]
+    try:
+        r = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=env)
+        assert r.returncode == 0, r.stderr
+        assert "frame-s 2026-04-01 run1:" in r.stdout and "sensor_offset" in r.stdout
+        again = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=env)
+        assert "1 already diagnosed in the store, diagnosing 0" in again.stdout, again.stdout + again.stderr
+        with Store(pg) as s:
+            h = catalogue.history(s, "frame-s")
+        assert abs(h["sensor_offset_p_a"][0][1] - 4e5) < 1e5 and h["moving_mass_kg"][0][0] == "2026-04-01"
+    finally:
+        with Store(pg) as s:  # the database outlives this test
+            s.db.execute("DELETE FROM fleet_params WHERE machine = 'frame-s'")
+            s.db.execute("DELETE FROM fleet_records WHERE machine = 'frame-s'")

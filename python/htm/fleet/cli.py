@@ -1,14 +1,15 @@
-"""`htm fleet diagnose FOLDER` and `htm fleet trend MACHINE`."""
+"""`htm fleet add RECORD --machine M --date D`, `htm fleet diagnose FOLDER | --from-store` and `htm fleet trend MACHINE`."""
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 from htm.campaign import cluster
-from htm.errors import HtmError
+from htm.errors import HtmError, RecordError
 
 
 def diagnose_one(table: str, work_s: float) -> dict[str, Any]:
@@ -41,18 +42,57 @@ def _dask(client: Any, jobs: list[tuple[str, str, Path]], work_s: float) -> Iter
             yield futs[f], " ".join(str(e).split())
 
 
+def open_store(where: str | None, must_exist: bool) -> Any:
+    """The store at `--store` (default $HTM_STORE...); with `must_exist`, a folder that holds no
+    catalogue is refused instead of created (a mistyped path is named, not silently made empty)."""
+    from htm.record import backend
+    from htm.record.store import Store, default_root
+
+    pg = backend.is_postgres(where) or (where is None and backend.is_postgres(os.environ.get("HTM_STORE")))
+    if must_exist and not pg:
+        root = Path(where) if where is not None else default_root()
+        if not (root / "catalogue.sqlite").is_file():
+            raise RecordError(f"--store {root}: no store there (no catalogue.sqlite); `htm fleet add` puts records into a new one")
+    return Store(where)
+
+
+def cmd_fleet_add(args: argparse.Namespace) -> int:
+    from htm.fleet import catalogue
+    from htm.ident.records import read_record
+
+    if args.name and len(args.records) > 1:
+        raise HtmError("--name names one record; give one RECORD with it")
+    catalogue.check_name("--machine", args.machine)
+    catalogue.check_date(args.date)
+    recs = [read_record(r) for r in args.records]  # every record read before any is added
+    with open_store(args.store, must_exist=False) as store:
+        for rec in recs:
+            row = catalogue.put_record(store, rec, args.machine, args.date, args.name)
+            print(f"fleet: added {row['machine']} {row['date']} {row['record']} ({row['samples']} samples: {row['columns']}) "
+                  f"as {row['path']}")
+    return 0
+
+
 def cmd_fleet_diagnose(args: argparse.Namespace) -> int:
     from htm.fleet import catalogue
-    from htm.record.store import Store
 
-    jobs = catalogue.records_in(Path(args.folder))
-    with Store(args.store) as store:
+    if (args.folder is None) == (not args.from_store):
+        raise HtmError("give either FOLDER (records as FOLDER/MACHINE/DATE/NAME.csv) or --from-store (the records "
+                       "`htm fleet add` put into the store), not both")
+    jobs = [] if args.from_store else catalogue.records_in(Path(args.folder))
+    with open_store(args.store, must_exist=args.from_store) as store:
+        source = args.folder
+        if args.from_store:
+            jobs = [(m, d, table) for (m, d, _), table in catalogue.stored(store).items()]
+            source = f"the store {catalogue.store_label(store)}"
+            if not jobs:
+                raise RecordError(f"{source} holds no records (`htm fleet add RECORD --machine M --date D --store ...` puts them there)")
         done = catalogue.held(store)
         todo = [j for j in jobs if (j[0], j[1], catalogue.record_name(j[2])) not in done]
         client = None
         if args.cluster:
             client = cluster.connect(args.cluster)
-        print(f"fleet: {len(jobs)} records in {args.folder}, {len(jobs) - len(todo)} already in the store, diagnosing {len(todo)}")
+        print(f"fleet: {len(jobs)} records in {source}, {len(jobs) - len(todo)} already diagnosed in the store, diagnosing {len(todo)}")
         failed = 0
         try:
             results = _dask(client, todo, args.work_s) if client else _local(todo, args.work_s)
@@ -73,9 +113,8 @@ def cmd_fleet_diagnose(args: argparse.Namespace) -> int:
 
 def cmd_fleet_trend(args: argparse.Namespace) -> int:
     from htm.fleet import catalogue, drift
-    from htm.record.store import Store
 
-    with Store(args.store) as store:
+    with open_store(args.store, must_exist=True) as store:
         hist = catalogue.history(store, args.machine)
     verdicts = drift.judge_all(hist, args.k_sigma)
     params = [p for p in (args.param or sorted(hist)) if p in hist]
@@ -128,13 +167,28 @@ def register(sub: argparse._SubParsersAction) -> None:
     f = sub.add_parser("fleet", help="diagnose records of several machines into the catalogue; trend a machine's parameters",
                        description="Fleet diagnosis: identified parameters per machine and date, and their drift.")
     fs = f.add_subparsers(dest="fleet_command", required=True, metavar="SUBCOMMAND")
-    d = fs.add_parser("diagnose", help="run `htm diagnose` on every record of FOLDER/MACHINE/DATE/ and keep the parameters",
-                      description="Diagnose every record laid out as FOLDER/MACHINE/DATE/NAME.csv (NAME.json beside it) and "
-                                  "keep its identified parameters per machine and date in the store; records already "
+    a = fs.add_parser("add", help="put measurement records into the store for a machine and date",
+                      description="Keep DATA_FORMAT records (NAME.csv / .csv.gz / .parquet with NAME.json) in the store "
+                                  "for MACHINE on DATE: the table as Parquet with its metadata beside it under the store's "
+                                  "path (fleet/MACHINE/DATE/NAME.parquet), a catalogue row naming it. Each record is "
+                                  "validated first; one already held under that machine, date and name is refused. "
+                                  "`htm fleet diagnose --from-store` then diagnoses them.")
+    a.add_argument("records", nargs="+", metavar="RECORD", help="a record's table (or its .json)")
+    a.add_argument("--machine", required=True, help="the machine (frame) that recorded it")
+    a.add_argument("--date", required=True, help="the date it was recorded, YYYY-MM-DD")
+    a.add_argument("--name", help="the record's name in the store (default: its file name; one RECORD only)")
+    a.add_argument("--store", help="test store: a folder or postgresql://USER@HOST:PORT/DB (its files on $HTM_STORE_FILES)")
+    a.set_defaults(func=cmd_fleet_add)
+    d = fs.add_parser("diagnose", help="run `htm diagnose` on every record of FOLDER/MACHINE/DATE/ or of the store, keep the parameters",
+                      description="Diagnose every record laid out as FOLDER/MACHINE/DATE/NAME.csv (NAME.json beside it), "
+                                  "or with --from-store every record `htm fleet add` put into the store, and keep its "
+                                  "identified parameters per machine and date in the store; records already diagnosed "
                                   "there are skipped.")
-    d.add_argument("folder")
+    d.add_argument("folder", nargs="?", help="records as FOLDER/MACHINE/DATE/NAME.csv (or give --from-store)")
+    d.add_argument("--from-store", action="store_true", help="diagnose the records the store holds (`htm fleet add`) instead of a folder")
     d.add_argument("--cluster", metavar="tcp://HOST:PORT", default=cluster.default_address(),
-                   help="diagnose on this Dask scheduler's workers (FOLDER must be readable there; default $HTM_CLUSTER)")
+                   help="diagnose on this Dask scheduler's workers (FOLDER, or the store's path, must be readable there; "
+                        "default $HTM_CLUSTER)")
     d.add_argument("--store", help="test store: a folder or postgresql://USER@HOST:PORT/DB")
     d.add_argument("--work-s", type=float, default=20.0, help="search effort per record (diagnose's work_s, default 20)")
     d.set_defaults(func=cmd_fleet_diagnose)

@@ -3,7 +3,9 @@ one folder per test holding its journal, Parquet tables and rerun recording.
 
 Layout: `ROOT/catalogue.sqlite`, `ROOT/tests/ID/` with `journal-NNN.htmj` (while the test is open),
 `cycles.parquet` (one row per cycle run through the plant, and one per cycle jump), `raw.parquet`
-(raw high-rate windows: the first cycles, a few cycles per decade, around events), `recording.rrd`. The root is `--store`, else
+(raw high-rate windows: the first cycles, a few cycles per decade, around events), `recording.rrd`;
+`ROOT/fleet/MACHINE/DATE/NAME.parquet` with `NAME.json` (measurement records put in for fleet
+diagnosis, `htm fleet add`; catalogue table `fleet_records`). The root is `--store`, else
 `$HTM_STORE`, else `~/.local/share/htm/store`. With `--store postgresql://USER@HOST/DB` (or such an
 `$HTM_STORE`) the catalogue is that PostgreSQL database and the test folders are under the shared path
 `$HTM_STORE_FILES` (default as above): same schema, same migrations (`backend.py` translates).
@@ -72,6 +74,13 @@ MIGRATIONS = [
     CREATE TABLE fleet_params(machine TEXT NOT NULL, date TEXT NOT NULL, record TEXT NOT NULL, param TEXT NOT NULL,
         value REAL NOT NULL, findings TEXT NOT NULL, unexplained INTEGER NOT NULL, diagnosed_utc TEXT NOT NULL,
         PRIMARY KEY(machine, date, record, param));
+    """,
+    # 4 -> 5: measurement records kept in the store for fleet diagnosis (htm.fleet): the table as
+    # Parquet with its metadata JSON beside it under ROOT/fleet/MACHINE/DATE/, `path` relative to ROOT
+    """
+    CREATE TABLE fleet_records(machine TEXT NOT NULL, date TEXT NOT NULL, record TEXT NOT NULL, path TEXT NOT NULL,
+        columns TEXT NOT NULL, samples INTEGER NOT NULL, bytes INTEGER NOT NULL, added_utc TEXT NOT NULL,
+        PRIMARY KEY(machine, date, record));
     """,
 ]
 SCHEMA_VERSION = len(MIGRATIONS)
