@@ -29,12 +29,6 @@ def text(app, sel: str) -> str:
     return str(app.query_one(sel, Static).content)
 
 
-@pytest.fixture()
-def store(tmp_path, monkeypatch):
-    monkeypatch.setenv("HTM_STORE", str(tmp_path / "store"))
-    return tmp_path / "store"
-
-
 def test_setup_rejects_a_bad_field_and_simulates_a_valid_test(store):
     async def go():
         app = HtmApp(session_factory=lambda: None)

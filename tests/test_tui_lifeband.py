@@ -1,34 +1,17 @@
 """The console's life band (Results tab, key b): a stored test's life predicted from a specimen set and
 updated from the test's own first points, computed off the UI thread; bad input is a message."""
 import asyncio
-import time
 from pathlib import Path
 
 import pytest
-from textual.widgets import DataTable, Input, Static
+from test_tui import text, until
+from textual.widgets import DataTable, Input
 
 from htm.tui.app import HtmApp
 from htm.tui.results import VIRKLER, ResultsPane
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-async def until(pilot, cond, timeout: float = 120.0, step: float = 0.1) -> None:
-    t0 = time.monotonic()
-    while not cond():
-        if time.monotonic() - t0 > timeout:
-            raise AssertionError("condition not reached in time")
-        await pilot.pause(step)
-
-
-def text(app, sel: str) -> str:
-    return str(app.query_one(sel, Static).content)
-
-
-@pytest.fixture()
-def store(tmp_path, monkeypatch):
-    monkeypatch.setenv("HTM_STORE", str(tmp_path / "store"))
-    return tmp_path / "store"
+LONG = 120.0  # s: a Monte Carlo campaign runs before the band shows
 
 
 @pytest.fixture()
@@ -50,7 +33,7 @@ def open_results(app, pilot):
         await pilot.pause()
         assert app.query_one("#results-table", DataTable).row_count == 1
         await pilot.press("down", "up")
-        await until(pilot, lambda: app.query_one(ResultsPane).selected is not None)
+        await until(pilot, lambda: app.query_one(ResultsPane).selected is not None, timeout=LONG)
     return go()
 
 
@@ -68,7 +51,7 @@ def test_life_band_of_a_stored_test_narrows_with_its_early_points(virkler_test):
             await pilot.click("#lifeband")
             await pilot.pause()
             assert "running 40 simulated tests" in text(app, "#lifeband-result")
-            await until(pilot, lambda: pane.life_band is not None or "[red]" in text(app, "#lifeband-result"))
+            await until(pilot, lambda: pane.life_band is not None or "[red]" in text(app, "#lifeband-result"), timeout=LONG)
             shown = text(app, "#lifeband-result")
             res = pane.life_band
             assert res is not None, shown
@@ -97,14 +80,14 @@ def test_life_band_bad_input_is_a_message(virkler_test, tmp_path):
             pane.life_band_samples = 8
             app.query_one("#lb-data", Input).value = str(tmp_path / "missing.csv")
             await pilot.click("#lifeband")
-            await until(pilot, lambda: "[red]" in text(app, "#lifeband-result"))
+            await until(pilot, lambda: "[red]" in text(app, "#lifeband-result"), timeout=LONG)
             assert "missing.csv: no such file" in text(app, "#lifeband-result") and pane.life_band is None
             # too few early points: the table starts at cycle 1, one point
             app.query_one("#lb-data", Input).value = str(VIRKLER)
             app.query_one("#lb-upto", Input).value = "1"
             await pilot.click("#lifeband")
             await until(pilot, lambda: "needs at least 2" in text(app, "#lifeband-result")
-                        or "updated" in text(app, "#lifeband-result"))
+                        or "updated" in text(app, "#lifeband-result"), timeout=LONG)
             assert "the update needs at least 2" in text(app, "#lifeband-result") and pane.life_band is None
             app.query_one("#lb-upto", Input).value = "soon"
             await pilot.click("#lifeband")

@@ -7,19 +7,11 @@ Update after an intended change with `pytest tests/test_tui_snapshots.py --snaps
 import tomllib
 from pathlib import Path
 
-import pytest
-
 from htm import spec as specmod
 from htm.tui.app import HtmApp
 
 ROOT = Path(__file__).resolve().parents[1]
 SIZE = (150, 50)
-
-
-@pytest.fixture()
-def store(tmp_path, monkeypatch):
-    monkeypatch.setenv("HTM_STORE", str(tmp_path / "store"))
-    return tmp_path / "store"
 
 
 def lockstep_session():
