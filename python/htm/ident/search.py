@@ -121,7 +121,7 @@ def search(prob: Problem, base: Model, nominal: Any, pool: list[Candidate], rate
         ranked = screen(prob, model, work_pred, jac, pool)
         q = np.linalg.qr(jac)[0]  # what the base parameters can absorb, to first order
         log("screen", [(c.effect, c.channel, round(g, 3)) for c, g, _ in ranked[:6]])
-        good: list[tuple[Candidate, dict, Model, dict]] = []
+        good: list[tuple[Candidate, dict, Model, dict, dict]] = []  # (cand, verdict, fit, its work and whole predictions)
         better_base: tuple[float, Model] | None = None
         for cand, gain, step in ranked[:max_refits]:
             if gain < REFIT_SHARE * ranked[0][1]:
@@ -135,7 +135,7 @@ def search(prob: Problem, base: Model, nominal: Any, pool: list[Candidate], rate
             verdict = pays_off(prob, pred, trial, tpred, model, cand)
             log("refit", cand.label, cand.report(trial.params()), verdict)
             if verdict["ok"]:
-                good.append((cand, verdict, trial, twork))
+                good.append((cand, verdict, trial, twork, tpred))
             elif verdict["dcost"] < -MIN_GAIN:
                 # Not the effect but a better fit of the base parameters: remember those.
                 cost = prob.fit_cost(twork)
@@ -148,7 +148,7 @@ def search(prob: Problem, base: Model, nominal: Any, pool: list[Candidate], rate
             bpred = prob.predict([better_base[1].params()], whole=True)[0]
             settled = []
             for g in good:
-                if pays_off(prob, bpred, g[2], prob.whole(g[2], g[3]), model, g[0])["ok"]:
+                if pays_off(prob, bpred, g[2], g[4], model, g[0])["ok"]:
                     settled.append(g)
                 else:
                     log("not against the better base", g[0].label)
@@ -166,7 +166,7 @@ def search(prob: Problem, base: Model, nominal: Any, pool: list[Candidate], rate
         # Close contenders (e.g. an offset and a gain of the same sensor) are told apart polished.
         contenders = [g for g in good[:2] if g[1]["dbic"] <= 0.5 * good[0][1]["dbic"]]
         polished = []
-        for cand, _, trial, twork in contenders:
+        for cand, _, trial, twork, _ in contenders:
             trial, twork, tjac = fit(prob, trial, iters=POLISH_ITERS, pred0=twork)
             again = trial.unpinned(x0, xn)
             if not np.array_equal(again.x, trial.x):
