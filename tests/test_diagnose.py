@@ -169,3 +169,22 @@ def test_bad_samples_are_dropped_with_a_warning_and_missing_channels_are_not_nee
     assert any(bad in w for w in report["warnings"]), report.get("warnings")
     assert not proving.judge(report, truth)
     assert all(np.isfinite(v) for v in report["final"]["rmse"].values())
+
+
+def test_one_channel_the_model_cannot_follow_is_left_out_not_the_record(tmp_path):
+    """A velocity channel carrying a tone the rig cannot make (as a velocity sampled below its
+    motion's bandwidth aliases): the record is diagnosed without it — a warning names it, the record
+    is unexplained, nothing is claimed — and the channel is still predicted and reported."""
+    rec, _ = proving.make_record({}, seed=5, duration_s=6)
+    cols = dict(rec.columns)
+    v = np.asarray(cols["v"], dtype=float)
+    cols["v"] = v + 3.0 * float(np.std(v)) * np.sin(2 * np.pi * 0.37 * 500.0 * np.asarray(cols["t"]))
+    table, meta = write_record(Record(cols, rec.meta, "aliased_v"), tmp_path / "aliased_v")
+    assert main(["diagnose", str(table), "--out", str(tmp_path / "out")]) == 0
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert report["findings"] == [] and report["unexplained"] is True
+    assert any("cannot follow v" in w and "left out of the fit" in w for w in report["warnings"])
+    pred = read_predictions(tmp_path / "out" / "predictions.csv")
+    assert report["final"]["rmse"]["v"] == pytest.approx(rmse(pred["v_after"], cols["v"]), rel=1e-6)
+    assert report["final"]["rmse"]["y"] < 0.1 * float(np.std(cols["y"]))  # the rest is fitted
+    assert "left out of the fit" in (tmp_path / "out" / "report.md").read_text()

@@ -90,3 +90,38 @@ def test_an_offset_a_tolerated_gain_would_read_is_not_claimed():
     assert not on_supply({"offset_pa": 0.31e5}) and not on_supply({"offset_pa": -1.55e5})
     assert on_supply({"offset_pa": 2.6e5})
     assert _not_a_tolerated_gain(rec, "p_a")({"offset_pa": 0.31e5})
+
+
+def test_a_null_bias_or_a_leak_within_a_valves_own_null_is_not_claimed():
+    # Sizes from the valve's own rating: a null bias from 0.2 % of the rated command, a leak
+    # across the piston whose flow at supply pressure reaches 0.5 % of the rated flow.
+    from htm.ident import features as ft
+    from htm.ident import proving
+    from htm.ident.valve import MIN_LEAKAGE, MIN_NULL_BIAS, ValveFamily
+
+    rec, _ = proving.make_record({}, seed=3, duration_s=2)
+    family = ValveFamily(rec, ft.measured_channels(rec.columns))
+    p = family.nominal
+    pool = {c.effect: c for c in family.candidates({c: 1.0 for c in family.channels}, 500.0)}
+    bias = MIN_NULL_BIAS * p["valve_max_command_v"]
+    leak = MIN_LEAKAGE * p["valve_rated_flow_m3_s"] / p["supply_pressure_pa"]
+    assert not pool["valve_null_bias"].claimable({"bias_v": -0.5 * bias})
+    assert pool["valve_null_bias"].claimable({"bias_v": -2.0 * bias})
+    assert not pool["internal_leakage"].claimable({"coeff_m3_per_s_pa": 0.5 * leak})
+    assert pool["internal_leakage"].claimable({"coeff_m3_per_s_pa": 2.0 * leak})
+
+
+def test_a_ripple_is_placed_to_a_fraction_of_one_over_the_record():
+    # A pump's ripple at a frequency between two spectral bins: fitted at the bin it would drift
+    # out of phase over the record; the probe starts within 1 % of 1/duration of it.
+    from htm.ident.records import Record
+    from htm.ident.valve import _ripple_frequencies
+
+    rng = np.random.default_rng(4)
+    rate, n = 1000.0, 30000
+    t = np.arange(n) / rate
+    f_pump = 296.7951
+    cols = {"t": t, "y": 0.01 * np.sin(2 * np.pi * 0.5 * t), "u": np.sin(2 * np.pi * 0.5 * t)}
+    residual = {c: a * np.sin(2 * np.pi * f_pump * t + 0.3) + rng.normal(0, 1.0, n) for c, a in (("p_a", 0.5), ("p_b", 0.3))}
+    found = _ripple_frequencies(Record(cols, {}, "ripple"), residual, rate)
+    assert found and abs(found[0] - f_pump) < 0.01 * rate / n

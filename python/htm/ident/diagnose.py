@@ -56,42 +56,25 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
     sigma = {c: ft.declared_noise(rec.meta, c) or ft.noise_floor(rec.columns[c], ft.declared_resolution(rec.meta, c))
              for c in channels}
     _check_excitation(rec, sigma)
-    scales = {c: max(sigma[c] * 10, 1e-6 * float(np.nanmax(np.abs(rec.columns[c])) or 1.0)) for c in channels}
-    n = len(rec.columns["t"])
-    family = for_record(rec, channels, horizon_s)
-    closed = family.closed_loop
-    if family.has_command:
-        # Fitted by the prediction error from the recorded command (open loop, restarted from the
-        # measurement every horizon): well posed whatever a closed loop does with its sensor
-        # noise (a free run cannot follow the record's own hunt around a hold), and the restarts
-        # make horizons independent, so a fit simulates only its horizons, spread over the record.
-        horizon = float(family.opts.get("horizon_s", DEFAULT_HORIZON_S))
-        fit_mask, val_mask = spread_blocks(n, rate, horizon, work_s)
-        prob = Problem(rec, family.simulate, channels, sigma, n, fit_mask, val_mask, {**family.opts, "command": closed},
-                       sparse=True)
-    else:
-        # a family whose simulation is cheap fits the whole record (a chirp's high end comes last)
-        n_work = n if getattr(family, "whole_record", False) else min(n, int(round(work_s * rate)))
-        fit_mask, val_mask = blocks(n_work, n, rate)
-        prob = Problem(rec, family.simulate, channels, sigma, n_work, fit_mask, val_mask, dict(family.opts))
-    # A closed loop's predictions are free runs from the reference (DATA_FORMAT.md).
-    free = prob.variant(command=False) if closed and family.has_command else prob
-    log: Callable[..., None] = (lambda *a: print(f"[{time.perf_counter() - t_start:6.1f}s {prob.simulations + free.simulations:4d} sims]", *a)) if verbose else (lambda *a: None)
-
-    nominal = family.nominal
-    for f in family.base_frees:
-        if f.log and get_value(nominal, f.key) <= 0:
-            raise IdentificationError(f"cannot identify: nominal {f.key} is {get_value(nominal, f.key)}; need > 0")
-    base = Model(nominal, list(family.base_frees), np.zeros(0))
-    base = base.at(family.start(base))
-    pool = family.candidates(scales, rate)
+    fitting = every = _Fitting(rec, channels, sigma, rate, work_s, horizon_s, verbose, t_start)
+    fitted = fitting.search(max_findings, max_refits)
+    bad = _not_followed(fitting.prob, fitted)
+    dropped: dict[str, float] = {}
+    if bad and "y" not in bad and len(bad) == 1 and len(channels) > 2:
+        # One channel the model cannot follow while the position and the others fit (a velocity
+        # sampled below its motion's bandwidth, a sensor of another form): diagnose without it,
+        # say so, and leave the record unexplained — refusing would throw away what does fit.
+        dropped = bad
+        channels = [c for c in channels if c not in bad]
+        warnings.append(_refusal(rec, bad, left_out=True))
+        fitting = _Fitting(rec, channels, {c: sigma[c] for c in channels}, rate, work_s, horizon_s, verbose, t_start)
+        fitted = fitting.search(max_findings, max_refits)
+        bad = _not_followed(fitting.prob, fitted)
+    if bad:
+        raise IdentificationError(_refusal(rec, bad))
+    prob, free, family, nominal, log, closed = (fitting.prob, fitting.free, fitting.family, fitting.nominal, fitting.log,
+                                               fitting.closed)
     quantum = {c: ft.declared_resolution(rec.meta, c) or 0.0 for c in channels}
-
-    fitted = search(prob, base, nominal, pool, rate, max_findings=max_findings, max_refits=max_refits,
-                    first=getattr(family, "first_stage", frozenset()), log=log)
-    refusal = _cannot_fit(rec, prob, fitted)
-    if refusal:
-        raise IdentificationError(refusal)
     # Structure left, judged where the fit was made: beyond the model's form, above its own floor.
     floor = own_floor(prob, fitted.model, fitted.pred, rate, quantum)
     form = form_ratios(prob, fitted.pred, rate)
@@ -108,33 +91,40 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
             + " at its bound and still misses " + ", ".join(f"{c} by {form[c]:.0f}x its noise floor" for c in gross)
             + "; check the `rig` metadata (geometry, valve rating, mass)")
     outside = None
-    if left and hasattr(family, "probes"):
+    if hasattr(family, "probes"):
         # Structure left: is it of a kind outside the vocabulary (a force over part of the stroke,
         # a pump's ripple...)? Only a probe that pays off well makes it unexplained; what no probe
-        # reproduces either is the model's form, not an effect it lacks.
+        # reproduces either is the model's form, not an effect it lacks. A tone is looked for
+        # whatever the broadband verdict: it shows in its own band only.
         residual = {c: np.asarray(fitted.pred[c]) - prob.meas[c] for c in channels}
-        outside = probe(prob, fitted, family.probes(residual, rate), rate, log=log)
-        left = left if outside is not None else []
+        probes = [c for c in family.probes(residual, rate) if left or c.tone_hz]
+        outside = probe(prob, fitted, probes, rate, log=log) if probes else None
+        left = (left or [outside.focus]) if outside is not None else []
     res = _restate_free_run(free, fitted, rate) if free is not prob else fitted
+    if dropped:  # the channel left out is still predicted and reported (DATA_FORMAT.md: every measured channel)
+        both = every.free.predict([res.base.params(), res.model.params()], whole=True)
+        for c in dropped:
+            res.base_pred[c], res.pred[c] = both[0][c], both[1][c]
     fitted_on = "recorded command" if family.has_command else "free run"
-    simulations = prob.simulations + (free.simulations if free is not prob else 0)
-    ratios = free.ratios(res.pred, rate)
+    simulations = sum(f.prob.simulations + (f.free.simulations if f.free is not f.prob else 0) for f in {every, fitting})
+    ratios = every.free.ratios(res.pred, rate)
     report: dict[str, Any] = {
         "format": FORMAT,
         "record": rec.name,
-        "baseline": {"params": res.base.values(), "rmse": prob.rmse(res.base_pred)},
+        "baseline": {"params": res.base.values(), "rmse": every.prob.rmse(res.base_pred)},
         "findings": [f.to_json() for f in res.findings],
-        "final": {"params": res.model.values(), "rmse": prob.rmse(res.pred)},
-        "unexplained": bool(left),
+        "final": {"params": res.model.values(), "rmse": every.prob.rmse(res.pred)},
+        "unexplained": bool(left) or bool(dropped),
         "predictions": "predictions.csv",
     }
     if warnings:  # samples dropped or tolerated: a reader of the report must know
         report["warnings"] = warnings
     if not closed and family.has_command:  # open loop on the recorded command, restarted every horizon
-        report["horizon_s"] = horizon
+        report["horizon_s"] = fitting.horizon
     log("done", report["final"]["rmse"], "unexplained" if left else "")
     info = {"simulations": simulations, "seconds": time.perf_counter() - t_start, "noise_floor": sigma,
-            "systematic_ratio": ratios, "own_floor": floor, "form_ratio": form, "unexplained_channels": left,
+            "systematic_ratio": ratios, "own_floor": floor, "form_ratio": form,
+            "unexplained_channels": sorted(set(left) | set(dropped)),
             "outside": outside, "fitted_on": fitted_on,
             "family": family.name}  # model.json says which simulator re-runs the model
     if out_dir is not None:
@@ -144,6 +134,51 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
     if stats is not None:
         stats.update(info, before=res.base_pred, after=res.pred, seconds=time.perf_counter() - t_start)
     return report
+
+
+class _Fitting:
+    """One record's fitting problem on a set of its channels: the model family, the fit and
+    validation samples (and the free-run variant a closed loop is reported by), the base model
+    and the candidate effects."""
+
+    def __init__(self, rec: Record, channels: list[str], sigma: dict[str, float], rate: float, work_s: float,
+                 horizon_s: float | None, verbose: bool, t_start: float) -> None:
+        self.rate = rate
+        n = len(rec.columns["t"])
+        family = self.family = for_record(rec, channels, horizon_s)
+        self.closed = closed = family.closed_loop
+        if family.has_command:
+            # Fitted by the prediction error from the recorded command (open loop, restarted from the
+            # measurement every horizon): well posed whatever a closed loop does with its sensor
+            # noise (a free run cannot follow the record's own hunt around a hold), and the restarts
+            # make horizons independent, so a fit simulates only its horizons, spread over the record.
+            self.horizon = float(family.opts.get("horizon_s", DEFAULT_HORIZON_S))
+            fit_mask, val_mask = spread_blocks(n, rate, self.horizon, work_s)
+            prob = Problem(rec, family.simulate, channels, sigma, n, fit_mask, val_mask, {**family.opts, "command": closed},
+                           sparse=True)
+        else:
+            # a family whose simulation is cheap fits the whole record (a chirp's high end comes last)
+            n_work = n if getattr(family, "whole_record", False) else min(n, int(round(work_s * rate)))
+            fit_mask, val_mask = blocks(n_work, n, rate)
+            prob = Problem(rec, family.simulate, channels, sigma, n_work, fit_mask, val_mask, dict(family.opts))
+        self.prob = prob
+        # A closed loop's predictions are free runs from the reference (DATA_FORMAT.md).
+        self.free = free = prob.variant(command=False) if closed and family.has_command else prob
+        self.log: Callable[..., None] = (
+            (lambda *a: print(f"[{time.perf_counter() - t_start:6.1f}s {prob.simulations + free.simulations:4d} sims]", *a))
+            if verbose else (lambda *a: None))
+        nominal = self.nominal = family.nominal
+        for f in family.base_frees:
+            if f.log and get_value(nominal, f.key) <= 0:
+                raise IdentificationError(f"cannot identify: nominal {f.key} is {get_value(nominal, f.key)}; need > 0")
+        base = Model(nominal, list(family.base_frees), np.zeros(0))
+        self.base = base.at(family.start(base))
+        scales = {c: max(sigma[c] * 10, 1e-6 * float(np.nanmax(np.abs(rec.columns[c])) or 1.0)) for c in channels}
+        self.pool = family.candidates(scales, rate)
+
+    def search(self, max_findings: int, max_refits: int) -> Result:
+        return search(self.prob, self.base, self.nominal, self.pool, self.rate, max_findings=max_findings,
+                      max_refits=max_refits, first=getattr(self.family, "first_stage", frozenset()), log=self.log)
 
 
 def _restate_free_run(prob: Problem, res: Result, rate: float) -> Result:
@@ -177,11 +212,11 @@ def _check_excitation(rec: Record, sigma: dict[str, float]) -> None:
             "(ramps, sines, steps)")
 
 
-def _cannot_fit(rec: Record, prob: Problem, res: Result) -> str | None:
-    """Why the declared rig cannot be reconciled with the record, or None: the fitted model does
-    not even follow a channel that moves well above its noise (its error is over half the
-    channel's own variation) — a geometry, polarity or channel that does not belong to this record."""
-    bad = []
+def _not_followed(prob: Problem, res: Result) -> dict[str, float]:
+    """The channels the fitted model does not even follow, with its error as a share of their
+    variation: a channel that moves well above its noise and whose error is over CANNOT_FOLLOW
+    of that — a geometry, polarity or channel that does not belong to this record."""
+    bad = {}
     for c in prob.channels:
         m = prob.meas[c][prob.val_mask]
         spread = float(np.nanstd(m))
@@ -189,9 +224,16 @@ def _cannot_fit(rec: Record, prob: Problem, res: Result) -> str | None:
             continue
         err = float(np.sqrt(np.nanmean((np.asarray(res.pred[c])[prob.val_mask] - m) ** 2)))
         if not np.isfinite(err) or err > CANNOT_FOLLOW * spread:
-            bad.append(f"{c} (its error is {err / spread:.0%} of the signal's variation)")
-    if not bad:
-        return None
-    return (f"cannot identify `{rec.name}`: the model of the declared rig cannot follow " + ", ".join(bad)
-            + " even with every base parameter and effect fitted; check the declared geometry (area_a_m2, area_b_m2, "
+            bad[c] = err / spread if np.isfinite(err) else float("inf")
+    return bad
+
+
+def _refusal(rec: Record, bad: dict[str, float], left_out: bool = False) -> str:
+    what = ", ".join(f"{c} (its error is {r:.0%} of the signal's variation)" for c, r in bad.items())
+    if left_out:
+        return (f"the model of the declared rig cannot follow {what} even with every base parameter and effect "
+                "fitted: left out of the fit, and the record reported unexplained; check that channel's units, "
+                "sign and bandwidth against the sample rate")
+    return (f"cannot identify `{rec.name}`: the model of the declared rig cannot follow {what}"
+            " even with every base parameter and effect fitted; check the declared geometry (area_a_m2, area_b_m2, "
             "stroke_m, orientation), the valve polarity and the channels' units and signs")

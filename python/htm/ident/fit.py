@@ -150,6 +150,22 @@ class Problem:
         return max(shares, default=0.0)
 
 
+    def explained_in_band(self, before: dict, after: dict, f_hz: float, rate: float) -> float:
+        """The largest share, over the channels, of the residual's power within a narrow band
+        around `f_hz` (a few 1/duration wide) that going from `before` to `after` removes (whole
+        record, dropped samples as zero)."""
+        n = len(self.rec.columns["t"])
+        freqs = np.fft.rfftfreq(n, 1.0 / rate)
+        band = np.abs(freqs - f_hz) <= max(4.0 * rate / n, 0.5)
+        shares = []
+        for c in self.channels:
+            p0, p1 = (float(np.sum(np.abs(np.fft.rfft(np.nan_to_num(np.asarray(p[c], dtype=float) - self.meas[c])))[band] ** 2))
+                      for p in (before, after))
+            if p0 > 0:
+                shares.append(1.0 - p1 / p0)
+        return max(shares, default=0.0)
+
+
 def blocks(n_work: int, n: int, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
     """Fit mask over the working window (the even ones of interleaved `BLOCK_S` blocks) and
     validation mask over the whole record (the odd blocks and all beyond the window)."""

@@ -181,6 +181,9 @@ class Candidate:
     # The smallest size worth claiming, as a test of the effect's reported parameters (None: any
     # size that pays off): below it the effect is within what the base model's form can mimic.
     claimable: Callable[[dict[str, float]], bool] | None = None
+    # A tone (a probe at a fixed frequency): judged in its own narrow band around this frequency,
+    # where a broadband residual would drown it.
+    tone_hz: float | None = None
 
     def report(self, p: Any) -> dict[str, float]:
         return {name: float(p[key]) for name, key in self.fields}

@@ -68,7 +68,7 @@ def _write_markdown(out: Path, rec: Record, report: dict[str, Any], before: dict
                   "horizon: well posed whatever the loop does with its sensor noise); the errors below are those of the "
                   "free-run closed loop.", ""]
     if report.get("warnings"):
-        lines += ["**Warnings** (samples dropped before the fit):", "", *[f"- {w}" for w in report["warnings"]], ""]
+        lines += ["**Warnings** (samples or a channel left out of the fit):", "", *[f"- {w}" for w in report["warnings"]], ""]
     lines += ["## Error per channel", "",
               "| channel | noise floor | baseline RMSE | final RMSE | final systematic / noise |", "|---|---|---|---|---|"]
     for c in channels:
@@ -84,7 +84,7 @@ def _write_markdown(out: Path, rec: Record, report: dict[str, Any], before: dict
         ps = ", ".join(f"{k} = {v:.4g}" for k, v in f.params.items()) or "no parameters"
         lines += [f"### {i}. `{f.effect}`" + (f" on `{f.channel}`" if f.channel else "") + f" ({ps})", "",
                   f.evidence, "", "| channel | RMSE before | RMSE after |", "|---|---|---|"]
-        lines += [f"| {c} | {_fmt(c, f.rmse_before[c])} | {_fmt(c, f.rmse_after[c])} |" for c in channels]
+        lines += [f"| {c} | {_fmt(c, f.rmse_before[c])} | {_fmt(c, f.rmse_after[c])} |" for c in channels if c in f.rmse_before]
         png = f"finding_{i}_{f.effect}.png"
         _plot_finding(out / png, rec, f)
         lines += ["", f"![{f.effect}]({png})", ""]
@@ -93,7 +93,8 @@ def _write_markdown(out: Path, rec: Record, report: dict[str, Any], before: dict
               "what a linear map of the model's own signals reproduces (a form error of the model, not an effect it lacks), "
               "against the residual the model leaves on synthetic records of itself.", "",
               "| channel | beyond the model's form | the model's own floor |", "|---|---|---|"]
-    lines += [f"| {c} | {info['form_ratio'][c]:.2f} | {info['own_floor'][c]:.2f} |" for c in channels]
+    lines += [f"| {c} | {info['form_ratio'][c]:.2f} | {info['own_floor'][c]:.2f} |" if c in info["form_ratio"]
+              else f"| {c} | left out of the fit (see the warnings) | |" for c in channels]
     lines.append("")
     if report["unexplained"]:
         lines.append("**Yes**: structure remains on " + ", ".join(info["unexplained_channels"]) + " that neither the model's form "

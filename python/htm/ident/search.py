@@ -33,6 +33,8 @@ REFIT_SHARE = 0.3
 BASE_ITERS, REFIT_ITERS, POLISH_ITERS = 10, 6, 15
 # ...and for a contender's own parameters on another contender's base (few: the base is held).
 COMMON_ITERS = 3
+# Fitting a tone's amplitude (sine and cosine, the model held: nearly linear).
+TONE_ITERS = 1
 # Which of two effects that explain a record equally well is named (the more common first).
 PREFERENCE = ("sensor_offset", "valve_null_bias", "sensor_gain", "sensor_delay", "valve_dynamics", "internal_leakage",
               "friction_asymmetry", "valve_deadband", "valve_hysteresis", "supply_pressure_sag",
@@ -240,10 +242,26 @@ def probe(prob: Problem, res: Result, pool: list[Candidate], rate: float, log: L
     if not pool or res.work_pred is None or res.jac is None:
         return None
     model, pred = res.model, res.pred
+    best: tuple[float, Finding] | None = None
+    # A tone (a pump's ripple) is small against a broadband residual but stands out in its band:
+    # its amplitude is fitted with the model held, and it must remove PROBE_SHARE of the
+    # residual's power there and pay off on the held-out data.
+    tones = {c.tone_hz: c for c in pool if c.tone_hz}
+    for f_hz, cand in tones.items():
+        trial, twork = _tone(prob, model, cand)
+        tpred = prob.whole(trial, twork)
+        dbic, dcost = prob.bic_delta(pred, tpred, len(cand.frees))
+        share = prob.explained_in_band(pred, tpred, f_hz, rate)
+        log("tone", f"{f_hz:.4f} Hz", cand.report(trial.params()), f"dBIC {dbic:.0f} dcost {dcost:+.4f} in band {share:.0%}")
+        if dbic < 0 and share >= PROBE_SHARE and (best is None or dbic < best[0]):
+            verdict = {"ok": True, "dbic": dbic, "dcost": dcost, "ablation_dcost": dcost, "explained": share}
+            best = (dbic, finding(prob, cand, model, pred, trial, tpred, verdict, rate))
+    pool = [c for c in pool if not c.tone_hz]
+    if not pool:
+        return best[1] if best else None
     ranked = screen(prob, model, res.work_pred, res.jac, pool)
     log("probe screen", [(c.effect, round(g, 3)) for c, g, _ in ranked[:4]])
     q = np.linalg.qr(res.jac)[0]
-    best: tuple[float, Finding] | None = None
     for cand, gain, step in ranked[:2]:
         trial, twork, _ = fit(prob, _scan(prob, [model.with_candidate(cand, step)], cand, q), iters=REFIT_ITERS)
         tpred = prob.whole(trial, twork)
@@ -253,6 +271,23 @@ def probe(prob: Problem, res: Result, pool: list[Candidate], rate: float, log: L
                 and (best is None or verdict["dbic"] < best[0])):
             best = (verdict["dbic"], finding(prob, cand, model, pred, trial, tpred, verdict, rate))
     return best[1] if best else None
+
+
+def _tone(prob: Problem, model: Model, cand: Candidate) -> tuple[Model, dict]:
+    """A tone's amplitudes on top of `model` (held): the readings are linear in them to first
+    order, so one simulation per amplitude and a least-squares solve place them; one held
+    Levenberg-Marquardt pass takes up what is not linear."""
+    zero = model.with_candidate(cand, 0.0)
+    k = len(cand.frees)
+    units = [zero.at(np.concatenate([model.x, np.eye(k)[i]])) for i in range(k)]
+    preds = prob.predict([zero.params()] + [u.params() for u in units])
+    r0 = prob.residual(preds[0], prob.fit_mask)
+    sig = np.column_stack([prob.residual(p, prob.fit_mask) - r0 for p in preds[1:]])
+    amp = np.linalg.lstsq(sig, -r0, rcond=None)[0]
+    lo, hi = np.array([f.lo for f in cand.frees]), np.array([f.hi for f in cand.frees])
+    start = zero.at(np.concatenate([model.x, np.clip(amp, lo, hi)]))
+    trial, twork, _ = fit(prob, start, iters=TONE_ITERS, hold=frozenset(f.key for f in model.frees))
+    return trial, twork
 
 
 def _on_common_base(prob: Problem, pred0: dict, model: Model, polished: list[tuple], log: Log) -> list[tuple]:

@@ -18,6 +18,14 @@ from htm.ident.records import Record
 MIN_ASYMMETRY = 0.1
 # A sensor's gain claimed off from this relative error (transducers are calibrated to ±0.1-0.5 %).
 MIN_GAIN_ERROR = 0.01
+# A valve's null claimed biased from this share of its rated command: a servo-valve's null is set
+# to about 0.1 % of it, and its amplifier's offset is of that order too; a smaller bias is the
+# metering edges' form (underlap, asymmetric edges) that a fit takes up.
+MIN_NULL_BIAS = 0.002
+# Leakage across the piston claimed from this share of the valve's rated flow at supply pressure:
+# a servo-valve's own null (tare) leakage is about 1-3 % of it, and the base model's underlap takes
+# a leak that small whichever path it runs.
+MIN_LEAKAGE = 0.005
 # Base-model parameters stated by the metadata (nominal; bounds say how far a rig may be off).
 RIG_FREES = [
     logf("moving_mass_kg", 0.4, 2.5, prior=0.3),
@@ -136,14 +144,17 @@ class ValveFamily:
             return q["half_width_v"] >= u_noise
 
         out += [
-            cand("valve_null_bias", None, (lin("valve_null_bias_v", 0.02, -50.0, 50.0),), "small |u|"),
+            cand("valve_null_bias", None, (lin("valve_null_bias_v", 0.02, -50.0, 50.0),), "small |u|",
+                 claimable=_share_of("bias_v", MIN_NULL_BIAS * p["valve_max_command_v"])),
             cand("valve_dynamics", None, (lin("valve_tau_s", 1e-3, 0.0, 100.0, step=2.0),), "du/dt"),
             cand("valve_deadband", None, (lin("valve_deadband_half_width_v", 0.05, 0.0, 40.0),), "small |u|",
                  claimable=wider_than_noise),
             cand("valve_hysteresis", None, (lin("valve_hysteresis_half_width_v", 0.05, 0.0, 40.0),), "sign(du/dt)",
                  claimable=wider_than_noise),
             cand("supply_pressure_sag", None, (lin("supply_resistance_pa_s_per_m3", 1e9, 0.0, 1e3),), "v"),
-            cand("internal_leakage", None, (lin("leakage_coeff_m3_per_s_pa", 1e-12, 0.0, 1e3),), "load pressure"),
+            cand("internal_leakage", None, (lin("leakage_coeff_m3_per_s_pa", 1e-12, 0.0, 1e3),), "load pressure",
+                 claimable=_share_of("coeff_m3_per_s_pa", MIN_LEAKAGE * p["valve_rated_flow_m3_s"]
+                                     / max(p["supply_pressure_pa"], 1.0))),
             Candidate("friction_asymmetry", None, (lin("friction_coulomb_diff_n", 50.0, -100.0, 100.0),), "sign(v)",
                       fields=tuple(sim.effect_fields("friction_asymmetry").items()), claimable=_asymmetric),
             cand("pressure_dependent_friction", None, (lin("friction_pressure_coeff_n_per_pa", 1e-6, 0.0, 1e3, step=2.0),),
@@ -200,7 +211,7 @@ class ValveFamily:
             unit = max(1e3, 0.001 * p["supply_pressure_pa"])
             for first, second in (("supply_ripple_sin_pa", "supply_ripple_cos_pa"), ("supply_ripple_cos_pa", "supply_ripple_sin_pa")):
                 out.append(Candidate("supply_ripple", None, (lin(first, unit, -1e3, 1e3), lin(second, unit, -1e3, 1e3)),
-                                     "constant", starts=(0.0,), switch=(("supply_ripple_hz", f),),
+                                     "constant", starts=(0.0,), switch=(("supply_ripple_hz", f),), tone_hz=f,
                                      fields=(("sin_pa", "supply_ripple_sin_pa"), ("cos_pa", "supply_ripple_cos_pa"),
                                              ("frequency_hz", "supply_ripple_hz"))))
         return [c for c in out if all(has_key(p, f.key) for f in c.frees)]
@@ -228,6 +239,11 @@ def _not_a_tolerated_gain(rec: Record, channel: str) -> Callable[[dict[str, floa
         return median <= 0 or o >= MIN_GAIN_ERROR * median or o * spread / median > noise
 
     return claimable
+
+
+def _share_of(name: str, least: float) -> Callable[[dict[str, float]], bool]:
+    """An effect claimed only where its parameter `name` reaches `least` in size (0: always)."""
+    return lambda p: abs(p[name]) >= least
 
 
 def _asymmetric(p: dict[str, float]) -> bool:
@@ -264,7 +280,36 @@ def _ripple_frequencies(rec: Record, residual: dict[str, np.ndarray], rate_hz: f
         if power[i] < 20.0 * float(np.median(near)) or pcmd[i] > 0.1 * float(np.max(pcmd)):
             continue
         if all(abs(f[i] - g) > 3 * (f[1] - f[0]) for g in out):
-            out.append(float(f[i]))
+            out.append(_sharpened(residual, chans, rate_hz, float(f[i]), float(f[1] - f[0])))
         if len(out) >= top:
             break
     return out
+
+
+def _sharpened(residual: dict[str, np.ndarray], chans: list[str], rate_hz: float, f0: float, bin_hz: float) -> float:
+    """The frequency near `f0` (a spectral estimate's bin) at which the residuals' periodogram
+    peaks, to a fortieth of 1/duration: a ripple fitted at a frequency off by more drifts out of
+    phase over the record and averages out. Each residual is shifted down by `f0` and averaged
+    over blocks much shorter than 1/bin, so the fine search runs on a few samples per second."""
+    n = len(next(iter(residual.values())))
+    t = np.arange(n) / rate_hz
+    shift = np.exp(-2j * np.pi * f0 * t)
+    block = max(1, int(rate_hz / (20.0 * bin_hz)))
+    m = n // block
+    tb = t[: m * block].reshape(m, block).mean(axis=1)
+    zs = []
+    for c in chans:
+        r = np.nan_to_num(np.asarray(residual[c], dtype=float))
+        r = (r - r.mean()) / max(float(np.std(r)), 1e-300)
+        zs.append((r * shift)[: m * block].reshape(m, block).mean(axis=1))
+    z = np.array(zs)
+
+    def power(offsets: np.ndarray) -> np.ndarray:
+        return (np.abs(z @ np.exp(-2j * np.pi * np.outer(tb, offsets))) ** 2).sum(axis=0)
+
+    span = n / rate_hz
+    best = 0.0
+    for half, step in ((1.5 * bin_hz, 0.25 / span), (0.25 / span, 0.025 / span)):
+        grid = np.arange(best - half, best + half + step / 2, step)
+        best = float(grid[int(np.argmax(power(grid)))])
+    return f0 + best
