@@ -69,6 +69,11 @@ pub struct Setpoint {
     /// sin and cos of 2πφ_k (the demodulation references)
     pub sin: f64,
     pub cos: f64,
+    /// the amplitude is large enough to judge the plant's gain by (at least
+    /// `PeakValley::MIN_AMPLITUDE_FRACTION` of the cycle's nominal half-range): early in a ramp
+    /// the force's fundamental is mostly the ramp's and the valve null's transients, and a
+    /// relative gain learned from it over a tiny feed-forward swings to its limits
+    pub learn: bool,
 }
 
 impl ForceLoop {
@@ -290,7 +295,7 @@ impl Demod {
         // amplitude loop: integral on the relative gain of the feed-forward amp·ω/g; at a
         // constant amplitude d(u1·ff)/dt = ts·k1·e1, the absolute integrator's law
         let u1_ff = sp.amp_n * w / g.plant_gain_n_per_s_v;
-        if self.filled == g.window {
+        if self.filled == g.window && sp.learn {
             let e1 = self.theta1_ref - self.theta1_hat;
             self.u1 = (self.u1 + g.ts_s * g.k1 * e1 / u1_ff).clamp(-REL_GAIN_LIMIT, REL_GAIN_LIMIT);
         }

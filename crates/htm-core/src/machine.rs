@@ -314,7 +314,7 @@ impl Plant {
 
 impl Plant {
     /// State derivative under spool target `target` [V equivalent] (the held sample's input).
-    #[inline]
+    #[inline(always)] // into the integrator's stage loop: its rates go straight to the stage (no store and reload)
     pub fn derivatives(&self, x: &[f64; NX], target: f64, dx: &mut [f64; NX]) {
         let p = &self.p;
         let (pa, pb, y, v, xs) = (x[PA], x[PB], x[Y], x[V], x[SPOOL]);
@@ -368,12 +368,13 @@ impl OdeSystem<NX> for Plant {
         // flow per unit opening and its pressure derivative for one edge
         let per_open = |dp: f64| if linear { k * (0.5 * (ps - pt)).sqrt() } else { orifice_flow(k, 1.0, dp, dpt) };
         let ddp = |a: f64, dp: f64| if linear { 0.0 } else { orifice_flow_ddp(k, a, dp, dpt) };
-        let qa = o1 * per_open(ps - pa) - o2 * per_open(pa - pt);
-        let qb = o2 * per_open(ps - pb) - o1 * per_open(pb - pt);
+        let (q_pa, q_at, q_pb, q_bt) = (per_open(ps - pa), per_open(pa - pt), per_open(ps - pb), per_open(pb - pt));
+        let qa = o1 * q_pa - o2 * q_at;
+        let qb = o2 * q_pb - o1 * q_bt;
         let dqa_dpa = -ddp(o1, ps - pa) - ddp(o2, pa - pt);
         let dqb_dpb = -ddp(o2, ps - pb) - ddp(o1, pb - pt);
-        let dqa_dxs = per_open(ps - pa) * do1 - per_open(pa - pt) * do2;
-        let dqb_dxs = per_open(ps - pb) * do2 - per_open(pb - pt) * do1;
+        let dqa_dxs = q_pa * do1 - q_at * do2;
+        let dqb_dxs = q_pb * do2 - q_bt * do1;
         let c = p.leakage_coeff_m3_per_s_pa;
         let ql = c * (pa - pb);
         let inside = y > 0.0 && y < p.stroke_m;
@@ -453,6 +454,63 @@ impl OdeSystem<NX> for Plant {
     }
 }
 
+/// Number of hydraulic and mechanical states (p_a, p_b, y, v: the first of the layout).
+const NH: usize = 4;
+
+/// The plant with a static valve (no lag, no spool dynamics): the spool is the held target, an
+/// input rather than a state, so the stiff integrator works on (p_a, p_b, y, v) alone — a 4×4
+/// factorisation and solves instead of 7×7 ones whose spool rows are empty. Steps, error norm
+/// and result are those of the 7-state form: its spool rows stay zero through every stage
+/// (their rate is zero and their Jacobian rows are empty), so they add nothing but work.
+struct HeldSpool<'a> {
+    plant: &'a Plant,
+    /// the full state: the spool entries held, the first `NH` replaced by the integrator's
+    x: [f64; NX],
+}
+
+impl HeldSpool<'_> {
+    #[inline]
+    fn full(&self, x: &[f64; NH]) -> [f64; NX] {
+        let mut full = self.x;
+        full[..NH].copy_from_slice(x);
+        full
+    }
+}
+
+impl OdeSystem<NH> for HeldSpool<'_> {
+    #[inline]
+    fn rhs(&self, x: &[f64; NH], dx: &mut [f64; NH]) {
+        let mut d = [0.0; NX];
+        self.plant.derivatives(&self.full(x), self.plant.target, &mut d);
+        dx.copy_from_slice(&d[..NH]);
+    }
+
+    fn jacobian(&self, x: &[f64; NH], f0: &[f64; NH], jac: &mut [[f64; NH]; NH]) -> u64 {
+        if self.plant.p.supply_resistance_pa_s_per_m3 > 0.0 {
+            return fd_jacobian(self, x, f0, jac);
+        }
+        let mut j = [[0.0; NX]; NX];
+        self.plant.jacobian(&self.full(x), &[0.0; NX], &mut j);
+        for (row, full) in jac.iter_mut().zip(&j) {
+            row.copy_from_slice(&full[..NH]);
+        }
+        0
+    }
+
+    fn error_weights(&self) -> ([f64; NH], [f64; NH]) {
+        let (rel, scale) = self.plant.error_weights();
+        let mut out = ([0.0; NH], [0.0; NH]);
+        out.0.copy_from_slice(&rel[..NH]);
+        out.1.copy_from_slice(&scale[..NH]);
+        out
+    }
+
+    /// The held spool counts in the norm as the 7-state form's checked spool (error zero).
+    fn error_count(&self) -> usize {
+        self.plant.error_count()
+    }
+}
+
 /// A plant with its state, integrator and valve memory: the object a control loop steps.
 #[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
 #[derive(Debug, Clone)]
@@ -513,7 +571,14 @@ impl Machine {
         if !self.plant.spool_has_dynamics() {
             self.x[SPOOL] = self.plant.target;
         }
-        self.solver.advance(&self.plant, &mut self.x, dt)?;
+        if self.plant.spool_has_dynamics() {
+            self.solver.advance(&self.plant, &mut self.x, dt)?;
+        } else {
+            let mut x = [0.0; NH];
+            x.copy_from_slice(&self.x[..NH]);
+            self.solver.advance(&HeldSpool { plant: &self.plant, x: self.x }, &mut x, dt)?;
+            self.x[..NH].copy_from_slice(&x);
+        }
         self.t += dt;
         Ok(self.outputs())
     }

@@ -335,7 +335,10 @@ impl CycleMachine {
         let (mid1, amp1) = self.setpoint(cfg, x1, sc1, true);
         // the next sample's setpoint exactly, in terms of this sample's half-range (the loops'
         // feed-forward is then the setpoint's rate, ramps included)
-        let sp = Setpoint { mid_n: mid, mid_next_n: mid1 + (amp1 - amp) * s_next, amp_n: amp, s: self.s, s_next, sin: sn, cos: cn };
+        // the amplitude loop learns the plant's gain from the amplitudes the compensation learns from
+        let fa = if self.starting { cfg.envelope.start(self.cycle as f64 + x).1 } else { 1.0 };
+        let learn = sc * fa >= PeakValley::MIN_AMPLITUDE_FRACTION;
+        let sp = Setpoint { mid_n: mid, mid_next_n: mid1 + (amp1 - amp) * s_next, amp_n: amp, s: self.s, s_next, sin: sn, cos: cn, learn };
         self.f_ref = mid1 + amp1 * s_next;
         let u = if f.is_finite() {
             match &mut self.drive {

@@ -81,6 +81,22 @@ pub(crate) mod tests {
         assert!(err < 0.01, "jump {} vs full {}", j.cycles, o.cycles);
     }
 
+    /// The amplitude loop's relative gain learns only from amplitudes large enough to judge: from
+    /// the first small cycles of the ramp-in it swung to its limits and spent the ramp coming
+    /// back, and the first full-amplitude cycles of a fast triangle missed ±2 % (2.08 % here).
+    /// A case outside the benchmark's table: 35 Hz, 6 kN.
+    #[test]
+    fn a_fast_triangle_is_inside_two_percent_from_its_first_full_cycle() {
+        let mut cfg = table_b1(35.0, 1000.0, 0.35, 1.0);
+        cfg.waveform = Waveform::Triangle;
+        cfg.phases[0].mode = Mode::ConstantForce { delta_f_n: 6e3 };
+        cfg.limits.max_cycles = 45;
+        assert!(crate::feasibility::refusals(&cfg).unwrap().is_empty(), "the rig can run it");
+        let o = run_test(&cfg, ExecMode::Full, None, None).unwrap();
+        let e = &o.convergence[0];
+        assert!(e.cycles_seen >= 20 && e.worst_first_df_pct < 2.0, "{e:?}");
+    }
+
     #[test]
     fn bad_configs_fail_before_running() {
         let mut c = table_b1(10.0, 1000.0, 0.35, 1.0);
