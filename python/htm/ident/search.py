@@ -125,6 +125,7 @@ def search(prob: Problem, base: Model, nominal: Any, pool: list[Candidate], rate
         log("screen", [(c.effect, c.channel, round(g, 3)) for c, g, _ in ranked[:6]])
         good: list[tuple[Candidate, dict, Model, dict, dict]] = []  # (cand, verdict, fit, its work and whole predictions)
         better_base: tuple[float, Model] | None = None
+        too_small = False
         for cand, gain, step in ranked[:max_refits]:
             if gain < REFIT_SHARE * ranked[0][1]:
                 break
@@ -138,7 +139,13 @@ def search(prob: Problem, base: Model, nominal: Any, pool: list[Candidate], rate
             log("refit", cand.label, cand.report(trial.params()), verdict)
             if verdict["ok"]:
                 good.append((cand, verdict, trial, twork, tpred))
-            elif verdict["dcost"] < -MIN_GAIN:
+                continue
+            if not verdict["claimable"]:
+                # The record wants it only at a size the base's form mimics: not an effect here,
+                # and not to be screened again ahead of the others.
+                pool = [c for c in pool if c.key != cand.key]
+                too_small = True
+            if verdict["dcost"] < -MIN_GAIN:
                 # Not the effect but a better fit of the base parameters: remember those.
                 cost = prob.fit_cost(twork)
                 if better_base is None or cost < better_base[0]:
@@ -156,8 +163,10 @@ def search(prob: Problem, base: Model, nominal: Any, pool: list[Candidate], rate
                     log("not against the better base", g[0].label)
             good = settled
         if not good:
-            if better_base is None or kept_base:
+            if (better_base is None or kept_base) and not too_small:
                 break  # no candidate pays off on the held-out data
+            if better_base is None or kept_base:
+                continue  # a candidate too small to claim left the pool: screen the others
             kept_base = True  # once per finding: a second time the search would only go round in circles
             model = better_base[1]
             work_pred = prob.predict([model.params()])[0]
@@ -365,7 +374,7 @@ def pays_off(prob: Problem, pred0: dict, trial: Model, tpred: dict, before: Mode
     share = prob.explained(pred0, tpred)
     big = cand.claimable is None or cand.claimable(cand.report(trial.params()))
     ok = dbic < 0 and dcost < -MIN_GAIN and abic < 0 and acost < -MIN_GAIN and share >= MIN_SHARE and big
-    return {"ok": bool(ok), "dbic": dbic, "dcost": dcost, "ablation_dcost": acost, "explained": share}
+    return {"ok": bool(ok), "dbic": dbic, "dcost": dcost, "ablation_dcost": acost, "explained": share, "claimable": bool(big)}
 
 
 def screen(prob: Problem, model: Model, work_pred: dict, jac: np.ndarray,
