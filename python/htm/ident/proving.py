@@ -55,7 +55,9 @@ FORCE_MEAN_N, FORCE_SWING_N = 4000.0, 6000.0
 # chamber pressures of a symmetric actuator always sum to about p_s, so pressure-dependent seal
 # friction would look like Coulomb friction; a second level tells them apart.
 SUPPLY_SWITCH_AT, SUPPLY_LOW, SUPPLY_LAG_S = 0.55, 0.6, 0.1
-OUTSIDE = {"friction_bump": {"friction_bump_n": 500.0, "friction_bump_width_m": 0.006}}
+OUTSIDE = {"friction_bump": {"friction_bump_n": 500.0, "friction_bump_width_m": 0.006},
+           # a pump's ripple on the supply, between two spectral bins of any record length
+           "supply_ripple": {"supply_ripple_sin_pa": 2.0e5, "supply_ripple_cos_pa": 1.0e5, "supply_ripple_hz": 37.31}}
 
 
 def rich_reference(duration_s: float, rate_hz: float, *, centre_m: float = CENTRE_M, half_range_m: float = 0.06) -> np.ndarray:
@@ -140,7 +142,8 @@ def make_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, seed:
     nominal thesis rig while the metadata states the nominal values; readings get white noise
     and quantization (`NOISE_STD`, `QUANTUM`) inside the loop. A specimen (2e6 N/m, with an `f`
     column) is fitted when asked, or when an effect needs one. `effect_outside_table`:
-    "friction_bump" adds a position-dependent friction bump that no EFFECTS.md id describes.
+    "friction_bump" adds a position-dependent friction bump, "supply_ripple" a pump's ripple on the
+    supply: structure that no EFFECTS.md id describes.
 
     Returns (record, truth) with truth = {"effects": {id: {"channel", "params"}}, "params": the
     true Params as a dict, "spread": {field: factor}, "outside": name or None}.
@@ -192,9 +195,9 @@ def make_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, seed:
             truth[f] = truth[f] * k
     for eid, e in resolved.items():
         truth = with_effect(truth, eid, e["params"], e["channel"])
+    for k, v in OUTSIDE.get(effect_outside_table or "", {}).items():
+        truth[k] = v
     if effect_outside_table == "friction_bump":
-        for k, v in OUTSIDE["friction_bump"].items():
-            truth[k] = v
         truth["friction_bump_position_m"] = CENTRE_M + (0.004 if with_specimen else 0.03)
 
     dt = 1.0 / rate_hz
@@ -255,6 +258,7 @@ MATRIX: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
     ("clean-1kHz", {}, {"rate_hz": 1000}),
     ("clean-specimen", {}, {"specimen": True}),
     ("outside:friction_bump", {}, {"effect_outside_table": "friction_bump"}),
+    ("outside:supply_ripple", {}, {"effect_outside_table": "supply_ripple"}),
 ]
 MATRIX_SEED = {"A": 100, "B": 7100}  # seed set -> shift; set B was never looked at while tuning
 MATRIX_DURATION_S = 10.0
