@@ -219,14 +219,16 @@ def search(prob: Problem, base: Model, nominal: Any, pool: list[Candidate], rate
     # model is refitted from where the search left it and from the base parameters anew: a
     # finding added late may only have led the fit out of a basin it had settled in.
     for f in list(reversed(findings)):
-        if len(findings) < 2:
+        # Refits after a finding move its parameters too: one that ends below a claimable size goes.
+        small = f.cand.claimable is not None and not f.cand.claimable(f.cand.report(model.params()))
+        if len(findings) < 2 and not small:
             break  # a single finding was weighed against the model without it when it was made
         fits = [fit(prob, start, iters=REFIT_ITERS) for start in _restarts(model.without(f.cand, nominal), x0, xn)]
         wmodel, wwork, wjac = min(fits, key=lambda g: prob.fit_cost(g[1]))
         wpred = prob.whole(wmodel, wwork)
         dbic, dcost = prob.bic_delta(wpred, pred, max(1, len(f.cand.frees)))
         log("backward check", f.cand.label, f"dBIC {dbic:.0f} dcost {dcost:+.3f}")
-        if not (dbic < 0 and dcost < -MIN_GAIN):
+        if small or not (dbic < 0 and dcost < -MIN_GAIN):
             findings.remove(f)
             model, pred, work_pred, jac = wmodel, wpred, wwork, wjac
     if findings and findings[0].pred_before is not base_pred:
