@@ -21,6 +21,23 @@ pub enum Mode {
 /// The E647 limit on the normalised K-gradient for decreasing-ΔK tests [1/m] (−0.08 mm⁻¹).
 pub const E647_MIN_K_GRADIENT_PER_M: f64 = -80.0;
 
+/// Stress ratios R a test phase may run: [lo, hi). Narrower than a load's
+/// (`crack::LOAD_R_RATIO_RANGE`): the rig grips a C(T) for tension only, so a test's valley is at
+/// most the peak's mirror.
+pub const TEST_R_RATIO_RANGE: (f64, f64) = (-1.0, 1.0);
+/// Largest force tolerance of a phase (a fraction; the tolerance must lie in (0, this]).
+pub const MAX_TOLERANCE: f64 = 0.2;
+/// Force tolerance of the test proper and of a precrack (ISO 12108) when a spec gives none.
+pub const TEST_TOLERANCE: f64 = 0.02;
+pub const PRECRACK_TOLERANCE: f64 = 0.05;
+/// Fewest control samples per load cycle (control_rate_hz ≥ this × frequency_hz).
+pub const MIN_SAMPLES_PER_CYCLE: f64 = 16.0;
+/// Highest control rate a test may ask for [Hz].
+pub const MAX_CONTROL_RATE_HZ: f64 = 1e5;
+/// Integrator tolerance and control rate [Hz] of a test that gives none.
+pub const DEFAULT_RTOL: f64 = 1e-4;
+pub const DEFAULT_CONTROL_RATE_HZ: f64 = 1000.0;
+
 /// One phase of a test (a precrack, then the test proper), ending at crack length `end_a_m`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Phase {
@@ -49,6 +66,24 @@ pub enum Action {
     Stop,
 }
 
+impl Action {
+    /// The action by its spec name, "flag" or "stop"; `field` names it in the error.
+    pub fn parse(s: &str, field: &str) -> Result<Action> {
+        match s {
+            "flag" => Ok(Action::Flag),
+            "stop" => Ok(Action::Stop),
+            other => Err(Error::Input(format!("{field} = `{other}`: use \"flag\" or \"stop\""))),
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Action::Flag => "flag",
+            Action::Stop => "stop",
+        }
+    }
+}
+
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Limits {
     pub max_cycles: u64,
@@ -58,6 +93,13 @@ pub struct Limits {
     pub tolerance_action: Action,
     /// margin kept from either end of the stroke [m]
     pub stroke_margin_m: f64,
+}
+
+/// The end conditions of a test that states none.
+impl Default for Limits {
+    fn default() -> Self {
+        Limits { max_cycles: 100_000_000, size_criterion: Action::Flag, tolerance_cycles: 10, tolerance_action: Action::Flag, stroke_margin_m: 1e-3 }
+    }
 }
 
 /// Cycle-jump step control.
@@ -268,8 +310,10 @@ impl TestConfig {
         if !(self.frequency_hz.is_finite() && self.frequency_hz > 0.0) {
             return Err(param("frequency_hz", self.frequency_hz, "(0, inf) Hz"));
         }
-        if !(self.control_rate_hz.is_finite() && self.control_rate_hz >= 16.0 * self.frequency_hz) {
-            return Err(param("control_rate_hz", self.control_rate_hz, &format!("≥ 16 samples per cycle: ≥ {} Hz", 16.0 * self.frequency_hz)));
+        let min_rate = MIN_SAMPLES_PER_CYCLE * self.frequency_hz;
+        if !(self.control_rate_hz.is_finite() && self.control_rate_hz >= min_rate && self.control_rate_hz <= MAX_CONTROL_RATE_HZ) {
+            return Err(param("control_rate_hz", self.control_rate_hz,
+                &format!("[{min_rate}, {MAX_CONTROL_RATE_HZ}] Hz (≥ {MIN_SAMPLES_PER_CYCLE} samples per cycle)")));
         }
         if self.phases.is_empty() {
             return Err(Error::Input("a test needs at least one phase".into()));
@@ -277,14 +321,15 @@ impl TestConfig {
         let mut a_prev = self.a0_m;
         for (i, ph) in self.phases.iter().enumerate() {
             let f = |n: &str| format!("phases[{i}].{n}");
-            if !(ph.r_ratio.is_finite() && ph.r_ratio >= -1.0 && ph.r_ratio < 1.0) {
-                return Err(param(&f("r_ratio"), ph.r_ratio, "[-1, 1)"));
+            let (rlo, rhi) = TEST_R_RATIO_RANGE;
+            if !(ph.r_ratio.is_finite() && ph.r_ratio >= rlo && ph.r_ratio < rhi) {
+                return Err(param(&f("r_ratio"), ph.r_ratio, &format!("[{rlo}, {rhi})")));
             }
             if !(ph.end_a_m > a_prev && ph.end_a_m <= ahi) {
                 return Err(param(&f("end_a_m"), ph.end_a_m, &format!("({a_prev}, {ahi}] m")));
             }
-            if !(ph.tolerance > 0.0 && ph.tolerance <= 0.2) {
-                return Err(param(&f("tolerance"), ph.tolerance, "(0, 0.2]"));
+            if !(ph.tolerance > 0.0 && ph.tolerance <= MAX_TOLERANCE) {
+                return Err(param(&f("tolerance"), ph.tolerance, &format!("(0, {MAX_TOLERANCE}]")));
             }
             match ph.mode {
                 Mode::ConstantForce { delta_f_n } if !(delta_f_n.is_finite() && delta_f_n > 0.0) => return Err(param(&f("delta_f_n"), delta_f_n, "(0, inf) N")),
