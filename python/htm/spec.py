@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from htm import _core
+from htm import core
 from htm.errors import HtmError, InfeasibleTest, SpecError
 from htm.feasibility import Feasibility, assess
 from htm.params import thesis_rig, with_overrides
@@ -99,9 +99,9 @@ class TestSpec:
         stroke and the E647 size criterion, each with its largest feasible value."""
         return assess(self.to_config())
 
-    def params(self) -> _core.Params:
+    def params(self) -> core.Params:
         try:
-            return with_overrides(_core.Params(self.rig_preset), self.rig_overrides)
+            return with_overrides(core.Params(self.rig_preset), self.rig_overrides)
         except HtmError as e:
             raise SpecError(f"rig: {e}") from None
 
@@ -396,7 +396,7 @@ def parse(doc: dict, name: str = "test", base: Path | None = None, *, check: boo
     )
     # what only the core can judge (rig limits, Kmax vs K_IC, law constants): checked now, not later
     try:
-        _core.validate_test(spec.to_config())
+        core.validate_test(spec.to_config())
     except SpecError:
         raise
     except HtmError as e:

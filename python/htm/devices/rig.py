@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import can
 
-from htm import _core
+from htm import core
 from htm.devices.analog import SimulatedDaq
 from htm.devices.config import RigConfig
 from htm.devices.realtime import set_priority
@@ -31,8 +31,8 @@ class VirtualRig:
 
     def __init__(self, cfg: RigConfig, specimen: dict | None = None, threaded: bool = True):
         self.cfg = cfg
-        self.params = with_overrides(_core.Params(cfg.rig_preset), cfg.rig_overrides)
-        self.plant = _core.RigPlant(self.params, specimen)
+        self.params = with_overrides(core.Params(cfg.rig_preset), cfg.rig_overrides)
+        self.plant = core.RigPlant(self.params, specimen)
         self.dt = 1.0 / cfg.loop.rate_hz
         ch = cfg.analog.channels
         self._ai = {s: _idx(ch[s]) for s in SENSOR}

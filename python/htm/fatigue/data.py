@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from htm import _core
+from htm import core
 from htm.errors import RecordError, SpecError
 
 GEOMETRIES = ("ct", "mt")
@@ -68,7 +68,7 @@ class Setup:
         if delta_p_n is not None:
             if not (np.isfinite(delta_p_n) and delta_p_n > 0):
                 raise SpecError(f"force range delta_p_n = {delta_p_n} N must be positive")
-            pmax_n = _core.pmax_from_delta_p(delta_p_n, r_ratio)
+            pmax_n = core.pmax_from_delta_p(delta_p_n, r_ratio)
         return cls(geometry, width_m, thickness_m, float(pmax_n), r_ratio, yield_strength_pa)
 
     @property
@@ -79,7 +79,7 @@ class Setup:
     @property
     def a_range_m(self) -> tuple[float, float]:
         """Crack sizes [m] over which the E647 ΔK expression is valid."""
-        return _core.a_range(self.geometry, self.width_m, self.thickness_m)
+        return core.a_range(self.geometry, self.width_m, self.thickness_m)
 
     @property
     def a_geometry_max_m(self) -> float:
@@ -88,11 +88,11 @@ class Setup:
 
     def kmax(self, a_m: np.ndarray) -> np.ndarray:
         """Kmax [Pa·√m] at crack sizes a [m] (inside the valid range)."""
-        return _core.stress_intensity(self.geometry, self.width_m, self.thickness_m, np.ascontiguousarray(a_m, float), self.pmax_n)
+        return core.stress_intensity(self.geometry, self.width_m, self.thickness_m, np.ascontiguousarray(a_m, float), self.pmax_n)
 
     def delta_k(self, a_m: np.ndarray) -> np.ndarray:
         """ΔK [Pa·√m] at crack sizes a [m] (inside the valid range)."""
-        return _core.stress_intensity(self.geometry, self.width_m, self.thickness_m, np.ascontiguousarray(a_m, float), self.delta_p_n)
+        return core.stress_intensity(self.geometry, self.width_m, self.thickness_m, np.ascontiguousarray(a_m, float), self.delta_p_n)
 
     def to_dict(self) -> dict:
         d = asdict(self)

@@ -237,7 +237,7 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     raw.set_item("pre_cycles", pre)?;
     raw.set_item("post_cycles", post)?;
     m.add("RAW_POLICY", raw)?;
-    m.add("RAW_COLUMNS", engine::RAW_COLUMNS.to_vec())?;
+    m.add("RAW_COLUMNS", pyo3::types::PyTuple::new(m.py(), engine::RAW_COLUMNS)?)?;
     m.add("TEST_DEFAULTS", test_defaults(m.py())?)?;
     m.add("TEST_R_RATIO_RANGE", engine::TEST_R_RATIO_RANGE)?;
     m.add("MAX_TOLERANCE", engine::MAX_TOLERANCE)?;

@@ -278,7 +278,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("InputError", py.get_type::<InputError>())?;
     m.add("SolverError", py.get_type::<SolverError>())?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
-    m.add("CHANNELS", crate::measure::CHANNELS.to_vec())?;
+    m.add("CHANNELS", pyo3::types::PyTuple::new(py, crate::measure::CHANNELS)?)?;
     register_extensions(m)?;
     Ok(())
 }
