@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from htm import _core
+from htm import core
 from htm.cli import main
 from htm.ident.diagnose import diagnose
 from htm.ident.loop_proving import DEFAULT_EFFECTS, make_loop_record
@@ -78,24 +78,24 @@ def test_a_machine_position_record_that_does_not_move_is_refused_naming_its_comm
 
 
 def test_loop_params_and_the_batch_binding_refuse_bad_input_by_name():
-    p = _core.LoopParams()
+    p = core.LoopParams()
     with pytest.raises(KeyError, match="no_such"):
         p["no_such"] = 1.0
     p["asymmetry"] = 1.5
-    with pytest.raises(_core.ParameterError, match="asymmetry"):
+    with pytest.raises(core.ParameterError, match="asymmetry"):
         p.validate()
-    assert {f["name"] for f in _core.LoopParams.fields()} == set(_core.LoopParams().keys())
-    q = _core.LoopParams()
+    assert {f["name"] for f in core.LoopParams.fields()} == set(core.LoopParams().keys())
+    q = core.LoopParams()
     q["load_stall_force_n"] = 4e4
     assert q["load_per_stall_n"] == pytest.approx(2.5e-5)
     r = np.sin(np.linspace(0, 6, 500)) * 1e-3
-    out = _core.loop_simulate([q, p], 1e-3, r)
+    out = core.loop_simulate([q, p], 1e-3, r)
     assert out[0]["error"] is None and np.all(np.isfinite(out[0]["y"]))
     assert "asymmetry" in out[1]["error"] and np.all(np.isnan(out[1]["y"]))  # a bad set in a batch: NaN, not a crash
-    with pytest.raises(_core.InputError, match="dt"):
-        _core.loop_simulate([q], 0.0, r)
-    with pytest.raises(_core.InputError, match="load"):
-        _core.loop_simulate([q], 1e-3, r, load=r[:10])
+    with pytest.raises(core.InputError, match="dt"):
+        core.loop_simulate([q], 0.0, r)
+    with pytest.raises(core.InputError, match="load"):
+        core.loop_simulate([q], 1e-3, r, load=r[:10])
 
 
 @pytest.fixture(scope="module")

@@ -74,9 +74,9 @@ def run_test(spec: TestSpec | str | Path, mode: str | None = None, *, progress: 
     return out
 
 
-# raw high-rate windows of a simulated test: the first 30 cycles (start-up), 2 cycles from each
-# decade, 2 cycles before and after each event
-RAW_POLICY = {"first_cycles": 30, "decade_cycles": 2, "pre_cycles": 2, "post_cycles": 2}
+# raw high-rate windows of a simulated test: the core's policy (the first cycles, a few from each
+# decade, a few around each event)
+RAW_POLICY = core.RAW_POLICY
 # wall time of one engine chunk [s]: the journal gets a block of rows (and a snapshot) this often
 CHUNK_S = 0.25
 
@@ -87,7 +87,7 @@ def drive(sess: Any, writer: Any, limit: int, progress: bool) -> tuple[dict[str,
     (the journal keeps what was written, `htm resume` continues)."""
     from htm.errors import RecordError
 
-    cols = core.TestRun.raw_columns()
+    cols = core.RAW_COLUMNS
     t0 = time.perf_counter()
     engine_s = 0.0
     try:

@@ -23,8 +23,11 @@ PARAMS = {
     "forman": ("log10_c", "m", "kc_mpa"),
     "nasgro": ("log10_c", "n", "dk_th_mpa", "k_crit_mpa", "p", "q"),
 }
-#: NASGRO shape exponents when not fitted (typical of aluminium alloys in the NASGRO database).
-NASGRO_DEFAULTS = {"p": 0.5, "q": 1.0, "dk_th_mpa": 0.0, "k_crit_mpa": 1e4}
+#: NASGRO terms a fit holds fixed when it does not fit them: the shape exponents p, q are the
+#: fit's prior (typical of aluminium alloys in the NASGRO database); ΔK_th and K_crit are the
+#: core's defaults (`htm.core.NASGRO_DEFAULTS`, SI) in MPa·√m.
+NASGRO_DEFAULTS = {"p": 0.5, "q": 1.0, "dk_th_mpa": core.NASGRO_DEFAULTS["dk_th"] / 1e6,
+                   "k_crit_mpa": core.NASGRO_DEFAULTS["k_crit"] / 1e6}
 PENALTY = 5.0  # log10 residual given to a point the law cannot grow (below threshold / beyond fracture)
 
 

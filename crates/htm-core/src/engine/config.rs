@@ -36,6 +36,9 @@ pub const MIN_SAMPLES_PER_CYCLE: f64 = 16.0;
 pub const MAX_CONTROL_RATE_HZ: f64 = 1e5;
 /// Integrator tolerance and control rate [Hz] of a test that gives none.
 pub const DEFAULT_RTOL: f64 = 1e-4;
+/// Integrator tolerances a test may ask for: [lo, hi] (the plant takes any in (0, 1); a test
+/// tighter than lo never ends, looser than hi misses the force tolerance).
+pub const RTOL_RANGE: (f64, f64) = (1e-8, 1e-2);
 pub const DEFAULT_CONTROL_RATE_HZ: f64 = 1000.0;
 
 /// One phase of a test (a precrack, then the test proper), ending at crack length `end_a_m`.
@@ -299,6 +302,10 @@ impl TestConfig {
     /// Checks everything before anything runs; errors name the field, value and allowed range.
     pub fn validate(&self) -> Result<()> {
         self.params.validate()?;
+        let (rlo, rhi) = RTOL_RANGE;
+        if !(self.rtol >= rlo && self.rtol <= rhi) {
+            return Err(param("rtol", self.rtol, &format!("[{rlo:e}, {rhi:e}]")));
+        }
         self.specimen.validate()?;
         self.material.validate()?;
         self.law.validate()?;

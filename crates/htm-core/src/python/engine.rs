@@ -241,6 +241,7 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("TEST_DEFAULTS", test_defaults(m.py())?)?;
     m.add("TEST_R_RATIO_RANGE", engine::TEST_R_RATIO_RANGE)?;
     m.add("MAX_TOLERANCE", engine::MAX_TOLERANCE)?;
+    m.add("RTOL_RANGE", engine::RTOL_RANGE)?;
     m.add("TEST_TOLERANCE", engine::TEST_TOLERANCE)?;
     m.add("PRECRACK_TOLERANCE", engine::PRECRACK_TOLERANCE)?;
     m.add("MIN_SAMPLES_PER_CYCLE", engine::MIN_SAMPLES_PER_CYCLE)?;
