@@ -11,6 +11,7 @@ from htm.devices.analog import SimulatedDaq
 from htm.devices.config import RigConfig
 from htm.devices.realtime import set_priority
 from htm.devices.transducer import CAN_ERR_BUSOFF, TransducerDevice, network_on, open_bus, stop_notifier
+from htm.errors import InputError
 from htm.params import with_overrides
 
 # the virtual rig's sensors as built (the calibration file corrects them): pressure transducers
@@ -98,7 +99,7 @@ class VirtualRig:
         """Inject a fault (see FAULTS); `value` is the stuck command [V], the drift rate [N/s] or
         the error frames per period."""
         if fault not in FAULTS:
-            raise ValueError(f"unknown fault {fault!r}: one of {', '.join(FAULTS)}")
+            raise InputError(f"unknown fault {fault!r}: one of {', '.join(FAULTS)}")
         dev = self.device
         if fault == "transducer_silent":
             dev.fault = "silent"
