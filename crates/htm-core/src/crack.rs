@@ -430,6 +430,18 @@ mod tests {
     use crate::specimen::Geometry;
     use std::f64::consts::PI;
 
+    #[test]
+    fn a_law_spec_fills_the_nasgro_terms_it_omits_from_the_one_default_table() {
+        let spec = LawSpec { law: "nasgro".into(), c: Some(1e-29), n: Some(3.0), q: Some(0.5), ..Default::default() };
+        let Law::Nasgro { p, q, dk_th, k_crit, f_open, .. } = spec.build().unwrap() else { panic!("not nasgro") };
+        assert_eq!((p, q, dk_th, k_crit, f_open), (0.0, 0.5, 0.0, 1e12, 0.0));
+        let no_m = LawSpec { law: "paris".into(), c: Some(1e-11), ..Default::default() };
+        assert!(no_m.build().unwrap_err().to_string().contains("`m`"));
+        let bad = LawSpec { law: "walker".into(), ..Default::default() };
+        assert!(bad.build().unwrap_err().to_string().contains("walker"));
+        assert!(Load::new(1e3, LOAD_R_RATIO_RANGE.0 - 0.1).is_err() && Load::new(1e3, LOAD_R_RATIO_RANGE.0).is_ok());
+    }
+
     fn mt() -> Specimen {
         Specimen::new(Geometry::MT, 0.1524, 2.54e-3).unwrap()
     }
