@@ -13,7 +13,7 @@ __all__ = [
     "friction_force", "LoopParams", "loop_simulate", "replay",
     "CHANNELS", "RAW_COLUMNS", "RAW_POLICY", "TEST_DEFAULTS", "TEST_R_RATIO_RANGE", "LOAD_R_RATIO_RANGE", "MAX_TOLERANCE",
     "TEST_TOLERANCE", "PRECRACK_TOLERANCE", "MIN_SAMPLES_PER_CYCLE", "MAX_CONTROL_RATE_HZ", "E647_MIN_K_GRADIENT_PER_M",
-    "RTOL_RANGE", "NASGRO_DEFAULTS",
+    "RTOL_RANGE", "NASGRO_DEFAULTS", "YOUNGS_MODULUS_RANGE_PA", "POISSON_RATIO_RANGE",
 ]
 
 __version__: str
@@ -89,6 +89,9 @@ def pmax_from_delta_p(delta_p_n: float, r_ratio: float) -> float: ...
 NASGRO_DEFAULTS: dict[str, float]
 # stress ratios [lo, hi) of a load: life prediction, E647 data (crack.rs LOAD_R_RATIO_RANGE)
 LOAD_R_RATIO_RANGE: tuple[float, float]
+# a material's Young's modulus (lo, hi) [Pa] and Poisson's ratio [lo, hi) (specimen.rs)
+YOUNGS_MODULUS_RANGE_PA: tuple[float, float]
+POISSON_RATIO_RANGE: tuple[float, float]
 # --- fatigue test engine (crates/htm-core/src/engine.rs); config dicts come from htm.spec ---
 
 # event bits of the engine's per-cycle `events` column, by name (engine.rs `events`)

@@ -10,6 +10,7 @@ instead of restating them:
 - `TEST_R_RATIO_RANGE` ``[lo, hi)`` of a test phase, `LOAD_R_RATIO_RANGE` of a load (life
   prediction, E647 data), `MAX_TOLERANCE`, `TEST_TOLERANCE`, `PRECRACK_TOLERANCE`,
   `MIN_SAMPLES_PER_CYCLE`, `MAX_CONTROL_RATE_HZ` [Hz], `E647_MIN_K_GRADIENT_PER_M` [1/m], `RTOL_RANGE`;
+- `YOUNGS_MODULUS_RANGE_PA` (open), `POISSON_RATIO_RANGE` ``[lo, hi)`` of a material;
 - `NASGRO_DEFAULTS`: the NASGRO terms a law may omit (SI: ``dk_th``, ``k_crit`` in Pa·√m);
 - `EVENTS` (event bits of the per-cycle table by name), `CHANNELS` (measured channels, DATA_FORMAT
   order), `RAW_COLUMNS` and `RAW_POLICY` (raw sample windows).
@@ -24,6 +25,7 @@ from htm._core import (
     MAX_TOLERANCE,
     MIN_SAMPLES_PER_CYCLE,
     NASGRO_DEFAULTS,
+    POISSON_RATIO_RANGE,
     PRECRACK_TOLERANCE,
     RAW_COLUMNS,
     RAW_POLICY,
@@ -32,6 +34,7 @@ from htm._core import (
     TEST_DEFAULTS,
     TEST_R_RATIO_RANGE,
     TEST_TOLERANCE,
+    YOUNGS_MODULUS_RANGE_PA,
     CyclicController,
     Detectors,
     HtmError,
@@ -71,8 +74,8 @@ from htm._core import (
 
 __all__ = [
     "CHANNELS", "E647_MIN_K_GRADIENT_PER_M", "EVENTS", "LOAD_R_RATIO_RANGE", "MARGINAL_FRACTION", "MAX_CONTROL_RATE_HZ",
-    "MAX_TOLERANCE", "MIN_SAMPLES_PER_CYCLE", "NASGRO_DEFAULTS", "PRECRACK_TOLERANCE", "RAW_COLUMNS", "RAW_POLICY",
-    "RESONANCE_FRACTION", "RTOL_RANGE", "TEST_DEFAULTS", "TEST_R_RATIO_RANGE", "TEST_TOLERANCE",
+    "MAX_TOLERANCE", "MIN_SAMPLES_PER_CYCLE", "NASGRO_DEFAULTS", "POISSON_RATIO_RANGE", "PRECRACK_TOLERANCE", "RAW_COLUMNS", "RAW_POLICY",
+    "RESONANCE_FRACTION", "RTOL_RANGE", "TEST_DEFAULTS", "TEST_R_RATIO_RANGE", "TEST_TOLERANCE", "YOUNGS_MODULUS_RANGE_PA",
     "CyclicController", "Detectors", "HtmError", "InputError", "LoopParams", "Machine", "ParameterError", "Params",
     "Progress", "RigPlant", "SolverError", "TestRun", "__version__",
     "a_range", "compliance_ct", "crack_after", "crack_length_from_compliance_ct", "feasibility", "friction_force", "g_ct",

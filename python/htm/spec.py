@@ -284,7 +284,7 @@ def parse(doc: dict, name: str = "test", base: Path | None = None, *, check: boo
     sp = _table(doc, "specimen", "specimen")
     _keys(sp, {"geometry", "width_m", "thickness_m", "a0_m"}, "specimen")
     geometry = _choice(sp, "geometry", "specimen", ("ct", "mt"))
-    width = _num(sp, "width_m", "specimen", 0.0, 2.0, lo_open=True, unit="m")
+    width = _num(sp, "width_m", "specimen", 0.0, 2.0, lo_open=True, unit="m")  # wider: likely mm
     thickness = _num(sp, "thickness_m", "specimen", 0.0, width, lo_open=True, unit="m")
     scale = 1.0 if geometry == "ct" else 2.0  # M(T): a is the half crack, a/W of the half width
     try:
@@ -295,8 +295,8 @@ def parse(doc: dict, name: str = "test", base: Path | None = None, *, check: boo
     mat = _table(doc, "material", "material")
     _keys(mat, {"youngs_modulus_pa", "poisson_ratio", "yield_strength_pa", "fracture_toughness_pa_sqrt_m"}, "material")
     material = {
-        "youngs_modulus_pa": _num(mat, "youngs_modulus_pa", "material", 1e8, 1e13, lo_open=True, hi_open=True, unit="Pa"),
-        "poisson_ratio": _num(mat, "poisson_ratio", "material", 0.0, 0.5, hi_open=True),
+        "youngs_modulus_pa": _num(mat, "youngs_modulus_pa", "material", *core.YOUNGS_MODULUS_RANGE_PA, lo_open=True, hi_open=True, unit="Pa"),
+        "poisson_ratio": _num(mat, "poisson_ratio", "material", *core.POISSON_RATIO_RANGE, hi_open=True),
         "yield_strength_pa": _num(mat, "yield_strength_pa", "material", 0.0, lo_open=True, unit="Pa"),
         "fracture_toughness_pa_sqrt_m": _num(mat, "fracture_toughness_pa_sqrt_m", "material", 0.0, lo_open=True, unit="Pa·√m"),
     }

@@ -63,6 +63,78 @@ pub enum ControllerSpec {
     PositionPff { velocity_gain_m_s_per_v: Option<f64>, kp_v_per_m: Option<f64>, kff_v_per_m_s: Option<f64>, u_offset_v: f64 },
 }
 
+/// A controller as named parameters (a spec's `[controller]` table, SI): `type` is
+/// demodulation, force_p or position_pff; the gains its type does not use are ignored.
+#[cfg_attr(feature = "python", derive(pyo3::FromPyObject), pyo3(from_item_all))]
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ControllerSpecArgs {
+    #[cfg_attr(feature = "python", pyo3(item("type")))]
+    pub kind: String,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub velocity_gain_m_s_per_v: Option<f64>,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub kp_v_per_n: Option<f64>,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub kp_v_per_m: Option<f64>,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub kff_v_per_m_s: Option<f64>,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub u_offset_v: Option<f64>,
+}
+
+impl ControllerSpecArgs {
+    /// The controller spec; a gain its type needs and lacks is an input error naming it. The
+    /// command offset defaults to 0 V.
+    pub fn build(&self) -> Result<ControllerSpec> {
+        let u_offset_v = self.u_offset_v.unwrap_or(0.0);
+        match self.kind.as_str() {
+            "demodulation" => Ok(ControllerSpec::Demod { velocity_gain_m_s_per_v: self.velocity_gain_m_s_per_v }),
+            "force_p" => Ok(ControllerSpec::ForceP {
+                kp_v_per_n: self.kp_v_per_n.ok_or_else(|| Error::Input("test config needs `kp_v_per_n`".into()))?,
+                u_offset_v,
+            }),
+            "position_pff" => Ok(ControllerSpec::PositionPff {
+                velocity_gain_m_s_per_v: self.velocity_gain_m_s_per_v, kp_v_per_m: self.kp_v_per_m, kff_v_per_m_s: self.kff_v_per_m_s, u_offset_v,
+            }),
+            other => Err(Error::Input(format!("controller type `{other}`: use demodulation, force_p or position_pff"))),
+        }
+    }
+}
+
+/// A phase as named parameters (one item of a config's `phases`, SI): `mode` is
+/// constant_force (needs `delta_f_n`), constant_delta_k (`delta_k`) or k_gradient (`delta_k`,
+/// `k_gradient_per_m`).
+#[cfg_attr(feature = "python", derive(pyo3::FromPyObject), pyo3(from_item_all))]
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct PhaseArgs {
+    pub mode: String,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub r_ratio: Option<f64>,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub end_a_m: Option<f64>,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub tolerance: Option<f64>,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub delta_f_n: Option<f64>,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub delta_k: Option<f64>,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub k_gradient_per_m: Option<f64>,
+}
+
+impl PhaseArgs {
+    pub fn build(&self) -> Result<Phase> {
+        let need = |k: &str, v: Option<f64>| v.ok_or_else(|| Error::Input(format!("test config needs `{k}`")));
+        let mode = match self.mode.as_str() {
+            "constant_force" => Mode::ConstantForce { delta_f_n: need("delta_f_n", self.delta_f_n)? },
+            "constant_delta_k" => Mode::ConstantDeltaK { delta_k: need("delta_k", self.delta_k)? },
+            "k_gradient" => Mode::KGradient { delta_k0: need("delta_k", self.delta_k)?, c_per_m: need("k_gradient_per_m", self.k_gradient_per_m)? },
+            other => return Err(Error::Input(format!("phase mode `{other}`: use constant_force, constant_delta_k or k_gradient"))),
+        };
+        Ok(Phase { mode, r_ratio: need("r_ratio", self.r_ratio)?, end_a_m: need("end_a_m", self.end_a_m)?, tolerance: need("tolerance", self.tolerance)? })
+    }
+}
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Action {
     Flag,

@@ -9,7 +9,7 @@ use pyo3::types::{PyDict, PyList};
 
 use super::fatigue::law_from;
 use super::{InputError, PyParams};
-use crate::engine::{self, Action, ControllerSpec, Episode, ExecMode, JumpConfig, Level, Limits, Mode, Outcome, Phase, TestConfig};
+use crate::engine::{self, Action, ControllerSpecArgs, Episode, ExecMode, JumpConfig, Level, Limits, Outcome, PhaseArgs, TestConfig};
 use crate::params::Params;
 use crate::specimen::{Geometry, Material, Specimen};
 use crate::waveform::{Envelope, Waveform};
@@ -67,29 +67,11 @@ pub(super) fn config_from(d: &Bound<'_, PyDict>) -> PyResult<TestConfig> {
         "trapezoid" => Waveform::Trapezoid { rise: need(d, "rise_fraction")?, hold: need(d, "hold_fraction")? },
         other => return Err(InputError::new_err(format!("waveform `{other}`: use sine, triangle or trapezoid"))),
     };
-    let mut phases = Vec::new();
-    for ph in need::<Bound<'_, PyList>>(d, "phases")?.iter() {
-        let ph = ph.cast_into::<PyDict>()?;
-        let mode = match need::<String>(&ph, "mode")?.as_str() {
-            "constant_force" => Mode::ConstantForce { delta_f_n: need(&ph, "delta_f_n")? },
-            "constant_delta_k" => Mode::ConstantDeltaK { delta_k: need(&ph, "delta_k")? },
-            "k_gradient" => Mode::KGradient { delta_k0: need(&ph, "delta_k")?, c_per_m: need(&ph, "k_gradient_per_m")? },
-            other => return Err(InputError::new_err(format!("phase mode `{other}`: use constant_force, constant_delta_k or k_gradient"))),
-        };
-        phases.push(Phase { mode, r_ratio: need(&ph, "r_ratio")?, end_a_m: need(&ph, "end_a_m")?, tolerance: need(&ph, "tolerance")? });
-    }
-    let c = need::<Bound<'_, PyDict>>(d, "controller")?;
-    let controller = match need::<String>(&c, "type")?.as_str() {
-        "demodulation" => ControllerSpec::Demod { velocity_gain_m_s_per_v: opt(&c, "velocity_gain_m_s_per_v", None)? },
-        "force_p" => ControllerSpec::ForceP { kp_v_per_n: need(&c, "kp_v_per_n")?, u_offset_v: opt(&c, "u_offset_v", 0.0)? },
-        "position_pff" => ControllerSpec::PositionPff {
-            velocity_gain_m_s_per_v: opt(&c, "velocity_gain_m_s_per_v", None)?,
-            kp_v_per_m: opt(&c, "kp_v_per_m", None)?,
-            kff_v_per_m_s: opt(&c, "kff_v_per_m_s", None)?,
-            u_offset_v: opt(&c, "u_offset_v", 0.0)?,
-        },
-        other => return Err(InputError::new_err(format!("controller type `{other}`: use demodulation, force_p or position_pff"))),
-    };
+    let phases = need::<Bound<'_, PyList>>(d, "phases")?.iter()
+        .map(|ph| ph.extract::<PhaseArgs>().map_err(|e| InputError::new_err(format!("test config phase: {e}")))?.build().map_err(PyErr::from))
+        .collect::<PyResult<Vec<_>>>()?;
+    let controller = need::<Bound<'_, PyAny>>(d, "controller")?.extract::<ControllerSpecArgs>()
+        .map_err(|e| InputError::new_err(format!("test config controller: {e}")))?.build()?;
     // every default is the core's (`Limits`, `Envelope`, `JumpConfig` defaults, `DEFAULT_*`)
     let (dj, dl, de) = (JumpConfig::default(), Limits::default(), Envelope::default());
     Ok(TestConfig {

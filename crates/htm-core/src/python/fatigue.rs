@@ -193,5 +193,7 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     }
     m.add("NASGRO_DEFAULTS", nasgro)?;
     m.add("LOAD_R_RATIO_RANGE", crack::LOAD_R_RATIO_RANGE)?;
+    m.add("YOUNGS_MODULUS_RANGE_PA", specimen::YOUNGS_MODULUS_RANGE_PA)?;
+    m.add("POISSON_RATIO_RANGE", specimen::POISSON_RATIO_RANGE)?;
     Ok(())
 }
