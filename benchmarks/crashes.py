@@ -25,9 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from htm import _core
+from htm import core
 from htm.record import Store, journal
-from htm.run import RAW_POLICY
 from htm.spec import parse
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -57,7 +56,7 @@ def short_spec(folder: Path, c_scale: float) -> Path:
 
 def reference(spec_path: Path) -> tuple[dict, np.ndarray]:
     spec = parse(tomllib.loads(spec_path.read_text()), spec_path.stem)
-    s = _core.TestRun(spec.to_config(), "full", RAW_POLICY)
+    s = core.TestRun(spec.to_config(), "full", core.RAW_POLICY)
     tables, raws = [], []
     while not s.finished:
         d = s.advance(max_seconds=60.0)
@@ -104,7 +103,7 @@ def simulated(folder: Path, kills: int, rng: random.Random) -> dict:
     ref, ref_raw = reference(spec)
     c, rc = table["cycle"], ref["cycle"]
     dt = 1.0 / 1000.0  # the example's control rate
-    got_raw = np.column_stack([raw[k] for k in _core.TestRun.raw_columns()]) if raw else np.zeros((0, ref_raw.shape[1]))
+    got_raw = np.column_stack([raw[k] for k in core.RAW_COLUMNS]) if raw else np.zeros((0, ref_raw.shape[1]))
     ref_rows = {tuple(r) for r in ref_raw.tolist()}
     same_raw = sum(tuple(r) in ref_rows for r in got_raw.tolist())
     identical = len(c) == len(rc) and all(np.array_equal(table[k], ref[k], equal_nan=True) for k in ref)

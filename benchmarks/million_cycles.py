@@ -31,7 +31,7 @@ import time
 import tomllib
 from pathlib import Path
 
-from htm import _core
+from htm import core
 from htm.errors import HtmError
 from htm.spec import parse
 
@@ -52,13 +52,13 @@ def full_child(out: str) -> None:
     """(i) and (ii) in a fresh process (its peak RSS is the run's), with whatever htm it imports."""
     cfg = parse(spec_doc()).to_config()
     t0, c0 = time.perf_counter(), time.process_time()
-    o = _core.run_test(cfg, "full")
+    o = core.run_test(cfg, "full")
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     walls = []
     for _ in range(3):
         t0 = time.perf_counter()
-        jump = _core.run_test(cfg, "jump")
+        jump = core.run_test(cfg, "jump")
         walls.append(time.perf_counter() - t0)
     Path(out).write_text(json.dumps({"cycles": o["cycles"], "a_end_m": o["a_end_m"], "wall_s": wall, "cpu_s": cpu, "end_reason": o["end_reason"],
                                      "max_abs_df_err_pct": o["max_abs_df_err_pct"], "peak_rss_mb": rss,
@@ -97,7 +97,7 @@ def first_cycles_table() -> tuple[list[dict], float]:
             d["end"]["max_cycles"] = 25 + 40
             row: dict = {"waveform": wave, "frequency_hz": f}
             try:
-                o = _core.run_test(parse(d).to_config(), "full")
+                o = core.run_test(parse(d).to_config(), "full")
             except HtmError as e:  # refused before it runs: not feasible on this rig
                 rows.append({**row, "refused": str(e)})
                 continue
@@ -122,10 +122,10 @@ def main() -> None:
         d["end"]["max_cycles"] = 3000
         batch.append(parse(d).to_config())
     t0 = time.perf_counter()
-    one = _core.run_batch(batch, "full", 1)
+    one = core.run_batch(batch, "full", 1)
     t1 = time.perf_counter() - t0
     t0 = time.perf_counter()
-    two = _core.run_batch(batch, "full", 2)
+    two = core.run_batch(batch, "full", 2)
     t2 = time.perf_counter() - t0
     assert [o["a_end_m"] for o in one] == [o["a_end_m"] for o in two]
 

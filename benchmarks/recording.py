@@ -3,7 +3,7 @@
 Scenario: the million-cycle spec of benchmarks/million_cycles.py (the C(T) of
 examples/ct_constant_force.toml with Paris C / 10, a/W 0.30 → 0.60, ≈ 10⁶ cycles) in full
 fidelity, every cycle through the plant, on one core:
-(i)  the peer: `_core.run_test` in one call, nothing recorded;
+(i)  the peer: `core.run_test` in one call, nothing recorded;
 (ii) `htm run`'s recorded path: the chunked engine (0.25 s blocks, an engine snapshot per block),
      the journal (every row, flushed per block, fsync ≤ 1 s), the SQLite catalogue, Parquet tables
      (every cycle; raw windows: first 30 cycles, 2 per decade, 2 around each event) and the rerun
@@ -22,7 +22,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from htm import _core
+from htm import core
 from htm.record.store import Store
 from htm.run import run_recorded
 from htm.spec import parse
@@ -48,7 +48,7 @@ def main() -> None:
     cfg = spec.to_config()
 
     t0, c0 = time.perf_counter(), time.process_time()
-    plain = _core.run_test(cfg, "full")
+    plain = core.run_test(cfg, "full")
     t_plain, c_plain = time.perf_counter() - t0, time.process_time() - c0
 
     with tempfile.TemporaryDirectory(dir=ROOT / "out" if (ROOT / "out").exists() else None) as tmp:

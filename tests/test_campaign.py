@@ -71,10 +71,10 @@ def test_in_process_campaign_writes_one_row_per_test_and_resumes(tmp_path):
     assert [r["life_cycles"] for r in by_c] == sorted(lives[:3], reverse=True)
     assert all(0 <= r["max_abs_df_err_pct"] < 5 for r in rows)
     # the same result as running the test alone
-    from htm import _core
+    from htm import core
     from htm import spec as test_spec
 
-    alone = _core.run_test(test_spec.parse(c.docs[4], "x").to_config(), c.mode)
+    alone = core.run_test(test_spec.parse(c.docs[4], "x").to_config(), c.mode)
     assert rows[4]["life_cycles"] == alone["cycles"]
 
 

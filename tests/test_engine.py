@@ -8,14 +8,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from htm import _core
+from htm import core
 from htm.cli import main
 from htm.errors import SpecError
 from htm.spec import load, parse
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "ct_constant_force.toml"
-EV = _core.EVENTS
+EV = core.EVENTS
 START, STOP = EV["start"], EV["stop"]
 
 
@@ -24,7 +24,7 @@ def base_doc() -> dict:
 
 
 def run(doc: dict, mode: str = "full") -> dict:
-    return _core.run_test(parse(doc).to_config(), mode)
+    return core.run_test(parse(doc).to_config(), mode)
 
 
 def in_test(t: dict) -> np.ndarray:
@@ -178,8 +178,8 @@ def test_batch_returns_each_result_in_order():
         d = base_doc()
         d["law"]["c"] *= scale
         docs.append(parse(d).to_config())
-    outs = _core.run_batch(docs, "jump", 2)
-    singles = [_core.run_test(c, "jump") for c in docs]
+    outs = core.run_batch(docs, "jump", 2)
+    singles = [core.run_test(c, "jump") for c in docs]
     assert [o["cycles"] for o in outs] == [s["cycles"] for s in singles]
     assert outs[0]["cycles"] > outs[1]["cycles"]
 

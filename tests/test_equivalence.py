@@ -10,6 +10,7 @@ import pytest
 
 from htm.control import Session
 from htm.control.session import specimen_of
+from htm.core import EVENTS
 from htm.devices.config import virtual_config
 from htm.run import run_test
 from htm.spec import parse
@@ -51,7 +52,7 @@ def test_simulator_and_virtual_rig_give_the_same_cycle_table(waveform, frequency
     spec = _spec(waveform, frequency_hz)
     sim = run_test(spec, "full")
     t = sim["table"]
-    counted = (t["events"] & 128) == 0  # not the smooth-stop rows
+    counted = (t["events"] & EVENTS["stop"]) == 0  # not the smooth-stop rows
     sim_t = {k: np.asarray(t[k])[counted] for k in ("cycle", "fmax_n", "fmin_n", "a_m", "delta_k_pa_sqrt_m")}
     rig = _rig_table(spec)
     assert len(rig["cycle"]) == len(sim_t["cycle"]) == CYCLES

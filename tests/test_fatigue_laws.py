@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from htm import _core
+from htm import core
 from htm.fatigue.data import CrackData, Setup, read_a_n
 from htm.fatigue.e647 import reduce
 from htm.fatigue.laws import Model, Points, fit_life, fit_rate, life_errors, scatter
@@ -26,7 +26,7 @@ def test_rates_come_from_the_core():
     got = m.rate(dk, dk / 0.8, 0.2)
     want = 1e-8 * (dk / 1e6) ** 3 / (0.8 * 40 - dk / 1e6)
     assert np.allclose(got, want, rtol=1e-12)
-    assert np.allclose(_core.growth_rate(m.core_law(0.2), dk, 0.2, dk / 0.8), got)
+    assert np.allclose(core.growth_rate(m.core_law(0.2), dk, 0.2, dk / 0.8), got)
 
 
 @pytest.mark.parametrize("law,params", [

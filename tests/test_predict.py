@@ -100,7 +100,7 @@ def test_a_broken_or_mismatched_model_is_refused_by_name(loop_model, tmp_path, c
 def test_a_valve_level_model_travels_too(tmp_path):
     """The valve family's model.json (here the proving-ground rig's true parameters) re-simulates
     another record of that rig through the core's closed loop, to the noise."""
-    from htm._core import Params
+    from htm.core import Params
     from htm.ident.predict import model_dict
 
     first, truth = proving.make_record({}, seed=21, duration_s=4)

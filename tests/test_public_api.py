@@ -9,7 +9,7 @@ import pytest
 
 import htm
 from htm import control, errors, params, run, spec
-from htm._core import Machine, Params
+from htm.core import Machine, Params
 from htm.devices import config
 from htm.fatigue import data, e647
 from htm.ident import diagnose, proving, records

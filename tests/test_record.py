@@ -16,12 +16,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from htm import _core
+from htm import core
 from htm.cli import main
 from htm.errors import RecordError
 from htm.record import Store, TestWriter, journal
 from htm.record.store import MIGRATIONS, SCHEMA_VERSION
-from htm.run import RAW_POLICY
 from htm.spec import parse
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -40,8 +39,8 @@ def short_spec(tmp_path: Path, c_scale: float = 15.0) -> Path:
 def reference(spec_path: Path) -> tuple[dict, dict]:
     """The uninterrupted run of the engine (per-cycle table, raw windows) for comparison."""
     spec = parse(tomllib.loads(spec_path.read_text()), spec_path.stem)
-    table = _core.run_test(spec.to_config(), "full")["table"]
-    s = _core.TestRun(spec.to_config(), "full", RAW_POLICY)
+    table = core.run_test(spec.to_config(), "full")["table"]
+    s = core.TestRun(spec.to_config(), "full", core.RAW_POLICY)
     raws = []
     while not s.finished:
         raws.append(s.advance(max_seconds=60.0)["raw"])
@@ -82,7 +81,7 @@ def test_corrupted_journal_is_a_clear_error_and_nothing_is_touched(tmp_path, cap
     # a simulated test stopped after three blocks, so its journal stays
     with Store(store) as s:
         w = TestWriter.create(s, "short", "simulated", "full", "toml", spec.read_text(), 10.0, recording=False)
-        sess = _core.TestRun(parse(tomllib.loads(spec.read_text())).to_config(), "full", RAW_POLICY)
+        sess = core.TestRun(parse(tomllib.loads(spec.read_text())).to_config(), "full", core.RAW_POLICY)
         for _ in range(3):
             w.cycles(sess.advance(max_cycles=200)["table"], None, bytes(sess.snapshot()))
         w.interrupt("interrupted")
@@ -144,7 +143,8 @@ def test_store_round_trip_events_results_files_and_delete(tmp_path):
         w = TestWriter.create(s, "live-1", "device", "live", "toml", "[x]\ny = 1\n", 5.0, recording=False)
         w.event("mode_change", "force control on", cycle=0, time_s=0.0)
         w.signals({"t_s": np.linspace(0, 1, 11), "f_n": np.arange(11.0)})
-        w.cycles({"cycle": np.arange(1, 6), "fmax_n": np.full(5, 4.9e3), "events": np.array([0, 0, 32, 0, 256], np.uint32),
+        ev = np.array([0, 0, core.EVENTS["stiffness_step"], 0, core.EVENTS["end"]], np.uint32)
+        w.cycles({"cycle": np.arange(1, 6), "fmax_n": np.full(5, 4.9e3), "events": ev,
                   "a_m": np.linspace(0.015, 0.016, 5)})
         assert s.get(w.id)["status"] == "running" and len(s.cycles(w.id)["cycle"]) == 5  # from the journal while open
         with pytest.raises(RecordError, match="ascend"):
@@ -250,7 +250,7 @@ def test_htm_run_records_store_and_rrd_that_read_back(tmp_path, capsys):
     ref, ref_raw = reference(spec)
     for k in ("cycle", "fmax_n", "a_m", "ctrl_u1_v", "events"):
         assert np.array_equal(table[k], ref[k]), k
-    assert np.array_equal(np.column_stack([raw[k] for k in _core.TestRun.raw_columns()]), ref_raw)
+    assert np.array_equal(np.column_stack([raw[k] for k in core.RAW_COLUMNS]), ref_raw)
     # raw windows: the first 30 cycles whole, then a couple per decade and around events
     kept = np.unique(raw["cycle"]).astype(int)
     assert set(range(1, 31)) <= set(kept) and {100, 101, 1000, 1001} <= set(kept) and len(kept) < 0.1 * len(table["cycle"])
@@ -364,10 +364,10 @@ def test_sigkill_at_20_random_moments_then_resume_loses_and_doubles_nothing(tmp_
     ref, ref_raw = reference(spec)
     for k in ref:
         assert np.array_equal(table[k], ref[k], equal_nan=True), k  # bit for bit as if never killed
-    assert np.array_equal(np.column_stack([raw[k] for k in _core.TestRun.raw_columns()]), ref_raw)
+    assert np.array_equal(np.column_stack([raw[k] for k in core.RAW_COLUMNS]), ref_raw)
     ents = _rrd(Path(t["files"]["recording"]["path"]))
     f = np.array(ents["/cycle/force_n"]["cycle"])
-    assert np.array_equal(f, c[(c <= 10_000) | (c % 10 == 0) | (table["events"] & ~np.uint32(_core.EVENTS["start"]) != 0)]), \
+    assert np.array_equal(f, c[(c <= 10_000) | (c % 10 == 0) | (table["events"] & ~np.uint32(core.EVENTS["start"]) != 0)]), \
         "the recording: each cycle it shows, once"
 
 
@@ -463,6 +463,6 @@ def test_summary_and_store_name_the_same_size_criterion_cycle_in_jump_mode(tmp_p
         table = s.cycles(t["id"])
     assert first is not None and ev == [first]
     # jump mode: one row per cycle run through the plant and one per jump (the README says so)
-    c, jump = table["cycle"], (table["events"] & _core.EVENTS["jump"]) != 0
+    c, jump = table["cycle"], (table["events"] & core.EVENTS["jump"]) != 0
     gaps = np.flatnonzero(np.diff(c) > 1) + 1
     assert len(gaps) > 10 and jump[gaps].all(), "every gap in the cycle column closes on a jump row"

@@ -10,6 +10,7 @@ import pytest
 
 from htm.control import Session
 from htm.control.session import specimen_of
+from htm.core import EVENTS
 from htm.devices.config import virtual_config
 from htm.spec import parse
 
@@ -190,7 +191,7 @@ def test_resume_after_hold_ramps_back_into_the_band_without_a_trip():
         assert [e["cause"] for e in conv] == ["start", "resume"]
         assert all(e["cycles_to_2pct"] == 0 and e["worst_first_df_pct"] < 2.0 for e in conv), conv
         rows = s.cycles_since(0)
-        ramp = [r for r in rows if r["events"] & 512]
+        ramp = [r for r in rows if r["events"] & EVENTS["ramp"]]
         assert len(ramp) >= 15 and not any(r["judged"] for r in ramp), "the ramp back in is not judged"
     finally:
         s.close()

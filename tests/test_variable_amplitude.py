@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from htm import _core
+from htm import core
 from htm.cli import main
 from htm.control import Session
 from htm.control.session import specimen_of
@@ -19,7 +19,7 @@ from htm.spec import load, parse
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "ct_constant_force.toml"
 BLOCKS = [[50, 4450.0, 0.1], [20, 5340.0, 0.1], [30, 3000.0, 0.3]]
-EV_START_STOP = 1 | 128
+EV_START_STOP = core.EVENTS["start"] | core.EVENTS["stop"]
 
 
 def _doc(rate_hz: float = 1000.0, cycles: int = 300) -> dict:
@@ -106,7 +106,7 @@ def test_spectrum_file_in_simulation_and_report_counts_it_with_rainflow(tmp_path
     assert main(["run", str(spec_path), "--out", str(out), "--quiet"]) == 0
     md = (out / "report.md").read_text()
     assert "rainflow count (ASTM E1049)" in md and "±2 % band" in md
-    counted = np.array(_core.rainflow(np.column_stack([t["fmax_n"][c], t["fmin_n"][c]]).ravel().tolist()))
+    counted = np.array(core.rainflow(np.column_stack([t["fmax_n"][c], t["fmin_n"][c]]).ravel().tolist()))
     assert counted[:, 2].sum() == pytest.approx(c.sum(), abs=1.0), "one rainflow cycle per applied cycle"
     capsys.readouterr()
 

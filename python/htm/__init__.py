@@ -15,7 +15,7 @@ The names below the machine's are imported on first use, so `import htm` stays c
 from importlib import import_module
 from typing import Any
 
-from htm._core import Machine, Params, __version__
+from htm.core import Machine, Params, __version__
 from htm.errors import (
     DeviceError,
     HtmError,

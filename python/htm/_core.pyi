@@ -11,9 +11,15 @@ __all__ = [
     "CyclicController", "Detectors", "RigPlant", "Progress", "EVENTS", "run_test", "validate_test", "run_batch", "TestRun",
     "feasibility", "MARGINAL_FRACTION", "RESONANCE_FRACTION",
     "friction_force", "LoopParams", "loop_simulate", "replay",
+    "CHANNELS", "RAW_COLUMNS", "RAW_POLICY", "TEST_DEFAULTS", "TEST_R_RATIO_RANGE", "LOAD_R_RATIO_RANGE", "MAX_TOLERANCE",
+    "TEST_TOLERANCE", "PRECRACK_TOLERANCE", "MIN_SAMPLES_PER_CYCLE", "MAX_CONTROL_RATE_HZ", "E647_MIN_K_GRADIENT_PER_M",
+    "RTOL_RANGE", "NASGRO_DEFAULTS", "YOUNGS_MODULUS_RANGE_PA", "POISSON_RATIO_RANGE",
 ]
 
 __version__: str
+
+# measured channels in DATA_FORMAT order (measure.rs CHANNELS)
+CHANNELS: tuple[str, ...]
 
 class HtmError(Exception): ...
 class ParameterError(HtmError): ...
@@ -78,10 +84,34 @@ def life(law: dict, geometry: str, width_m: float, thickness_m: float, pmax_n: f
 def life_curve(law: dict, geometry: str, width_m: float, thickness_m: float, pmax_n: float, r_ratio: float, a_m: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]: ...
 def crack_after(law: dict, geometry: str, width_m: float, thickness_m: float, pmax_n: float, r_ratio: float, a0_m: float, cycles: float) -> dict: ...
 def pmax_from_delta_p(delta_p_n: float, r_ratio: float) -> float: ...
+
+# NASGRO terms a law may omit and their values then, SI (crack.rs NASGRO_DEFAULTS)
+NASGRO_DEFAULTS: dict[str, float]
+# stress ratios [lo, hi) of a load: life prediction, E647 data (crack.rs LOAD_R_RATIO_RANGE)
+LOAD_R_RATIO_RANGE: tuple[float, float]
+# a material's Young's modulus (lo, hi) [Pa] and Poisson's ratio [lo, hi) (specimen.rs)
+YOUNGS_MODULUS_RANGE_PA: tuple[float, float]
+POISSON_RATIO_RANGE: tuple[float, float]
 # --- fatigue test engine (crates/htm-core/src/engine.rs); config dicts come from htm.spec ---
 
 # event bits of the engine's per-cycle `events` column, by name (engine.rs `events`)
 EVENTS: dict[str, int]
+# a config key's value when the config leaves it out (engine/config.rs defaults)
+TEST_DEFAULTS: dict[str, Any]
+# ranges and constants of a test config (engine/config.rs): R of a phase [lo, hi), the largest force
+# tolerance, the default tolerances of the test and of a precrack, samples per cycle, the highest
+# control rate [Hz], the E647 K-gradient limit [1/m], the integrator tolerances [lo, hi]
+TEST_R_RATIO_RANGE: tuple[float, float]
+MAX_TOLERANCE: float
+TEST_TOLERANCE: float
+PRECRACK_TOLERANCE: float
+MIN_SAMPLES_PER_CYCLE: float
+MAX_CONTROL_RATE_HZ: float
+E647_MIN_K_GRADIENT_PER_M: float
+RTOL_RANGE: tuple[float, float]
+# raw sample columns (SI) and the capture policy `htm run` records with (engine/raw.rs)
+RAW_COLUMNS: tuple[str, ...]
+RAW_POLICY: dict[str, int]
 
 @final
 class Progress:

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from htm import profiles
-from htm._core import Machine, Params
+from htm.core import Machine, Params
 from htm.errors import HtmError
 from htm.ident.records import Record, write_record
 from htm.params import parse_assignments, rig_metadata, with_overrides

@@ -1,5 +1,5 @@
 """The htm exception hierarchy: everything derives from `HtmError` (defined in the Rust core)."""
-from htm._core import HtmError, InputError, ParameterError, SolverError
+from htm.core import HtmError, InputError, ParameterError, SolverError
 
 
 class SpecError(HtmError, ValueError):

@@ -1,6 +1,6 @@
 """Know before you start: can the rig run this test on this specimen?
 
-The limits are computed in the Rust core (`htm._core.feasibility`, one formula per limit); this
+The limits are computed in the Rust core (`htm.core.feasibility`, one formula per limit); this
 module words them for a person: force capacity (piston areas × supply pressure, both
 directions), valve flow for the waveform's peak piston speed, frequency against the oil-column /
 specimen resonance, stroke, and the ASTM E647 size criterion over the crack range. A refused
@@ -12,8 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from htm._core import RESONANCE_FRACTION
-from htm._core import feasibility as core_checks
+from htm.core import RESONANCE_FRACTION
+from htm.core import feasibility as core_checks
 
 TITLES = {
     "force_tension": "force capacity (tension)",

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from htm._core import Params
+from htm.core import Params
 from htm.errors import ParameterError
 
 

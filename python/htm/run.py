@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from htm import _core
+from htm import core
 from htm.errors import HtmError
 from htm.spec import TestSpec, load, parse
 
@@ -21,12 +21,12 @@ from htm.spec import TestSpec, load, parse
 def run_spec(spec: TestSpec, mode: str | None = None, progress: bool = False) -> tuple[dict[str, Any], float]:
     """Run `spec` in `mode` (default: the spec's); returns (engine result, wall seconds)."""
     cfg = spec.to_config()
-    prog = _core.Progress()
+    prog = core.Progress()
     box: dict[str, Any] = {}
 
     def work() -> None:
         try:
-            box["out"] = _core.run_test(cfg, mode or spec.mode, prog)
+            box["out"] = core.run_test(cfg, mode or spec.mode, prog)
         except BaseException as e:  # re-raised in the caller's thread
             box["err"] = e
 
@@ -74,20 +74,20 @@ def run_test(spec: TestSpec | str | Path, mode: str | None = None, *, progress: 
     return out
 
 
-# raw high-rate windows of a simulated test: the first 30 cycles (start-up), 2 cycles from each
-# decade, 2 cycles before and after each event
-RAW_POLICY = {"first_cycles": 30, "decade_cycles": 2, "pre_cycles": 2, "post_cycles": 2}
+# raw high-rate windows of a simulated test: the core's policy (the first cycles, a few from each
+# decade, a few around each event)
+RAW_POLICY = core.RAW_POLICY
 # wall time of one engine chunk [s]: the journal gets a block of rows (and a snapshot) this often
 CHUNK_S = 0.25
 
 
 def drive(sess: Any, writer: Any, limit: int, progress: bool) -> tuple[dict[str, Any], float]:
-    """Advance `sess` (a `_core.TestRun`) chunk by chunk into `writer` (a `TestWriter`) to the
+    """Advance `sess` (a `core.TestRun`) chunk by chunk into `writer` (a `TestWriter`) to the
     end; returns (the run's summary, wall seconds). A recording error stops the test safely
     (the journal keeps what was written, `htm resume` continues)."""
     from htm.errors import RecordError
 
-    cols = _core.TestRun.raw_columns()
+    cols = core.RAW_COLUMNS
     t0 = time.perf_counter()
     engine_s = 0.0
     try:
@@ -120,11 +120,11 @@ def run_recorded(spec: TestSpec, spec_text: str, mode: str, store: Any, progress
     from htm.record.writer import TestWriter
 
     cfg = spec.to_config()
-    _core.validate_test(cfg)  # bad specs fail before anything is recorded
+    core.validate_test(cfg)  # bad specs fail before anything is recorded
     writer = TestWriter.create(store, spec.name, "simulated", mode, "toml", spec_text, spec.frequency_hz,
                                recording=recording, spawn=spawn, connect=connect)
     try:
-        sess = _core.TestRun(cfg, mode, RAW_POLICY)
+        sess = core.TestRun(cfg, mode, RAW_POLICY)
     except HtmError as e:
         writer.close("failed", "engine_error", {"error": str(e)})
         raise
@@ -170,7 +170,7 @@ def resume_recorded(store: Any, test_id: str, progress: bool = False, *, recordi
     chunks = [r for r in records if r.kind == journal.CHUNK]
     closed = [r for r in records if r.kind == journal.CLOSE]
     if closed or (chunks and not chunks[-1].blob and len(chunks[-1].arrays.get("events", []))
-                  and int(chunks[-1].arrays["events"][-1]) & _core.EVENTS["end"]):
+                  and int(chunks[-1].arrays["events"][-1]) & core.EVENTS["end"]):
         # the run had ended (its last rows are in): only the closing was cut short
         m = closed[-1].meta if closed else {}
         writer.event("resumed", "closing a test that had ended")
@@ -180,7 +180,7 @@ def resume_recorded(store: Any, test_id: str, progress: bool = False, *, recordi
     cfg = spec.to_config()
     snaps = [r for r in chunks if r.blob]
     try:
-        sess = _core.TestRun.restore(cfg, mode, snaps[-1].blob) if snaps else _core.TestRun(cfg, mode, RAW_POLICY)
+        sess = core.TestRun.restore(cfg, mode, snaps[-1].blob) if snaps else core.TestRun(cfg, mode, RAW_POLICY)
     except HtmError as e:
         writer.interrupt("resume_failed", str(e))
         raise RecordError(f"test {test_id}: {e}") from None

@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from htm._core import Machine, Params
+from htm.core import Machine, Params
 
 
 def _machine(params: Params | None, rtol: float | None, state: np.ndarray | None) -> Machine:

@@ -11,17 +11,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from htm import _core
+from htm import core
 from htm.errors import HtmError, InfeasibleTest, SpecError
 from htm.feasibility import Feasibility, assess
 from htm.params import thesis_rig, with_overrides
 
 MODES = ("constant_force", "constant_delta_k", "k_gradient")
 WAVEFORMS = ("sine", "triangle", "trapezoid")
-E647_MIN_K_GRADIENT_PER_M = -80.0  # −0.08 mm⁻¹
 MAX_COUNT = 10**12  # cycle counts (far beyond any test, far inside the core's u64)
-MAX_RATE_HZ = 1e5  # control rate
-MIN_SAMPLES_PER_CYCLE = 16
+# every default and range below is the core's (`htm.core`): stated here only to check a spec early
+DEFAULTS = core.TEST_DEFAULTS
+R_LO, R_HI = core.TEST_R_RATIO_RANGE
 
 
 @dataclass
@@ -85,7 +85,7 @@ class TestSpec:
     rig_overrides: dict[str, float] = field(default_factory=dict)
     rig_preset: str = "thesis"
     waveform_shape: dict[str, float] = field(default_factory=dict)
-    rtol: float = 1e-4
+    rtol: float = DEFAULTS["rtol"]
     mode: str = "jump"
     stiffness_steps: list[tuple[int, float]] = field(default_factory=list)
     # variable-amplitude loading ([variable_amplitude]): blocks (cycles, ΔF [N], R), or a spectrum
@@ -99,9 +99,9 @@ class TestSpec:
         stroke and the E647 size criterion, each with its largest feasible value."""
         return assess(self.to_config())
 
-    def params(self) -> _core.Params:
+    def params(self) -> core.Params:
         try:
-            return with_overrides(_core.Params(self.rig_preset), self.rig_overrides)
+            return with_overrides(core.Params(self.rig_preset), self.rig_overrides)
         except HtmError as e:
             raise SpecError(f"rig: {e}") from None
 
@@ -197,9 +197,9 @@ def _choice(d: dict, key: str, where: str, choices: tuple[str, ...], default: st
 def _loading(d: dict, where: str, end_a_m: float, tolerance: float) -> Loading:
     _keys(d, {"mode", "r_ratio", "delta_f_n", "delta_k_pa_sqrt_m", "k_gradient_per_m", "end_a_m", "tolerance"}, where)
     mode = _choice(d, "mode", where, MODES)
-    r = _num(d, "r_ratio", where, -1.0, 1.0, hi_open=True)
+    r = _num(d, "r_ratio", where, R_LO, R_HI, hi_open=True)
     ph = Loading(mode=mode, r_ratio=r, end_a_m=_num(d, "end_a_m", where, 0.0, lo_open=True, default=end_a_m, unit="m"),
-                 tolerance=_num(d, "tolerance", where, 0.0, 0.2, lo_open=True, default=tolerance))
+                 tolerance=_num(d, "tolerance", where, 0.0, core.MAX_TOLERANCE, lo_open=True, default=tolerance))
     if mode == "constant_force":
         ph.delta_f_n = _num(d, "delta_f_n", where, 0.0, lo_open=True, unit="N")
         if "delta_k_pa_sqrt_m" in d or "k_gradient_per_m" in d:
@@ -209,7 +209,7 @@ def _loading(d: dict, where: str, end_a_m: float, tolerance: float) -> Loading:
         if "delta_f_n" in d:
             raise SpecError(f"{where}: mode {mode} takes delta_k_pa_sqrt_m, not delta_f_n")
         if mode == "k_gradient":
-            ph.k_gradient_per_m = _num(d, "k_gradient_per_m", where, E647_MIN_K_GRADIENT_PER_M, unit="1/m (ASTM E647: C ≥ −0.08 mm⁻¹)")
+            ph.k_gradient_per_m = _num(d, "k_gradient_per_m", where, core.E647_MIN_K_GRADIENT_PER_M, unit="1/m (ASTM E647: C ≥ −0.08 mm⁻¹)")
         elif "k_gradient_per_m" in d:
             raise SpecError(f"{where}: k_gradient_per_m needs mode = \"k_gradient\"")
     return ph
@@ -269,7 +269,7 @@ def _variable_amplitude(va: dict, base: Path | None) -> tuple[list[tuple[int, fl
         where = f"variable_amplitude.blocks[{k}]"
         d = dict(zip(("cycles", "delta_f_n", "r_ratio"), b))
         out.append((_int(d, "cycles", where, 1, MAX_COUNT), _num(d, "delta_f_n", where, 0.0, lo_open=True, unit="N"),
-                    _num(d, "r_ratio", where, -1.0, 1.0, hi_open=True)))
+                    _num(d, "r_ratio", where, R_LO, R_HI, hi_open=True)))
     return out, []
 
 
@@ -284,16 +284,19 @@ def parse(doc: dict, name: str = "test", base: Path | None = None, *, check: boo
     sp = _table(doc, "specimen", "specimen")
     _keys(sp, {"geometry", "width_m", "thickness_m", "a0_m"}, "specimen")
     geometry = _choice(sp, "geometry", "specimen", ("ct", "mt"))
-    width = _num(sp, "width_m", "specimen", 0.0, 2.0, lo_open=True, unit="m")
+    width = _num(sp, "width_m", "specimen", 0.0, 2.0, lo_open=True, unit="m")  # wider: likely mm
     thickness = _num(sp, "thickness_m", "specimen", 0.0, width, lo_open=True, unit="m")
-    alo, ahi = (0.2, 0.975) if geometry == "ct" else (0.0, 0.95)
-    scale = 1.0 if geometry == "ct" else 2.0
+    scale = 1.0 if geometry == "ct" else 2.0  # M(T): a is the half crack, a/W of the half width
+    try:
+        alo, ahi = (round(x * scale / width, 9) for x in core.a_range(geometry, width, thickness))
+    except HtmError as e:
+        raise SpecError(f"specimen: {e}") from None
     a0 = _num(sp, "a0_m", "specimen", alo * width / scale, ahi * width / scale, unit=f"m (a/W in [{alo}, {ahi}])")
     mat = _table(doc, "material", "material")
     _keys(mat, {"youngs_modulus_pa", "poisson_ratio", "yield_strength_pa", "fracture_toughness_pa_sqrt_m"}, "material")
     material = {
-        "youngs_modulus_pa": _num(mat, "youngs_modulus_pa", "material", 1e8, 1e13, lo_open=True, hi_open=True, unit="Pa"),
-        "poisson_ratio": _num(mat, "poisson_ratio", "material", 0.0, 0.5, hi_open=True),
+        "youngs_modulus_pa": _num(mat, "youngs_modulus_pa", "material", *core.YOUNGS_MODULUS_RANGE_PA, lo_open=True, hi_open=True, unit="Pa"),
+        "poisson_ratio": _num(mat, "poisson_ratio", "material", *core.POISSON_RATIO_RANGE, hi_open=True),
         "yield_strength_pa": _num(mat, "yield_strength_pa", "material", 0.0, lo_open=True, unit="Pa"),
         "fracture_toughness_pa_sqrt_m": _num(mat, "fracture_toughness_pa_sqrt_m", "material", 0.0, lo_open=True, unit="Pa·√m"),
     }
@@ -303,10 +306,10 @@ def parse(doc: dict, name: str = "test", base: Path | None = None, *, check: boo
     end = _table(doc, "end", "end")
     _keys(end, {"a_over_w", "max_cycles", "size_criterion", "tolerance_cycles", "tolerance_action"}, "end")
     a_end = _num(end, "a_over_w", "end", alo, ahi, unit=f"(a/W in [{alo}, {ahi}])") * width / scale
-    end_d = {"max_cycles": _int(end, "max_cycles", "end", 1, 100_000_000),
-             "size_criterion": _choice(end, "size_criterion", "end", ("flag", "stop"), "flag"),
-             "tolerance_cycles": _int(end, "tolerance_cycles", "end", 0, 10),
-             "tolerance_action": _choice(end, "tolerance_action", "end", ("flag", "stop"), "flag")}
+    end_d = {"max_cycles": _int(end, "max_cycles", "end", 1, DEFAULTS["max_cycles"]),
+             "size_criterion": _choice(end, "size_criterion", "end", ("flag", "stop"), DEFAULTS["size_criterion_action"]),
+             "tolerance_cycles": _int(end, "tolerance_cycles", "end", 0, DEFAULTS["tolerance_cycles"]),
+             "tolerance_action": _choice(end, "tolerance_action", "end", ("flag", "stop"), DEFAULTS["tolerance_action"])}
     ld = _table(doc, "loading", "loading")
     wave_keys = {"waveform", "frequency_hz", "control_rate_hz", "rise_fraction", "hold_fraction"}
     ld_main = {k: v for k, v in ld.items() if k not in wave_keys}
@@ -317,11 +320,11 @@ def parse(doc: dict, name: str = "test", base: Path | None = None, *, check: boo
         shape = {"rise_fraction": rise, "hold_fraction": _num(ld, "hold_fraction", "loading", 0.0, 1.0 - 2.0 * rise)}
     elif "rise_fraction" in ld or "hold_fraction" in ld:
         raise SpecError("loading: rise_fraction / hold_fraction need waveform = \"trapezoid\"")
-    fmax = MAX_RATE_HZ / MIN_SAMPLES_PER_CYCLE
-    freq = _num(ld, "frequency_hz", "loading", 0.0, fmax, lo_open=True,
-                unit=f"Hz ({MIN_SAMPLES_PER_CYCLE} samples per cycle at a control rate ≤ {MAX_RATE_HZ:g} Hz)")
-    rate = _num(ld, "control_rate_hz", "loading", MIN_SAMPLES_PER_CYCLE * freq, MAX_RATE_HZ, default=1000.0,
-                unit=f"Hz (≥ {MIN_SAMPLES_PER_CYCLE} samples per cycle at {freq:g} Hz)")
+    per_cycle, max_rate = core.MIN_SAMPLES_PER_CYCLE, core.MAX_CONTROL_RATE_HZ
+    freq = _num(ld, "frequency_hz", "loading", 0.0, max_rate / per_cycle, lo_open=True,
+                unit=f"Hz ({per_cycle:g} samples per cycle at a control rate ≤ {max_rate:g} Hz)")
+    rate = _num(ld, "control_rate_hz", "loading", per_cycle * freq, max_rate, default=DEFAULTS["control_rate_hz"],
+                unit=f"Hz (≥ {per_cycle:g} samples per cycle at {freq:g} Hz)")
     if "end_a_m" in ld_main:
         raise SpecError("loading.end_a_m: the test ends at [end] a_over_w")
     phases = []
@@ -329,8 +332,8 @@ def parse(doc: dict, name: str = "test", base: Path | None = None, *, check: boo
     if pre:
         if "end_a_m" not in pre:
             raise SpecError("precrack.end_a_m is missing: the crack length at which precracking ends [m]")
-        phases.append(_loading(pre, "precrack", math.nan, 0.05))
-    phases.append(_loading(ld_main, "loading", a_end, 0.02))
+        phases.append(_loading(pre, "precrack", math.nan, core.PRECRACK_TOLERANCE))
+    phases.append(_loading(ld_main, "loading", a_end, core.TEST_TOLERANCE))
     a_prev = a0
     for ph, where in zip(phases, ["precrack", "loading"] if pre else ["loading"]):
         if not (a_prev < ph.end_a_m <= ahi * width / scale):
@@ -356,9 +359,9 @@ def parse(doc: dict, name: str = "test", base: Path | None = None, *, check: boo
             controller[k] = _num(ctrl, k, "controller", -1e6, 1e6, unit=unit)
     st = _table(doc, "start", "start", required=False)
     _keys(st, {"mean_cycles", "amplitude_cycles", "stop_cycles"}, "start")
-    start = {"mean_cycles": _num(st, "mean_cycles", "start", 0.0, 1e4, default=5.0),
-             "amplitude_cycles": _num(st, "amplitude_cycles", "start", 0.0, 1e4, default=20.0),
-             "stop_cycles": _num(st, "stop_cycles", "start", 0.0, 1e4, default=3.0)}
+    start = {"mean_cycles": _num(st, "mean_cycles", "start", 0.0, 1e4, default=DEFAULTS["start_mean_cycles"]),
+             "amplitude_cycles": _num(st, "amplitude_cycles", "start", 0.0, 1e4, default=DEFAULTS["start_amplitude_cycles"]),
+             "stop_cycles": _num(st, "stop_cycles", "start", 0.0, 1e4, default=DEFAULTS["stop_cycles"])}
     rig = _table(doc, "rig", "rig", required=False)
     _keys(rig, {"preset", "overrides"}, "rig")
     preset = _choice(rig, "preset", "rig", ("thesis", "base"), "thesis")
@@ -390,13 +393,13 @@ def parse(doc: dict, name: str = "test", base: Path | None = None, *, check: boo
         name=name, geometry=geometry, width_m=width, thickness_m=thickness, a0_m=a0, material=material, law=dict(law),
         waveform=waveform, waveform_shape=shape, frequency_hz=freq, control_rate_hz=rate, phases=phases,
         controller=controller, end=end_d, start=start, rig_overrides={k: float(v) for k, v in overrides.items()},
-        rig_preset=preset, rtol=_num(run, "rtol", "run", 1e-8, 1e-2, default=1e-4),
+        rig_preset=preset, rtol=_num(run, "rtol", "run", *core.RTOL_RANGE, default=DEFAULTS["rtol"]),
         mode=_choice(run, "mode", "run", ("full", "jump"), "full" if va else "jump"),
         stiffness_steps=[(int(c), float(f)) for c, f in steps], blocks=blocks, spectrum=spectrum, override_limits=override,
     )
     # what only the core can judge (rig limits, Kmax vs K_IC, law constants): checked now, not later
     try:
-        _core.validate_test(spec.to_config())
+        core.validate_test(spec.to_config())
     except SpecError:
         raise
     except HtmError as e:

@@ -15,6 +15,39 @@ pub enum Controller {
     ForceP { kp_v_per_n: f64, u_max_v: f64 },
 }
 
+/// Command limit [V] of a controller that states none (the valve's full command).
+pub const DEFAULT_U_MAX_V: f64 = 10.0;
+
+/// A controller as named parameters (DATA_FORMAT's `controller` table, SI): `type` is
+/// position_pff or force_p; the gains the type does not use are ignored.
+#[cfg_attr(feature = "python", derive(pyo3::FromPyObject), pyo3(from_item_all))]
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ControllerArgs {
+    #[cfg_attr(feature = "python", pyo3(item("type")))]
+    pub kind: String,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub kp_v_per_m: Option<f64>,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub kff_v_per_m_s: Option<f64>,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub kp_v_per_n: Option<f64>,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub u_max_v: Option<f64>,
+}
+
+impl ControllerArgs {
+    /// The controller; a gain its type needs and lacks is an input error naming it.
+    pub fn build(&self) -> Result<Controller> {
+        let need = |k: &str, v: Option<f64>| v.ok_or_else(|| Error::Input(format!("controller needs `{k}`")));
+        let u_max_v = self.u_max_v.unwrap_or(DEFAULT_U_MAX_V);
+        match self.kind.as_str() {
+            "position_pff" => Ok(Controller::PositionPff { kp_v_per_m: need("kp_v_per_m", self.kp_v_per_m)?, kff_v_per_m_s: need("kff_v_per_m_s", self.kff_v_per_m_s)?, u_max_v }),
+            "force_p" => Ok(Controller::ForceP { kp_v_per_n: need("kp_v_per_n", self.kp_v_per_n)?, u_max_v }),
+            other => Err(Error::Input(format!("unknown controller type `{other}`: use position_pff or force_p"))),
+        }
+    }
+}
+
 impl Controller {
     pub fn validate(&self) -> Result<()> {
         let (gains, u_max): (&[f64], f64) = match self {

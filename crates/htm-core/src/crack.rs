@@ -17,6 +17,64 @@ pub enum Law {
     Nasgro { c: f64, n: f64, p: f64, q: f64, dk_th: f64, k_crit: f64, f_open: f64 },
 }
 
+/// Stress ratios R a load (life prediction, E647 data reduction) may have: [lo, hi). The test
+/// engine runs a narrower range (`engine::TEST_R_RATIO_RANGE`).
+pub const LOAD_R_RATIO_RANGE: (f64, f64) = (-5.0, 1.0);
+
+/// NASGRO terms a law may leave out and their values then: no threshold (p = 0, ΔK_th = 0), no
+/// toughness term (q = 0, K_crit far above any test), no closure (f = 0). The one source of
+/// these defaults (the bindings and `htm.fatigue.laws` read them from here).
+pub const NASGRO_DEFAULTS: [(&str, f64); 5] = [("p", 0.0), ("q", 0.0), ("dk_th", 0.0), ("k_crit", 1e12), ("f_open", 0.0)];
+
+/// A law as named parameters (the shape of a spec's `[law]` table, SI): `law` is paris, forman or
+/// nasgro; the parameters a law does not use are ignored.
+#[cfg_attr(feature = "python", derive(pyo3::FromPyObject), pyo3(from_item_all))]
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct LawSpec {
+    pub law: String,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub c: Option<f64>,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub m: Option<f64>,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub kc: Option<f64>,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub n: Option<f64>,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub p: Option<f64>,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub q: Option<f64>,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub dk_th: Option<f64>,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub k_crit: Option<f64>,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub f_open: Option<f64>,
+}
+
+impl LawSpec {
+    /// The validated law; a missing parameter the law needs is an input error naming it.
+    pub fn build(&self) -> Result<Law> {
+        let need = |k: &str, v: Option<f64>| v.ok_or_else(|| Error::Input(format!("growth law `{}` needs `{k}`", self.law)));
+        let dflt = |k: &str, v: Option<f64>| v.unwrap_or_else(|| nasgro_default(k));
+        let law = match self.law.as_str() {
+            "paris" => Law::Paris { c: need("c", self.c)?, m: need("m", self.m)? },
+            "forman" => Law::Forman { c: need("c", self.c)?, m: need("m", self.m)?, kc: need("kc", self.kc)? },
+            "nasgro" => Law::Nasgro {
+                c: need("c", self.c)?, n: need("n", self.n)?, p: dflt("p", self.p), q: dflt("q", self.q),
+                dk_th: dflt("dk_th", self.dk_th), k_crit: dflt("k_crit", self.k_crit), f_open: dflt("f_open", self.f_open),
+            },
+            other => return Err(Error::Input(format!("unknown growth law `{other}`: use paris, forman or nasgro"))),
+        };
+        law.validate()?;
+        Ok(law)
+    }
+}
+
+fn nasgro_default(k: &str) -> f64 {
+    NASGRO_DEFAULTS.iter().find(|(n, _)| *n == k).map(|(_, v)| *v).unwrap_or(0.0)
+}
+
 fn param(field: &str, value: f64, allowed: &str) -> Error {
     Error::Parameter { field: field.into(), value, allowed: allowed.into() }
 }
@@ -176,10 +234,11 @@ impl Load {
 }
 
 fn check_r(r: f64) -> Result<()> {
-    if r.is_finite() && (-5.0..1.0).contains(&r) {
+    let (lo, hi) = LOAD_R_RATIO_RANGE;
+    if r.is_finite() && (lo..hi).contains(&r) {
         Ok(())
     } else {
-        Err(param("r_ratio", r, "[-5, 1)"))
+        Err(param("r_ratio", r, &format!("[{lo}, {hi})")))
     }
 }
 
@@ -370,6 +429,18 @@ mod tests {
     use super::*;
     use crate::specimen::Geometry;
     use std::f64::consts::PI;
+
+    #[test]
+    fn a_law_spec_fills_the_nasgro_terms_it_omits_from_the_one_default_table() {
+        let spec = LawSpec { law: "nasgro".into(), c: Some(1e-29), n: Some(3.0), q: Some(0.5), ..Default::default() };
+        let Law::Nasgro { p, q, dk_th, k_crit, f_open, .. } = spec.build().unwrap() else { panic!("not nasgro") };
+        assert_eq!((p, q, dk_th, k_crit, f_open), (0.0, 0.5, 0.0, 1e12, 0.0));
+        let no_m = LawSpec { law: "paris".into(), c: Some(1e-11), ..Default::default() };
+        assert!(no_m.build().unwrap_err().to_string().contains("`m`"));
+        let bad = LawSpec { law: "walker".into(), ..Default::default() };
+        assert!(bad.build().unwrap_err().to_string().contains("walker"));
+        assert!(Load::new(1e3, LOAD_R_RATIO_RANGE.0 - 0.1).is_err() && Load::new(1e3, LOAD_R_RATIO_RANGE.0).is_ok());
+    }
 
     fn mt() -> Specimen {
         Specimen::new(Geometry::MT, 0.1524, 2.54e-3).unwrap()

@@ -164,6 +164,15 @@ pub struct Cyclic {
 }
 
 impl Cyclic {
+    /// Set the largest |command| from now on [V], ≥ 0 (a trip lowers it to the safe value).
+    pub fn set_command_limit_v(&mut self, v: f64) -> Result<()> {
+        if !(v >= 0.0) {
+            return Err(Error::Parameter { field: "command_limit_v".into(), value: v, allowed: "[0, inf] V".into() });
+        }
+        self.command_limit_v = v;
+        Ok(())
+    }
+
     pub fn new(rate_hz: f64, position: PositionGains) -> Result<Self> {
         if !(rate_hz.is_finite() && (50.0..=20_000.0).contains(&rate_hz)) {
             return Err(Error::Parameter { field: "loop.rate_hz".into(), value: rate_hz, allowed: "[50, 20000] Hz".into() });

@@ -26,6 +26,9 @@ pub struct CrackingSpecimen {
 }
 
 impl CrackingSpecimen {
+    /// Force hysteresis [N] of the peak/valley finder when a specimen gives none.
+    pub const DEFAULT_HYSTERESIS_N: f64 = 50.0;
+
     pub fn new(specimen: Specimen, material: Material, law: Law, a0_m: f64, hysteresis_n: f64) -> Result<Self> {
         specimen.validate()?;
         material.validate()?;
@@ -102,6 +105,15 @@ pub struct RigPlant {
 }
 
 impl RigPlant {
+    /// Set the relief-valve setpoint [Pa], finite and ≥ 0 (the supply follows with its lag).
+    pub fn set_supply_setpoint_pa(&mut self, v: f64) -> Result<()> {
+        if !(v.is_finite() && v >= 0.0) {
+            return Err(Error::Parameter { field: "supply_setpoint_pa".into(), value: v, allowed: "[0, inf) Pa".into() });
+        }
+        self.supply_setpoint_pa = v;
+        Ok(())
+    }
+
     pub fn new(params: Params, specimen: Option<CrackingSpecimen>) -> Result<Self> {
         let mut p = params;
         if let Some(s) = &specimen {

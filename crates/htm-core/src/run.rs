@@ -1,7 +1,7 @@
 //! Whole simulations: a command array played open loop, or a reference tracked in closed loop.
 use crate::control::Controller;
 use crate::error::{Error, Result};
-use crate::machine::{Machine, Outputs};
+use crate::machine::{Machine, Outputs, NX, SPOOL};
 use crate::solver::Stats;
 
 /// Sampled signals of a run; sample k is read at t[k] = k*dt, before u[k] is applied.
@@ -44,6 +44,21 @@ fn check_dt(dt: f64) -> Result<()> {
 }
 
 /// Play the command samples `u` [V], each held for `dt` [s].
+/// Time derivative of state `x` (NX values) of machine `m`'s plant under held command `u` [V],
+/// for external integrators: the spool is the command's target when the valve has no spool
+/// dynamics (as the integrator holds it).
+pub fn derivatives(m: &Machine, x: &[f64], u: f64) -> Result<[f64; NX]> {
+    let mut arr: [f64; NX] = x.try_into().map_err(|_| Error::Input(format!("state needs {NX} values, got {}", x.len())))?;
+    let plant = &m.plant;
+    let target = plant.spool_target(u, &mut 0.0);
+    if !plant.spool_has_dynamics() {
+        arr[SPOOL] = target;
+    }
+    let mut dx = [0.0; NX];
+    plant.derivatives(&arr, target, &mut dx);
+    Ok(dx)
+}
+
 pub fn simulate_open_loop(m: &mut Machine, u: &[f64], dt: f64) -> Result<Trace> {
     check_dt(dt)?;
     if let Some(k) = u.iter().position(|x| !x.is_finite()) {

@@ -293,6 +293,11 @@ impl Default for Material {
     }
 }
 
+/// Young's modulus [Pa] a material may have: the open range (lo, hi).
+pub const YOUNGS_MODULUS_RANGE_PA: (f64, f64) = (1e8, 1e13);
+/// Poisson's ratio a material may have: [lo, hi).
+pub const POISSON_RATIO_RANGE: (f64, f64) = (0.0, 0.5);
+
 impl Material {
     /// 2024-T3 aluminium sheet (typical handbook values): E = 72 GPa, ν = 0.33, σ_ys = 345 MPa,
     /// K_c ≈ 70 MPa·√m (thin sheet).
@@ -301,11 +306,13 @@ impl Material {
     }
 
     pub fn validate(&self) -> Result<()> {
-        if !(self.youngs_modulus_pa.is_finite() && self.youngs_modulus_pa > 1e8 && self.youngs_modulus_pa < 1e13) {
-            return Err(param("youngs_modulus_pa", self.youngs_modulus_pa, "(1e8, 1e13) Pa"));
+        let (elo, ehi) = YOUNGS_MODULUS_RANGE_PA;
+        if !(self.youngs_modulus_pa.is_finite() && self.youngs_modulus_pa > elo && self.youngs_modulus_pa < ehi) {
+            return Err(param("youngs_modulus_pa", self.youngs_modulus_pa, &format!("({elo:e}, {ehi:e}) Pa")));
         }
-        if !(self.poisson_ratio.is_finite() && (0.0..0.5).contains(&self.poisson_ratio)) {
-            return Err(param("poisson_ratio", self.poisson_ratio, "[0, 0.5)"));
+        let (nlo, nhi) = POISSON_RATIO_RANGE;
+        if !(self.poisson_ratio.is_finite() && (nlo..nhi).contains(&self.poisson_ratio)) {
+            return Err(param("poisson_ratio", self.poisson_ratio, &format!("[{nlo}, {nhi})")));
         }
         if !(self.yield_strength_pa.is_finite() && self.yield_strength_pa > 0.0) {
             return Err(param("yield_strength_pa", self.yield_strength_pa, "(0, inf) Pa"));

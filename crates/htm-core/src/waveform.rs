@@ -112,6 +112,14 @@ pub struct Envelope {
     pub stop_cycles: f64,
 }
 
+/// The start-up and stop of a test that states none: mean over 5 cycles, amplitude over 20,
+/// stop over 3.
+impl Default for Envelope {
+    fn default() -> Self {
+        Envelope { mean_cycles: 5.0, amplitude_cycles: 20.0, stop_cycles: 3.0 }
+    }
+}
+
 impl Envelope {
     #[inline]
     pub fn start(&self, cycle_pos: f64) -> (f64, f64) {

@@ -47,14 +47,14 @@ def run_chunk(items: list[tuple[int, dict[str, Any]]], mode: str, threads: int =
     This is the unit a cluster worker runs: plain data in and out (specs are rebuilt here, the
     core's objects do not travel). A test the engine rejects gets a row with its error rather than
     failing its neighbours."""
-    from htm import _core
+    from htm import core
     from htm import spec as test_spec
 
     worker = f"{socket.gethostname()}:{os.getpid()}"
     cfgs = [test_spec.parse(doc, f"test-{i}").to_config() for i, doc in items]
     t0 = time.perf_counter()
     try:
-        outs = _core.run_batch(cfgs, mode, threads)
+        outs = core.run_batch(cfgs, mode, threads)
     except HtmError:
         outs = None
     if outs is not None:
@@ -64,7 +64,7 @@ def run_chunk(items: list[tuple[int, dict[str, Any]]], mode: str, threads: int =
     for (i, _), cfg in zip(items, cfgs):
         t1 = time.perf_counter()
         try:
-            rows.append(_row(i, _core.run_batch([cfg], mode, 1)[0], None, time.perf_counter() - t1, worker))
+            rows.append(_row(i, core.run_batch([cfg], mode, 1)[0], None, time.perf_counter() - t1, worker))
         except HtmError as e:
             rows.append(_row(i, None, str(e), time.perf_counter() - t1, worker))
     return rows

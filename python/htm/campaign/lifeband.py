@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import least_squares
 
-from htm import _core
+from htm import core
 from htm import spec as test_spec
 from htm.errors import RecordError, SpecError
 from htm.fatigue.data import CrackData, Setup
@@ -154,7 +154,7 @@ def early_weights(draws: list[dict[str, float]], early: CrackData, setup: Setup,
     logl = np.empty(len(draws))
     for i, d in enumerate(draws):
         law = {"law": "paris", "c": d["law.c"], "m": d["law.m"]}
-        curve = _core.life_curve(law, setup.geometry, setup.width_m, setup.thickness_m, setup.pmax_n, setup.r_ratio,
+        curve = core.life_curve(law, setup.geometry, setup.width_m, setup.thickness_m, setup.pmax_n, setup.r_ratio,
                                  np.ascontiguousarray(grid, float))[1:]
         # the residuals of one specimen's points are not independent (they follow its own curve): the
         # misfit counts as one observation, its mean square, not as many

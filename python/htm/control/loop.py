@@ -10,7 +10,7 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any
 
-from htm import _core
+from htm import core
 from htm.control.safety import CH, FRACTURE_STATES, EventLog, FractureWatch, Safety
 from htm.control.timing import Timing
 from htm.devices.analog import AnalogIO
@@ -28,12 +28,12 @@ LOCKSTEP_REPLY_S = 0.05  # lock-step against a rig in another process: its answe
 class ControlLoop:
     """One control period at a time (`period()`), or `run_realtime` on a thread."""
 
-    def __init__(self, cfg: RigConfig, master: TransducerMaster, io: AnalogIO, params: _core.Params,
+    def __init__(self, cfg: RigConfig, master: TransducerMaster, io: AnalogIO, params: core.Params,
                  pump_rig: Callable[[], None] | None = None, log: EventLog | None = None):
         self.cfg, self.master, self.io, self.pump_rig = cfg, master, io, pump_rig
         self.rate_hz = cfg.loop.rate_hz
         self.dt = 1.0 / self.rate_hz
-        self.ctrl = _core.CyclicController(self.rate_hz, cfg.position or None)
+        self.ctrl = core.CyclicController(self.rate_hz, cfg.position or None)
         self.log = log or EventLog()
         self.safety = Safety(cfg, self.log)
         self.timing = Timing()

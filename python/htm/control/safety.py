@@ -7,7 +7,7 @@ import time
 from collections import deque
 from typing import Any
 
-from htm import _core
+from htm import core
 from htm.devices.config import CHANNELS, RigConfig
 
 SEVERITY = {"indicate": 0, "hold": 1, "stop": 2, "power_off": 3}
@@ -131,7 +131,7 @@ class Safety:
     def __init__(self, cfg: RigConfig, log: EventLog):
         self.cfg = cfg
         self.log = log
-        self.det = _core.Detectors(cfg.detector_specs())
+        self.det = core.Detectors(cfg.detector_specs())
         self._specs = cfg.detector_specs()
         self.estop = False
         self.values = [0.0] * len(CHANNELS)

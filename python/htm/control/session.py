@@ -31,7 +31,7 @@ from concurrent.futures import Future
 from pathlib import Path
 from typing import Any
 
-from htm import _core
+from htm import core
 from htm.control.loop import ControlLoop
 from htm.control.safety import EventLog
 from htm.devices.analog import AnalogIO
@@ -100,7 +100,7 @@ class Session:
         virtual = config is None if virtual is None else virtual
         self.cfg = cfg
         self._paced = paced
-        params = with_overrides(_core.Params(cfg.rig_preset), cfg.rig_overrides)
+        params = with_overrides(core.Params(cfg.rig_preset), cfg.rig_overrides)
         try:
             if virtual:
                 self.rig = VirtualRig(cfg, specimen, threaded=True)
@@ -330,9 +330,9 @@ class Session:
         self._motion_allowed()
         self._load_supply()
         cfg = spec.to_config()
-        cfg["params"] = with_overrides(_core.Params(self.cfg.rig_preset), self.cfg.rig_overrides)
+        cfg["params"] = with_overrides(core.Params(self.cfg.rig_preset), self.cfg.rig_overrides)
         lp = self.loop
-        ctrl = _core.CyclicController(lp.rate_hz, self.cfg.position or None)
+        ctrl = core.CyclicController(lp.rate_hz, self.cfg.position or None)
         f0 = lp.meas["f"] if f0_n is None else f0_n
         ctrl.start_test(cfg, 0.0 if math.isnan(f0) else f0)
 

@@ -133,7 +133,7 @@ class RigConfig:
     rig_overrides: dict[str, float] = field(default_factory=dict)
 
     def detector_specs(self) -> list[dict[str, Any]]:
-        """The limits as `htm._core.Detectors` items."""
+        """The limits as `htm.core.Detectors` items."""
         return [{"name": lim.name, "channel": CHANNELS.index(lim.channel), "lo": lim.lo, "hi": lim.hi, "action": lim.action,
                  "persist": lim.persist} for lim in self.limits]
 

@@ -6,11 +6,12 @@ from __future__ import annotations
 
 import can
 
-from htm import _core
+from htm import core
 from htm.devices.analog import SimulatedDaq
 from htm.devices.config import RigConfig
 from htm.devices.realtime import set_priority
 from htm.devices.transducer import CAN_ERR_BUSOFF, TransducerDevice, network_on, open_bus, stop_notifier
+from htm.errors import InputError
 from htm.params import with_overrides
 
 # the virtual rig's sensors as built (the calibration file corrects them): pressure transducers
@@ -31,8 +32,8 @@ class VirtualRig:
 
     def __init__(self, cfg: RigConfig, specimen: dict | None = None, threaded: bool = True):
         self.cfg = cfg
-        self.params = with_overrides(_core.Params(cfg.rig_preset), cfg.rig_overrides)
-        self.plant = _core.RigPlant(self.params, specimen)
+        self.params = with_overrides(core.Params(cfg.rig_preset), cfg.rig_overrides)
+        self.plant = core.RigPlant(self.params, specimen)
         self.dt = 1.0 / cfg.loop.rate_hz
         ch = cfg.analog.channels
         self._ai = {s: _idx(ch[s]) for s in SENSOR}
@@ -98,7 +99,7 @@ class VirtualRig:
         """Inject a fault (see FAULTS); `value` is the stuck command [V], the drift rate [N/s] or
         the error frames per period."""
         if fault not in FAULTS:
-            raise ValueError(f"unknown fault {fault!r}: one of {', '.join(FAULTS)}")
+            raise InputError(f"unknown fault {fault!r}: one of {', '.join(FAULTS)}")
         dev = self.device
         if fault == "transducer_silent":
             dev.fault = "silent"

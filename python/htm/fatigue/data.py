@@ -7,10 +7,11 @@ from pathlib import Path
 
 import numpy as np
 
-from htm import _core
+from htm import core
 from htm.errors import RecordError, SpecError
 
 GEOMETRIES = ("ct", "mt")
+R_LO, R_HI = core.LOAD_R_RATIO_RANGE  # a load's stress ratios (the core's: E647 data, life prediction)
 
 
 @dataclass(frozen=True)
@@ -49,8 +50,8 @@ class Setup:
                                 f"give metres, e.g. {v / 1000:g}")
         if self.thickness_m > self.width_m:
             raise SpecError(f"thickness_m = {self.thickness_m} exceeds width_m = {self.width_m}")
-        if not (np.isfinite(self.r_ratio) and -5 <= self.r_ratio < 1):
-            raise SpecError(f"r_ratio = {self.r_ratio} is out of range: allowed [-5, 1)")
+        if not (np.isfinite(self.r_ratio) and R_LO <= self.r_ratio < R_HI):
+            raise SpecError(f"r_ratio = {self.r_ratio} is out of range: allowed [{R_LO:g}, {R_HI:g})")
         if not (np.isfinite(self.pmax_n) and self.pmax_n > 0):
             raise SpecError(f"maximum force pmax_n = {self.pmax_n} N must be positive (loads are tension-positive)")
         if self.yield_strength_pa is not None and not (self.yield_strength_pa > 1e6):
@@ -63,12 +64,12 @@ class Setup:
         """Build from ΔP [N] or Pmax [N] (exactly one) and R."""
         if (delta_p_n is None) == (pmax_n is None):
             raise SpecError("give exactly one of delta_p_n (force range) or pmax_n (maximum force)")
-        if not (np.isfinite(r_ratio) and -5 <= r_ratio < 1):
-            raise SpecError(f"r_ratio = {r_ratio} is out of range: allowed [-5, 1)")
+        if not (np.isfinite(r_ratio) and R_LO <= r_ratio < R_HI):
+            raise SpecError(f"r_ratio = {r_ratio} is out of range: allowed [{R_LO:g}, {R_HI:g})")
         if delta_p_n is not None:
             if not (np.isfinite(delta_p_n) and delta_p_n > 0):
                 raise SpecError(f"force range delta_p_n = {delta_p_n} N must be positive")
-            pmax_n = _core.pmax_from_delta_p(delta_p_n, r_ratio)
+            pmax_n = core.pmax_from_delta_p(delta_p_n, r_ratio)
         return cls(geometry, width_m, thickness_m, float(pmax_n), r_ratio, yield_strength_pa)
 
     @property
@@ -79,7 +80,7 @@ class Setup:
     @property
     def a_range_m(self) -> tuple[float, float]:
         """Crack sizes [m] over which the E647 ΔK expression is valid."""
-        return _core.a_range(self.geometry, self.width_m, self.thickness_m)
+        return core.a_range(self.geometry, self.width_m, self.thickness_m)
 
     @property
     def a_geometry_max_m(self) -> float:
@@ -88,11 +89,11 @@ class Setup:
 
     def kmax(self, a_m: np.ndarray) -> np.ndarray:
         """Kmax [Pa·√m] at crack sizes a [m] (inside the valid range)."""
-        return _core.stress_intensity(self.geometry, self.width_m, self.thickness_m, np.ascontiguousarray(a_m, float), self.pmax_n)
+        return core.stress_intensity(self.geometry, self.width_m, self.thickness_m, np.ascontiguousarray(a_m, float), self.pmax_n)
 
     def delta_k(self, a_m: np.ndarray) -> np.ndarray:
         """ΔK [Pa·√m] at crack sizes a [m] (inside the valid range)."""
-        return _core.stress_intensity(self.geometry, self.width_m, self.thickness_m, np.ascontiguousarray(a_m, float), self.delta_p_n)
+        return core.stress_intensity(self.geometry, self.width_m, self.thickness_m, np.ascontiguousarray(a_m, float), self.delta_p_n)
 
     def to_dict(self) -> dict:
         d = asdict(self)

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from htm import _core
+from htm import core
 from htm.errors import SpecError
 from htm.fatigue.data import CrackData, Setup, check_a_n
 
@@ -196,7 +196,7 @@ def reduce(data: CrackData, setup: Setup, method: str = "polynomial", n: int = 3
     req = np.full(k, np.nan)
     lig = np.full(k, np.nan)
     if setup.yield_strength_pa is not None and in_range.any():
-        l_, r_ = _core.size_criterion(setup.geometry, setup.width_m, setup.thickness_m,
+        l_, r_ = core.size_criterion(setup.geometry, setup.width_m, setup.thickness_m,
                                       np.ascontiguousarray(a_k[in_range]), setup.pmax_n, setup.yield_strength_pa)
         lig[in_range], req[in_range] = l_, r_
     for i in range(k):

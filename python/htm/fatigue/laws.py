@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from htm import _core
+from htm import core
 from htm.errors import SpecError
 from htm.fatigue.data import CrackData, Setup
 from htm.fatigue.e647 import Reduced, fit_paris_points
@@ -23,8 +23,11 @@ PARAMS = {
     "forman": ("log10_c", "m", "kc_mpa"),
     "nasgro": ("log10_c", "n", "dk_th_mpa", "k_crit_mpa", "p", "q"),
 }
-#: NASGRO shape exponents when not fitted (typical of aluminium alloys in the NASGRO database).
-NASGRO_DEFAULTS = {"p": 0.5, "q": 1.0, "dk_th_mpa": 0.0, "k_crit_mpa": 1e4}
+#: NASGRO terms a fit holds fixed when it does not fit them: the shape exponents p, q are the
+#: fit's prior (typical of aluminium alloys in the NASGRO database); ΔK_th and K_crit are the
+#: core's defaults (`htm.core.NASGRO_DEFAULTS`, SI) in MPa·√m.
+NASGRO_DEFAULTS = {"p": 0.5, "q": 1.0, "dk_th_mpa": core.NASGRO_DEFAULTS["dk_th"] / 1e6,
+                   "k_crit_mpa": core.NASGRO_DEFAULTS["k_crit"] / 1e6}
 PENALTY = 5.0  # log10 residual given to a point the law cannot grow (below threshold / beyond fracture)
 
 
@@ -74,7 +77,7 @@ class Model:
         self.params = {k: float(full[k]) for k in PARAMS[self.law]}
 
     def core_law(self, r_ratio: float) -> dict:
-        """SI parameter dict for htm._core (ΔK in Pa·√m)."""
+        """SI parameter dict for htm.core (ΔK in Pa·√m)."""
         p = self.params
         c = 10.0 ** p["log10_c"]
         if self.law == "paris":
@@ -86,17 +89,17 @@ class Model:
 
     def rate(self, delta_k: np.ndarray, kmax: np.ndarray, r_ratio: float) -> np.ndarray:
         """da/dN [m/cycle] at ΔK, Kmax [Pa·√m]."""
-        return _core.growth_rate(self.core_law(r_ratio), np.ascontiguousarray(delta_k, float), r_ratio,
+        return core.growth_rate(self.core_law(r_ratio), np.ascontiguousarray(delta_k, float), r_ratio,
                                  np.ascontiguousarray(kmax, float))
 
     def life_curve(self, setup: Setup, a_m: np.ndarray) -> np.ndarray:
         """N(a_i) − N(a_0) [cycles] for nondecreasing a [m] (inf beyond fracture)."""
-        return _core.life_curve(self.core_law(setup.r_ratio), setup.geometry, setup.width_m, setup.thickness_m,
+        return core.life_curve(self.core_law(setup.r_ratio), setup.geometry, setup.width_m, setup.thickness_m,
                                 setup.pmax_n, setup.r_ratio, np.ascontiguousarray(a_m, float))
 
     def life(self, setup: Setup, a0_m: float, af_m: float) -> dict:
         """Cycles from a0 to af [m]: {"cycles", "a_end_m", "fractured"}."""
-        return _core.life(self.core_law(setup.r_ratio), setup.geometry, setup.width_m, setup.thickness_m,
+        return core.life(self.core_law(setup.r_ratio), setup.geometry, setup.width_m, setup.thickness_m,
                           setup.pmax_n, setup.r_ratio, a0_m, af_m)
 
     def to_dict(self) -> dict:

@@ -192,10 +192,10 @@ def mark_force_band(rd: Reduced, cycles_outside: np.ndarray, n: int) -> int:
 def rainflow_section(pmax: np.ndarray, pmin: np.ndarray, bins: int = 8) -> list[str]:
     """Markdown: the rainflow count (ASTM E1049, the core's) of the measured peaks and valleys,
     binned by force range."""
-    from htm import _core
+    from htm import core
 
     series = np.column_stack([np.asarray(pmax, float), np.asarray(pmin, float)]).ravel()
-    counted = np.array(_core.rainflow(series.tolist()))
+    counted = np.array(core.rainflow(series.tolist()))
     if not len(counted):
         return []
     rng, mean, cnt = counted[:, 0], counted[:, 1], counted[:, 2]

@@ -14,7 +14,7 @@ import numpy as np
 from scipy.ndimage import maximum_filter1d, minimum_filter1d, uniform_filter1d
 from scipy.optimize import least_squares
 
-from htm._core import Params, friction_force
+from htm.core import Params, friction_force
 from htm.errors import RecordError
 from htm.ident.records import Record, clean_record, validate_record
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from htm._core import Machine, Params
+from htm.core import Machine, Params
 from htm.ident.records import Record
 from htm.params import rig_metadata
 

@@ -5,7 +5,8 @@ from typing import Mapping
 
 import numpy as np
 
-CHANNELS = ("y", "v", "p_a", "p_b", "p_s", "f")
+from htm.core import CHANNELS
+
 UNITS = {"y": "m", "v": "m/s", "p_a": "Pa", "p_b": "Pa", "p_s": "Pa", "f": "N"}
 # Declared sensor resolution keys per channel (DATA_FORMAT `sensors` block).
 _RESOLUTION_KEYS = ("resolution_m", "resolution_m_s", "resolution_pa", "resolution_n", "resolution")

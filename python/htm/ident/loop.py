@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from htm._core import LoopParams, loop_simulate
+from htm.core import LoopParams, loop_simulate
 from htm.errors import RecordError
 from htm.ident.features import smooth
 from htm.ident.model import Candidate, Free, Model, lin, logf

@@ -32,7 +32,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from htm._core import Params, replay
+from htm.core import Params, replay
 from htm.errors import InputError
 from htm.ident.experiments import POSITION_LAW
 from htm.ident.records import FORMAT, MACHINE_POSITION, Record

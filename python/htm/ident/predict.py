@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from htm._core import LoopParams, Params
+from htm.core import LoopParams, Params
 from htm.errors import RecordError
 from htm.ident import features as ft
 from htm.ident.records import Record, clean_record, machine_position, validate_record

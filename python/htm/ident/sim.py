@@ -22,11 +22,10 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from htm._core import Params, replay
+from htm.core import CHANNELS, Params, replay
 from htm.errors import RecordError, SolverError
 from htm.ident.records import Record
 
-CHANNELS = ("y", "v", "p_a", "p_b", "p_s", "f")
 # Open-loop predictions restart from the measured state this often [s].
 DEFAULT_HORIZON_S = 0.5
 # Closed-loop predictions first hold the first reference this long [s] so the model settles.

@@ -7,7 +7,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from htm._core import Params
+from htm.core import Params
 from htm.ident import features as ft
 from htm.ident import sim
 from htm.ident.model import Candidate, Free, Model, get_value, has_key, lin, logf

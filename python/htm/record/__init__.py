@@ -20,7 +20,7 @@ at events and at least once a second), then to the catalogue and the recording (
 `close` writes `cycles.parquet`, `raw.parquet` and `recording.rrd` and drops the journal; after a
 crash `TestWriter.reopen(store, id)` returns the journal so far and a writer that continues it.
 Signal names the recording lays out: `y_m`, `f_n`, `f_ref_n`, `p_a_pa`, `p_b_pa`, `u_v` (others
-go to `signals/NAME`); per-cycle names are the engine table's (`htm._core.run_test`).
+go to `signals/NAME`); per-cycle names are the engine table's (`htm.core.run_test`).
 """
 from htm.record.store import Store
 from htm.record.writer import TestWriter

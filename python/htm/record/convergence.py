@@ -9,7 +9,7 @@ from typing import Any
 
 
 def describe(e: dict[str, Any]) -> str:
-    """One line for an episode (a dict of `htm._core` `convergence`)."""
+    """One line for an episode (a dict of `htm.core` `convergence`)."""
     def to(n: int | None, band: str) -> str:
         if n is None:
             return f"not inside {band}"

@@ -71,7 +71,7 @@ def _decode(payload: memoryview, kind: bytes) -> Record:
     nb = meta.pop("blob")
     blob = bytes(payload[pos:pos + nb])
     if pos + nb != len(payload):
-        raise ValueError("payload length does not match its arrays")
+        raise RecordError("journal: payload length does not match its arrays")
     return Record(kind, meta, arrays, blob)
 
 

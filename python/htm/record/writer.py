@@ -19,17 +19,17 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
-from htm import _core
+from htm import core
 from htm.errors import RecordError
 from htm.record import journal
 from htm.record.store import Store, concat
 
 # event bits of the engine's per-cycle table, as the core names them
-EVENT_NAMES = {bit: name for name, bit in _core.EVENTS.items()}
+EVENT_NAMES = {bit: name for name, bit in core.EVENTS.items()}
 # bits worth an entry in the catalogue's event list when they appear (start, jump and stop are states)
-CATALOGUED = sum(_core.EVENTS[n] for n in ("out_of_tolerance", "tolerance_exceeded", "size_criterion", "stiffness_step",
+CATALOGUED = sum(core.EVENTS[n] for n in ("out_of_tolerance", "tolerance_exceeded", "size_criterion", "stiffness_step",
                                            "phase_change", "end"))
-JUMP = _core.EVENTS["jump"]
+JUMP = core.EVENTS["jump"]
 # seconds between two checks that the recording's file writer is alive
 FLUSH_EVERY_S = 0.5
 

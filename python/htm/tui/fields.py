@@ -93,23 +93,23 @@ def show(f: Field, doc: dict[str, Any]) -> str:
 
 
 def parse_value(f: Field, text: str) -> Any:
-    """Operator text → SI value for the document; ValueError with a short reason."""
+    """Operator text → SI value for the document; SpecError (a ValueError) with a short reason."""
     text = text.strip()
     if f.choices:
         if text not in f.choices:
-            raise ValueError(f"one of {', '.join(f.choices)}")
+            raise SpecError(f"one of {', '.join(f.choices)}")
         return text
     if not text:
-        raise ValueError("required")
+        raise SpecError("required")
     try:
         x = float(text.replace(",", "."))
     except ValueError:
-        raise ValueError(f"not a number: {text!r}") from None
+        raise SpecError(f"not a number: {text!r}") from None
     if not math.isfinite(x):
-        raise ValueError("must be finite")
+        raise SpecError("must be finite")
     if f.integer:
         if x != int(x):
-            raise ValueError("must be a whole number")
+            raise SpecError("must be a whole number")
         return int(x)
     return x * f.scale
 

@@ -21,6 +21,26 @@ pub enum Mode {
 /// The E647 limit on the normalised K-gradient for decreasing-ΔK tests [1/m] (−0.08 mm⁻¹).
 pub const E647_MIN_K_GRADIENT_PER_M: f64 = -80.0;
 
+/// Stress ratios R a test phase may run: [lo, hi). Narrower than a load's
+/// (`crack::LOAD_R_RATIO_RANGE`): the rig grips a C(T) for tension only, so a test's valley is at
+/// most the peak's mirror.
+pub const TEST_R_RATIO_RANGE: (f64, f64) = (-1.0, 1.0);
+/// Largest force tolerance of a phase (a fraction; the tolerance must lie in (0, this]).
+pub const MAX_TOLERANCE: f64 = 0.2;
+/// Force tolerance of the test proper and of a precrack (ISO 12108) when a spec gives none.
+pub const TEST_TOLERANCE: f64 = 0.02;
+pub const PRECRACK_TOLERANCE: f64 = 0.05;
+/// Fewest control samples per load cycle (control_rate_hz ≥ this × frequency_hz).
+pub const MIN_SAMPLES_PER_CYCLE: f64 = 16.0;
+/// Highest control rate a test may ask for [Hz].
+pub const MAX_CONTROL_RATE_HZ: f64 = 1e5;
+/// Integrator tolerance and control rate [Hz] of a test that gives none.
+pub const DEFAULT_RTOL: f64 = 1e-4;
+/// Integrator tolerances a test may ask for: [lo, hi] (the plant takes any in (0, 1); a test
+/// tighter than lo never ends, looser than hi misses the force tolerance).
+pub const RTOL_RANGE: (f64, f64) = (1e-8, 1e-2);
+pub const DEFAULT_CONTROL_RATE_HZ: f64 = 1000.0;
+
 /// One phase of a test (a precrack, then the test proper), ending at crack length `end_a_m`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Phase {
@@ -43,10 +63,100 @@ pub enum ControllerSpec {
     PositionPff { velocity_gain_m_s_per_v: Option<f64>, kp_v_per_m: Option<f64>, kff_v_per_m_s: Option<f64>, u_offset_v: f64 },
 }
 
+/// A controller as named parameters (a spec's `[controller]` table, SI): `type` is
+/// demodulation, force_p or position_pff; the gains its type does not use are ignored.
+#[cfg_attr(feature = "python", derive(pyo3::FromPyObject), pyo3(from_item_all))]
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ControllerSpecArgs {
+    #[cfg_attr(feature = "python", pyo3(item("type")))]
+    pub kind: String,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub velocity_gain_m_s_per_v: Option<f64>,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub kp_v_per_n: Option<f64>,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub kp_v_per_m: Option<f64>,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub kff_v_per_m_s: Option<f64>,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub u_offset_v: Option<f64>,
+}
+
+impl ControllerSpecArgs {
+    /// The controller spec; a gain its type needs and lacks is an input error naming it. The
+    /// command offset defaults to 0 V.
+    pub fn build(&self) -> Result<ControllerSpec> {
+        let u_offset_v = self.u_offset_v.unwrap_or(0.0);
+        match self.kind.as_str() {
+            "demodulation" => Ok(ControllerSpec::Demod { velocity_gain_m_s_per_v: self.velocity_gain_m_s_per_v }),
+            "force_p" => Ok(ControllerSpec::ForceP {
+                kp_v_per_n: self.kp_v_per_n.ok_or_else(|| Error::Input("test config needs `kp_v_per_n`".into()))?,
+                u_offset_v,
+            }),
+            "position_pff" => Ok(ControllerSpec::PositionPff {
+                velocity_gain_m_s_per_v: self.velocity_gain_m_s_per_v, kp_v_per_m: self.kp_v_per_m, kff_v_per_m_s: self.kff_v_per_m_s, u_offset_v,
+            }),
+            other => Err(Error::Input(format!("controller type `{other}`: use demodulation, force_p or position_pff"))),
+        }
+    }
+}
+
+/// A phase as named parameters (one item of a config's `phases`, SI): `mode` is
+/// constant_force (needs `delta_f_n`), constant_delta_k (`delta_k`) or k_gradient (`delta_k`,
+/// `k_gradient_per_m`).
+#[cfg_attr(feature = "python", derive(pyo3::FromPyObject), pyo3(from_item_all))]
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct PhaseArgs {
+    pub mode: String,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub r_ratio: Option<f64>,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub end_a_m: Option<f64>,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub tolerance: Option<f64>,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub delta_f_n: Option<f64>,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub delta_k: Option<f64>,
+    #[cfg_attr(feature = "python", pyo3(default))]
+    pub k_gradient_per_m: Option<f64>,
+}
+
+impl PhaseArgs {
+    pub fn build(&self) -> Result<Phase> {
+        let need = |k: &str, v: Option<f64>| v.ok_or_else(|| Error::Input(format!("test config needs `{k}`")));
+        let mode = match self.mode.as_str() {
+            "constant_force" => Mode::ConstantForce { delta_f_n: need("delta_f_n", self.delta_f_n)? },
+            "constant_delta_k" => Mode::ConstantDeltaK { delta_k: need("delta_k", self.delta_k)? },
+            "k_gradient" => Mode::KGradient { delta_k0: need("delta_k", self.delta_k)?, c_per_m: need("k_gradient_per_m", self.k_gradient_per_m)? },
+            other => return Err(Error::Input(format!("phase mode `{other}`: use constant_force, constant_delta_k or k_gradient"))),
+        };
+        Ok(Phase { mode, r_ratio: need("r_ratio", self.r_ratio)?, end_a_m: need("end_a_m", self.end_a_m)?, tolerance: need("tolerance", self.tolerance)? })
+    }
+}
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Action {
     Flag,
     Stop,
+}
+
+impl Action {
+    /// The action by its spec name, "flag" or "stop"; `field` names it in the error.
+    pub fn parse(s: &str, field: &str) -> Result<Action> {
+        match s {
+            "flag" => Ok(Action::Flag),
+            "stop" => Ok(Action::Stop),
+            other => Err(Error::Input(format!("{field} = `{other}`: use \"flag\" or \"stop\""))),
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Action::Flag => "flag",
+            Action::Stop => "stop",
+        }
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -58,6 +168,13 @@ pub struct Limits {
     pub tolerance_action: Action,
     /// margin kept from either end of the stroke [m]
     pub stroke_margin_m: f64,
+}
+
+/// The end conditions of a test that states none.
+impl Default for Limits {
+    fn default() -> Self {
+        Limits { max_cycles: 100_000_000, size_criterion: Action::Flag, tolerance_cycles: 10, tolerance_action: Action::Flag, stroke_margin_m: 1e-3 }
+    }
 }
 
 /// Cycle-jump step control.
@@ -257,6 +374,10 @@ impl TestConfig {
     /// Checks everything before anything runs; errors name the field, value and allowed range.
     pub fn validate(&self) -> Result<()> {
         self.params.validate()?;
+        let (rlo, rhi) = RTOL_RANGE;
+        if !(self.rtol >= rlo && self.rtol <= rhi) {
+            return Err(param("rtol", self.rtol, &format!("[{rlo:e}, {rhi:e}]")));
+        }
         self.specimen.validate()?;
         self.material.validate()?;
         self.law.validate()?;
@@ -268,8 +389,10 @@ impl TestConfig {
         if !(self.frequency_hz.is_finite() && self.frequency_hz > 0.0) {
             return Err(param("frequency_hz", self.frequency_hz, "(0, inf) Hz"));
         }
-        if !(self.control_rate_hz.is_finite() && self.control_rate_hz >= 16.0 * self.frequency_hz) {
-            return Err(param("control_rate_hz", self.control_rate_hz, &format!("≥ 16 samples per cycle: ≥ {} Hz", 16.0 * self.frequency_hz)));
+        let min_rate = MIN_SAMPLES_PER_CYCLE * self.frequency_hz;
+        if !(self.control_rate_hz.is_finite() && self.control_rate_hz >= min_rate && self.control_rate_hz <= MAX_CONTROL_RATE_HZ) {
+            return Err(param("control_rate_hz", self.control_rate_hz,
+                &format!("[{min_rate}, {MAX_CONTROL_RATE_HZ}] Hz (≥ {MIN_SAMPLES_PER_CYCLE} samples per cycle)")));
         }
         if self.phases.is_empty() {
             return Err(Error::Input("a test needs at least one phase".into()));
@@ -277,14 +400,15 @@ impl TestConfig {
         let mut a_prev = self.a0_m;
         for (i, ph) in self.phases.iter().enumerate() {
             let f = |n: &str| format!("phases[{i}].{n}");
-            if !(ph.r_ratio.is_finite() && ph.r_ratio >= -1.0 && ph.r_ratio < 1.0) {
-                return Err(param(&f("r_ratio"), ph.r_ratio, "[-1, 1)"));
+            let (rlo, rhi) = TEST_R_RATIO_RANGE;
+            if !(ph.r_ratio.is_finite() && ph.r_ratio >= rlo && ph.r_ratio < rhi) {
+                return Err(param(&f("r_ratio"), ph.r_ratio, &format!("[{rlo}, {rhi})")));
             }
             if !(ph.end_a_m > a_prev && ph.end_a_m <= ahi) {
                 return Err(param(&f("end_a_m"), ph.end_a_m, &format!("({a_prev}, {ahi}] m")));
             }
-            if !(ph.tolerance > 0.0 && ph.tolerance <= 0.2) {
-                return Err(param(&f("tolerance"), ph.tolerance, "(0, 0.2]"));
+            if !(ph.tolerance > 0.0 && ph.tolerance <= MAX_TOLERANCE) {
+                return Err(param(&f("tolerance"), ph.tolerance, &format!("(0, {MAX_TOLERANCE}]")));
             }
             match ph.mode {
                 Mode::ConstantForce { delta_f_n } if !(delta_f_n.is_finite() && delta_f_n > 0.0) => return Err(param(&f("delta_f_n"), delta_f_n, "(0, inf) N")),

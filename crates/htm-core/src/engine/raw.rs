@@ -37,6 +37,10 @@ pub struct RawCapture {
 }
 
 impl RawCapture {
+    /// The capture `htm run` records with: the first 30 cycles, 2 from each decade, 2 before and
+    /// 2 after each notable event.
+    pub const DEFAULT_POLICY: (u64, u64, usize, u64) = (30, 2, 2, 2);
+
     pub fn new(first_cycles: u64, decade_cycles: u64, pre_cycles: usize, post_cycles: u64) -> Self {
         RawCapture { enabled: true, first_cycles, decade_cycles, pre_cycles, post_cycles, ..Default::default() }
     }

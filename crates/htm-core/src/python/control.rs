@@ -111,11 +111,7 @@ impl PyCyclic {
     }
     #[setter]
     fn set_command_limit_v(&mut self, v: f64) -> PyResult<()> {
-        if !(v >= 0.0) {
-            return Err(InputError::new_err(format!("command_limit_v = {v}: allowed [0, inf] V")));
-        }
-        self.inner.command_limit_v = v;
-        Ok(())
+        Ok(self.inner.set_command_limit_v(v)?)
     }
     #[getter]
     fn state(&self) -> &'static str {
@@ -277,8 +273,8 @@ impl PyRigPlant {
                     yield_strength_pa: need("yield_strength_pa")?,
                     fracture_toughness_pa_sqrt_m: need("fracture_toughness_pa_sqrt_m")?,
                 };
-                let law = law_from(&d.get_item("law")?.ok_or_else(|| InputError::new_err("specimen needs `law`"))?.cast_into::<PyDict>()?)?;
-                Some(CrackingSpecimen::new(s, m, law, need("a0_m")?, opt_f(Some(d), "hysteresis_n", 50.0)?)?)
+                let law = law_from(&d.get_item("law")?.ok_or_else(|| InputError::new_err("specimen needs `law`"))?)?;
+                Some(CrackingSpecimen::new(s, m, law, need("a0_m")?, opt_f(Some(d), "hysteresis_n", CrackingSpecimen::DEFAULT_HYSTERESIS_N)?)?)
             }
         };
         let mut r = RigPlant::new(p, spec)?;
@@ -303,11 +299,7 @@ impl PyRigPlant {
     }
     #[setter]
     fn set_supply_setpoint_pa(&mut self, v: f64) -> PyResult<()> {
-        if !(v.is_finite() && v >= 0.0) {
-            return Err(InputError::new_err(format!("supply_setpoint_pa = {v}: allowed [0, inf) Pa")));
-        }
-        self.inner.supply_setpoint_pa = v;
-        Ok(())
+        Ok(self.inner.set_supply_setpoint_pa(v)?)
     }
     fn fracture(&mut self) {
         self.inner.fracture()

@@ -9,7 +9,7 @@ use pyo3::types::{PyDict, PyList};
 
 use super::fatigue::law_from;
 use super::{InputError, PyParams};
-use crate::engine::{self, Action, ControllerSpec, Episode, ExecMode, JumpConfig, Level, Limits, Mode, Outcome, Phase, TestConfig};
+use crate::engine::{self, Action, ControllerSpecArgs, Episode, ExecMode, JumpConfig, Level, Limits, Outcome, PhaseArgs, TestConfig};
 use crate::params::Params;
 use crate::specimen::{Geometry, Material, Specimen};
 use crate::waveform::{Envelope, Waveform};
@@ -48,14 +48,6 @@ fn opt<'py, T: FromPyObjectOwned<'py>>(d: &Bound<'py, PyDict>, k: &str, default:
     }
 }
 
-fn action(s: &str, field: &str) -> PyResult<Action> {
-    match s {
-        "flag" => Ok(Action::Flag),
-        "stop" => Ok(Action::Stop),
-        other => Err(InputError::new_err(format!("{field} = `{other}`: use \"flag\" or \"stop\""))),
-    }
-}
-
 pub(super) fn config_from(d: &Bound<'_, PyDict>) -> PyResult<TestConfig> {
     let params = match d.get_item("params")? {
         Some(p) if !p.is_none() => p.extract::<PyParams>()?.inner,
@@ -68,56 +60,43 @@ pub(super) fn config_from(d: &Bound<'_, PyDict>) -> PyResult<TestConfig> {
         yield_strength_pa: need(d, "yield_strength_pa")?,
         fracture_toughness_pa_sqrt_m: need(d, "fracture_toughness_pa_sqrt_m")?,
     };
-    let law = law_from(&need::<Bound<'_, PyDict>>(d, "law")?)?;
+    let law = law_from(&need::<Bound<'_, PyAny>>(d, "law")?)?;
     let waveform = match need::<String>(d, "waveform")?.as_str() {
         "sine" => Waveform::Sine,
         "triangle" => Waveform::Triangle,
         "trapezoid" => Waveform::Trapezoid { rise: need(d, "rise_fraction")?, hold: need(d, "hold_fraction")? },
         other => return Err(InputError::new_err(format!("waveform `{other}`: use sine, triangle or trapezoid"))),
     };
-    let mut phases = Vec::new();
-    for ph in need::<Bound<'_, PyList>>(d, "phases")?.iter() {
-        let ph = ph.cast_into::<PyDict>()?;
-        let mode = match need::<String>(&ph, "mode")?.as_str() {
-            "constant_force" => Mode::ConstantForce { delta_f_n: need(&ph, "delta_f_n")? },
-            "constant_delta_k" => Mode::ConstantDeltaK { delta_k: need(&ph, "delta_k")? },
-            "k_gradient" => Mode::KGradient { delta_k0: need(&ph, "delta_k")?, c_per_m: need(&ph, "k_gradient_per_m")? },
-            other => return Err(InputError::new_err(format!("phase mode `{other}`: use constant_force, constant_delta_k or k_gradient"))),
-        };
-        phases.push(Phase { mode, r_ratio: need(&ph, "r_ratio")?, end_a_m: need(&ph, "end_a_m")?, tolerance: need(&ph, "tolerance")? });
-    }
-    let c = need::<Bound<'_, PyDict>>(d, "controller")?;
-    let controller = match need::<String>(&c, "type")?.as_str() {
-        "demodulation" => ControllerSpec::Demod { velocity_gain_m_s_per_v: opt(&c, "velocity_gain_m_s_per_v", None)? },
-        "force_p" => ControllerSpec::ForceP { kp_v_per_n: need(&c, "kp_v_per_n")?, u_offset_v: opt(&c, "u_offset_v", 0.0)? },
-        "position_pff" => ControllerSpec::PositionPff {
-            velocity_gain_m_s_per_v: opt(&c, "velocity_gain_m_s_per_v", None)?,
-            kp_v_per_m: opt(&c, "kp_v_per_m", None)?,
-            kff_v_per_m_s: opt(&c, "kff_v_per_m_s", None)?,
-            u_offset_v: opt(&c, "u_offset_v", 0.0)?,
-        },
-        other => return Err(InputError::new_err(format!("controller type `{other}`: use demodulation, force_p or position_pff"))),
-    };
-    let dj = JumpConfig::default();
+    let phases = need::<Bound<'_, PyList>>(d, "phases")?.iter()
+        .map(|ph| ph.extract::<PhaseArgs>().map_err(|e| InputError::new_err(format!("test config phase: {e}")))?.build().map_err(PyErr::from))
+        .collect::<PyResult<Vec<_>>>()?;
+    let controller = need::<Bound<'_, PyAny>>(d, "controller")?.extract::<ControllerSpecArgs>()
+        .map_err(|e| InputError::new_err(format!("test config controller: {e}")))?.build()?;
+    // every default is the core's (`Limits`, `Envelope`, `JumpConfig` defaults, `DEFAULT_*`)
+    let (dj, dl, de) = (JumpConfig::default(), Limits::default(), Envelope::default());
     Ok(TestConfig {
         params,
-        rtol: opt(d, "rtol", 1e-4)?,
+        rtol: opt(d, "rtol", engine::DEFAULT_RTOL)?,
         specimen,
         material,
         law,
         a0_m: need(d, "a0_m")?,
         waveform,
         frequency_hz: need(d, "frequency_hz")?,
-        control_rate_hz: opt(d, "control_rate_hz", 1000.0)?,
+        control_rate_hz: opt(d, "control_rate_hz", engine::DEFAULT_CONTROL_RATE_HZ)?,
         phases,
         controller,
-        envelope: Envelope { mean_cycles: opt(d, "start_mean_cycles", 5.0)?, amplitude_cycles: opt(d, "start_amplitude_cycles", 20.0)?, stop_cycles: opt(d, "stop_cycles", 3.0)? },
+        envelope: Envelope {
+            mean_cycles: opt(d, "start_mean_cycles", de.mean_cycles)?,
+            amplitude_cycles: opt(d, "start_amplitude_cycles", de.amplitude_cycles)?,
+            stop_cycles: opt(d, "stop_cycles", de.stop_cycles)?,
+        },
         limits: Limits {
-            max_cycles: opt(d, "max_cycles", 100_000_000u64)?,
-            size_criterion: action(&opt(d, "size_criterion_action", "flag".to_string())?, "size_criterion_action")?,
-            tolerance_cycles: opt(d, "tolerance_cycles", 10u64)?,
-            tolerance_action: action(&opt(d, "tolerance_action", "flag".to_string())?, "tolerance_action")?,
-            stroke_margin_m: opt(d, "stroke_margin_m", 1e-3)?,
+            max_cycles: opt(d, "max_cycles", dl.max_cycles)?,
+            size_criterion: Action::parse(&opt(d, "size_criterion_action", dl.size_criterion.name().to_string())?, "size_criterion_action")?,
+            tolerance_cycles: opt(d, "tolerance_cycles", dl.tolerance_cycles)?,
+            tolerance_action: Action::parse(&opt(d, "tolerance_action", dl.tolerance_action.name().to_string())?, "tolerance_action")?,
+            stroke_margin_m: opt(d, "stroke_margin_m", dl.stroke_margin_m)?,
         },
         stiffness_steps: opt(d, "stiffness_steps", Vec::<(u64, f64)>::new())?,
         jump: JumpConfig {
@@ -233,12 +212,50 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
         events.set_item(name, bit)?;
     }
     m.add("EVENTS", events)?;
+    let (first, decade, pre, post) = engine::RawCapture::DEFAULT_POLICY;
+    let raw = PyDict::new(m.py());
+    raw.set_item("first_cycles", first)?;
+    raw.set_item("decade_cycles", decade)?;
+    raw.set_item("pre_cycles", pre)?;
+    raw.set_item("post_cycles", post)?;
+    m.add("RAW_POLICY", raw)?;
+    m.add("RAW_COLUMNS", pyo3::types::PyTuple::new(m.py(), engine::RAW_COLUMNS)?)?;
+    m.add("TEST_DEFAULTS", test_defaults(m.py())?)?;
+    m.add("TEST_R_RATIO_RANGE", engine::TEST_R_RATIO_RANGE)?;
+    m.add("MAX_TOLERANCE", engine::MAX_TOLERANCE)?;
+    m.add("RTOL_RANGE", engine::RTOL_RANGE)?;
+    m.add("TEST_TOLERANCE", engine::TEST_TOLERANCE)?;
+    m.add("PRECRACK_TOLERANCE", engine::PRECRACK_TOLERANCE)?;
+    m.add("MIN_SAMPLES_PER_CYCLE", engine::MIN_SAMPLES_PER_CYCLE)?;
+    m.add("MAX_CONTROL_RATE_HZ", engine::MAX_CONTROL_RATE_HZ)?;
+    m.add("E647_MIN_K_GRADIENT_PER_M", engine::E647_MIN_K_GRADIENT_PER_M)?;
     m.add_class::<PyProgress>()?;
     m.add_function(wrap_pyfunction!(run_test, m)?)?;
     m.add_function(wrap_pyfunction!(validate_test, m)?)?;
     m.add_function(wrap_pyfunction!(run_batch, m)?)?;
     register_session(m)?;
     Ok(())
+}
+
+/// The value a config key takes when the config leaves it out (keys as in `run_test`'s config).
+fn test_defaults(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
+    let (dj, dl, de) = (JumpConfig::default(), Limits::default(), Envelope::default());
+    let d = PyDict::new(py);
+    d.set_item("rtol", engine::DEFAULT_RTOL)?;
+    d.set_item("control_rate_hz", engine::DEFAULT_CONTROL_RATE_HZ)?;
+    d.set_item("start_mean_cycles", de.mean_cycles)?;
+    d.set_item("start_amplitude_cycles", de.amplitude_cycles)?;
+    d.set_item("stop_cycles", de.stop_cycles)?;
+    d.set_item("max_cycles", dl.max_cycles)?;
+    d.set_item("size_criterion_action", dl.size_criterion.name())?;
+    d.set_item("tolerance_cycles", dl.tolerance_cycles)?;
+    d.set_item("tolerance_action", dl.tolerance_action.name())?;
+    d.set_item("stroke_margin_m", dl.stroke_margin_m)?;
+    d.set_item("jump_max_da_m", dj.max_da_m)?;
+    d.set_item("jump_max_rel_change", dj.max_rel_change)?;
+    d.set_item("jump_settle_cycles", dj.settle_cycles)?;
+    d.set_item("jump_min_cycles", dj.min_jump_cycles)?;
+    Ok(d)
 }
 
 fn records_dict<'py>(py: Python<'py>, r: crate::engine::Records) -> PyResult<Bound<'py, PyDict>> {
@@ -267,7 +284,10 @@ pub struct PyTestRun {
 fn raw_from(raw: Option<&Bound<'_, PyDict>>) -> PyResult<engine::RawCapture> {
     Ok(match raw {
         None => engine::RawCapture::default(),
-        Some(d) => engine::RawCapture::new(opt(d, "first_cycles", 30u64)?, opt(d, "decade_cycles", 2u64)?, opt(d, "pre_cycles", 2usize)?, opt(d, "post_cycles", 2u64)?),
+        Some(d) => {
+            let (first, decade, pre, post) = engine::RawCapture::DEFAULT_POLICY;
+            engine::RawCapture::new(opt(d, "first_cycles", first)?, opt(d, "decade_cycles", decade)?, opt(d, "pre_cycles", pre)?, opt(d, "post_cycles", post)?)
+        }
     })
 }
 

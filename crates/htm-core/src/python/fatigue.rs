@@ -4,7 +4,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use super::{InputError};
-use crate::crack::{self, Law, Load};
+use crate::crack::{self, Law, LawSpec, Load};
 use crate::specimen::{self, Geometry, Material, Specimen};
 use crate::{Error, Result};
 
@@ -16,25 +16,11 @@ fn elastic(youngs_modulus_pa: f64, poisson_ratio: f64) -> Material {
     Material { youngs_modulus_pa, poisson_ratio, ..Material::default() }
 }
 
-pub(super) fn law_from(d: &Bound<'_, PyDict>) -> PyResult<Law> {
-    let get = |k: &str| -> PyResult<f64> {
-        d.get_item(k)?.ok_or_else(|| InputError::new_err(format!("growth law needs `{k}`")))?.extract()
-    };
-    let opt = |k: &str, default: f64| -> PyResult<f64> {
-        match d.get_item(k)? { Some(v) if !v.is_none() => v.extract(), _ => Ok(default) }
-    };
-    let kind: String = d.get_item("law")?.ok_or_else(|| InputError::new_err("growth law needs `law`"))?.extract()?;
-    let law = match kind.as_str() {
-        "paris" => Law::Paris { c: get("c")?, m: get("m")? },
-        "forman" => Law::Forman { c: get("c")?, m: get("m")?, kc: get("kc")? },
-        "nasgro" => Law::Nasgro {
-            c: get("c")?, n: get("n")?, p: opt("p", 0.0)?, q: opt("q", 0.0)?,
-            dk_th: opt("dk_th", 0.0)?, k_crit: opt("k_crit", 1e12)?, f_open: opt("f_open", 0.0)?,
-        },
-        other => return Err(InputError::new_err(format!("unknown growth law `{other}`: use paris, forman or nasgro"))),
-    };
-    law.validate()?;
-    Ok(law)
+/// A law from its dict (`LawSpec`'s keys); extraction and validation errors are `InputError`s
+/// and `ParameterError`s.
+pub(super) fn law_from(d: &Bound<'_, PyAny>) -> PyResult<Law> {
+    let spec: LawSpec = d.extract().map_err(|e| InputError::new_err(format!("growth law: {e}")))?;
+    Ok(spec.build()?)
 }
 
 fn map_each(a: &[f64], f: impl Fn(f64) -> Result<f64>) -> Result<Vec<f64>> {
@@ -114,7 +100,7 @@ fn crack_length_from_compliance_ct<'py>(py: Python<'py>, width_m: f64, thickness
 /// Growth rate da/dN [m/cycle] of `law` (dict: law = paris|forman|nasgro and its SI parameters)
 /// at each ΔK and Kmax [Pa·√m] with stress ratio `r_ratio`.
 #[pyfunction]
-fn growth_rate<'py>(py: Python<'py>, law: &Bound<'py, PyDict>, delta_k: PyReadonlyArray1<'py, f64>, r_ratio: f64, kmax: PyReadonlyArray1<'py, f64>) -> PyResult<Bound<'py, PyArray1<f64>>> {
+fn growth_rate<'py>(py: Python<'py>, law: &Bound<'py, PyAny>, delta_k: PyReadonlyArray1<'py, f64>, r_ratio: f64, kmax: PyReadonlyArray1<'py, f64>) -> PyResult<Bound<'py, PyArray1<f64>>> {
     let law = law_from(law)?;
     let (dk, km) = (delta_k.as_slice()?, kmax.as_slice()?);
     if dk.len() != km.len() {
@@ -141,7 +127,7 @@ fn life_dict<'py>(py: Python<'py>, l: crack::Life) -> PyResult<Bound<'py, PyDict
 /// `cycles`, `a_end_m`, `fractured`.
 #[pyfunction]
 #[allow(clippy::too_many_arguments)]
-fn life<'py>(py: Python<'py>, law: &Bound<'py, PyDict>, geometry: &str, width_m: f64, thickness_m: f64, pmax_n: f64, r_ratio: f64, a0_m: f64, af_m: f64) -> PyResult<Bound<'py, PyDict>> {
+fn life<'py>(py: Python<'py>, law: &Bound<'py, PyAny>, geometry: &str, width_m: f64, thickness_m: f64, pmax_n: f64, r_ratio: f64, a0_m: f64, af_m: f64) -> PyResult<Bound<'py, PyDict>> {
     let law = law_from(law)?;
     let s = spec(geometry, width_m, thickness_m)?;
     let load = Load::new(pmax_n, r_ratio)?;
@@ -152,7 +138,7 @@ fn life<'py>(py: Python<'py>, law: &Bound<'py, PyDict>, geometry: &str, width_m:
 /// Cycles N(a_i) − N(a_0) at each nondecreasing crack size (inf beyond fracture).
 #[pyfunction]
 #[allow(clippy::too_many_arguments)]
-fn life_curve<'py>(py: Python<'py>, law: &Bound<'py, PyDict>, geometry: &str, width_m: f64, thickness_m: f64, pmax_n: f64, r_ratio: f64, a_m: PyReadonlyArray1<'py, f64>) -> PyResult<Bound<'py, PyArray1<f64>>> {
+fn life_curve<'py>(py: Python<'py>, law: &Bound<'py, PyAny>, geometry: &str, width_m: f64, thickness_m: f64, pmax_n: f64, r_ratio: f64, a_m: PyReadonlyArray1<'py, f64>) -> PyResult<Bound<'py, PyArray1<f64>>> {
     let law = law_from(law)?;
     let s = spec(geometry, width_m, thickness_m)?;
     let load = Load::new(pmax_n, r_ratio)?;
@@ -165,7 +151,7 @@ fn life_curve<'py>(py: Python<'py>, law: &Bound<'py, PyDict>, geometry: &str, wi
 /// Crack size after `cycles` from a0_m; dict with `cycles`, `a_end_m`, `fractured`.
 #[pyfunction]
 #[allow(clippy::too_many_arguments)]
-fn crack_after<'py>(py: Python<'py>, law: &Bound<'py, PyDict>, geometry: &str, width_m: f64, thickness_m: f64, pmax_n: f64, r_ratio: f64, a0_m: f64, cycles: f64) -> PyResult<Bound<'py, PyDict>> {
+fn crack_after<'py>(py: Python<'py>, law: &Bound<'py, PyAny>, geometry: &str, width_m: f64, thickness_m: f64, pmax_n: f64, r_ratio: f64, a0_m: f64, cycles: f64) -> PyResult<Bound<'py, PyDict>> {
     let law = law_from(law)?;
     let s = spec(geometry, width_m, thickness_m)?;
     let load = Load::new(pmax_n, r_ratio)?;
@@ -201,5 +187,13 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(life_curve, m)?)?;
     m.add_function(wrap_pyfunction!(crack_after, m)?)?;
     m.add_function(wrap_pyfunction!(pmax_from_delta_p, m)?)?;
+    let nasgro = PyDict::new(m.py());
+    for (k, v) in crack::NASGRO_DEFAULTS {
+        nasgro.set_item(k, v)?;
+    }
+    m.add("NASGRO_DEFAULTS", nasgro)?;
+    m.add("LOAD_R_RATIO_RANGE", crack::LOAD_R_RATIO_RANGE)?;
+    m.add("YOUNGS_MODULUS_RANGE_PA", specimen::YOUNGS_MODULUS_RANGE_PA)?;
+    m.add("POISSON_RATIO_RANGE", specimen::POISSON_RATIO_RANGE)?;
     Ok(())
 }

@@ -5,7 +5,7 @@ use pyo3::exceptions::{PyException, PyKeyError};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
-use crate::control::Controller;
+use crate::control::{Controller, ControllerArgs};
 use crate::machine::{Machine, Outputs, NX};
 use crate::params::{Field, Params, FIELDS};
 use crate::run::{self, Trace};
@@ -180,17 +180,10 @@ fn trace_dict<'py>(py: Python<'py>, tr: Trace) -> PyResult<Bound<'py, PyDict>> {
     Ok(d)
 }
 
-fn controller_from(d: &Bound<'_, PyDict>) -> PyResult<Controller> {
-    let get = |k: &str| -> PyResult<f64> {
-        d.get_item(k)?.ok_or_else(|| InputError::new_err(format!("controller needs `{k}`")))?.extract()
-    };
-    let kind: String = d.get_item("type")?.ok_or_else(|| InputError::new_err("controller needs `type`"))?.extract()?;
-    let u_max_v = match d.get_item("u_max_v")? { Some(v) => v.extract()?, None => 10.0 };
-    match kind.as_str() {
-        "position_pff" => Ok(Controller::PositionPff { kp_v_per_m: get("kp_v_per_m")?, kff_v_per_m_s: get("kff_v_per_m_s")?, u_max_v }),
-        "force_p" => Ok(Controller::ForceP { kp_v_per_n: get("kp_v_per_n")?, u_max_v }),
-        other => Err(InputError::new_err(format!("unknown controller type `{other}`: use position_pff or force_p"))),
-    }
+/// A controller from its dict (`ControllerArgs`' keys); a malformed dict is an `InputError`.
+fn controller_from(d: &Bound<'_, PyAny>) -> PyResult<Controller> {
+    let args: ControllerArgs = d.extract().map_err(|e| InputError::new_err(format!("controller: {e}")))?;
+    Ok(args.build()?)
 }
 
 /// The plant with its state and integrator; step it one held command at a time.
@@ -253,15 +246,7 @@ impl PyMachine {
 
     /// Time derivative of state `x` under held command `u` (for external integrators).
     fn rhs<'py>(&self, py: Python<'py>, x: PyReadonlyArray1<'_, f64>, u: f64) -> PyResult<Bound<'py, PyArray1<f64>>> {
-        let s = x.as_slice()?;
-        let mut arr: [f64; NX] = s.try_into().map_err(|_| InputError::new_err(format!("state needs {NX} values")))?;
-        let plant = &self.inner.plant;
-        let target = plant.spool_target(u, &mut 0.0);
-        if !plant.spool_has_dynamics() {
-            arr[crate::machine::SPOOL] = target;
-        }
-        let mut dx = [0.0; NX];
-        plant.derivatives(&arr, target, &mut dx);
+        let dx = run::derivatives(&self.inner, x.as_slice()?, u)?;
         Ok(PyArray1::from_slice(py, &dx))
     }
 
@@ -274,7 +259,7 @@ impl PyMachine {
     }
 
     /// Track `reference` with `controller` (dict as in DATA_FORMAT's `controller`).
-    fn track<'py>(&mut self, py: Python<'py>, reference: PyReadonlyArray1<'_, f64>, dt: f64, controller: &Bound<'py, PyDict>) -> PyResult<Bound<'py, PyDict>> {
+    fn track<'py>(&mut self, py: Python<'py>, reference: PyReadonlyArray1<'_, f64>, dt: f64, controller: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyDict>> {
         let ctrl = controller_from(controller)?;
         let r = reference.as_slice()?;
         let m = &mut self.inner;
@@ -293,6 +278,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("InputError", py.get_type::<InputError>())?;
     m.add("SolverError", py.get_type::<SolverError>())?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add("CHANNELS", pyo3::types::PyTuple::new(py, crate::measure::CHANNELS)?)?;
     register_extensions(m)?;
     Ok(())
 }

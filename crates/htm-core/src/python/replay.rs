@@ -66,7 +66,7 @@ fn replay<'py>(
     dt: f64,
     u: PyReadonlyArray1<'py, f64>,
     measured: Option<&Bound<'py, PyDict>>,
-    controller: Option<&Bound<'py, PyDict>>,
+    controller: Option<&Bound<'py, PyAny>>,
     reference: Option<PyReadonlyArray1<'py, f64>>,
     horizon_s: f64,
     preroll_s: f64,

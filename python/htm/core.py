@@ -1,0 +1,84 @@
+"""The Rust core's Python face: the one module that imports the extension `htm._core`.
+
+Every other module of htm reaches the core through here (the layers contract in pyproject.toml
+puts this module at the bottom and forbids the others `htm._core`). The core owns every default
+and range of a test config and the vocabulary the record shares with it; Python reads them here
+instead of restating them:
+
+- `TEST_DEFAULTS`: the value of each config key a spec leaves out (``rtol``, ``control_rate_hz``,
+  start-up cycles, end conditions, cycle-jump control);
+- `TEST_R_RATIO_RANGE` ``[lo, hi)`` of a test phase, `LOAD_R_RATIO_RANGE` of a load (life
+  prediction, E647 data), `MAX_TOLERANCE`, `TEST_TOLERANCE`, `PRECRACK_TOLERANCE`,
+  `MIN_SAMPLES_PER_CYCLE`, `MAX_CONTROL_RATE_HZ` [Hz], `E647_MIN_K_GRADIENT_PER_M` [1/m], `RTOL_RANGE`;
+- `YOUNGS_MODULUS_RANGE_PA` (open), `POISSON_RATIO_RANGE` ``[lo, hi)`` of a material;
+- `NASGRO_DEFAULTS`: the NASGRO terms a law may omit (SI: ``dk_th``, ``k_crit`` in Pa·√m);
+- `EVENTS` (event bits of the per-cycle table by name), `CHANNELS` (measured channels, DATA_FORMAT
+  order), `RAW_COLUMNS` and `RAW_POLICY` (raw sample windows).
+"""
+from htm._core import (
+    CHANNELS,
+    E647_MIN_K_GRADIENT_PER_M,
+    EVENTS,
+    LOAD_R_RATIO_RANGE,
+    MARGINAL_FRACTION,
+    MAX_CONTROL_RATE_HZ,
+    MAX_TOLERANCE,
+    MIN_SAMPLES_PER_CYCLE,
+    NASGRO_DEFAULTS,
+    POISSON_RATIO_RANGE,
+    PRECRACK_TOLERANCE,
+    RAW_COLUMNS,
+    RAW_POLICY,
+    RESONANCE_FRACTION,
+    RTOL_RANGE,
+    TEST_DEFAULTS,
+    TEST_R_RATIO_RANGE,
+    TEST_TOLERANCE,
+    YOUNGS_MODULUS_RANGE_PA,
+    CyclicController,
+    Detectors,
+    HtmError,
+    InputError,
+    LoopParams,
+    Machine,
+    ParameterError,
+    Params,
+    Progress,
+    RigPlant,
+    SolverError,
+    TestRun,
+    __version__,
+    a_range,
+    compliance_ct,
+    crack_after,
+    crack_length_from_compliance_ct,
+    feasibility,
+    friction_force,
+    g_ct,
+    growth_rate,
+    h_ct,
+    life,
+    life_curve,
+    loop_simulate,
+    newman_f,
+    pmax_from_delta_p,
+    rainflow,
+    replay,
+    run_batch,
+    run_test,
+    size_criterion,
+    stiffness_ct,
+    stress_intensity,
+    validate_test,
+)
+
+__all__ = [
+    "CHANNELS", "E647_MIN_K_GRADIENT_PER_M", "EVENTS", "LOAD_R_RATIO_RANGE", "MARGINAL_FRACTION", "MAX_CONTROL_RATE_HZ",
+    "MAX_TOLERANCE", "MIN_SAMPLES_PER_CYCLE", "NASGRO_DEFAULTS", "POISSON_RATIO_RANGE", "PRECRACK_TOLERANCE", "RAW_COLUMNS", "RAW_POLICY",
+    "RESONANCE_FRACTION", "RTOL_RANGE", "TEST_DEFAULTS", "TEST_R_RATIO_RANGE", "TEST_TOLERANCE", "YOUNGS_MODULUS_RANGE_PA",
+    "CyclicController", "Detectors", "HtmError", "InputError", "LoopParams", "Machine", "ParameterError", "Params",
+    "Progress", "RigPlant", "SolverError", "TestRun", "__version__",
+    "a_range", "compliance_ct", "crack_after", "crack_length_from_compliance_ct", "feasibility", "friction_force", "g_ct",
+    "growth_rate", "h_ct", "life", "life_curve", "loop_simulate", "newman_f", "pmax_from_delta_p", "rainflow", "replay",
+    "run_batch", "run_test", "size_criterion", "stiffness_ct", "stress_intensity", "validate_test",
+]
