@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from htm import Params
-from htm.errors import RecordError, SolverError
+from htm.errors import InputError, RecordError, SolverError
 from htm.ident import proving, sim
 from htm.ident.records import Record
 
@@ -68,9 +68,9 @@ def test_effect_table_maps_every_effects_id_to_params_fields():
     assert sim.effect_fields("sensor_delay", "p_b") == {"delay_s": "sensor_delay_p_b_s"}
     q = sim.with_effect(p, "valve_dynamics", {"tau_s": 0.01})
     assert q["valve_tau_s"] == 0.01 and p["valve_tau_s"] == 0.0
-    with pytest.raises(KeyError, match="tau"):
+    with pytest.raises(InputError, match="tau"):
         sim.with_effect(p, "valve_dynamics", {"tau": 0.01})
-    with pytest.raises(KeyError, match="channel"):
+    with pytest.raises(InputError, match="channel"):
         sim.effect_fields("sensor_gain", None)
 
 

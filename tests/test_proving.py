@@ -117,7 +117,7 @@ def test_effect_outside_the_table_is_in_the_truth_but_not_among_the_effects():
 def test_bad_requests_are_named():
     with pytest.raises(InputError, match="valve_stiction"):
         proving.make_record({"valve_stiction": {}}, seed=0)
-    with pytest.raises(KeyError, match="channel"):
+    with pytest.raises(InputError, match="channel"):
         proving.make_record({"sensor_offset": {"channel": "q"}}, seed=0)
     with pytest.raises(InputError, match="rate_hz"):
         proving.make_record({}, seed=0, rate_hz=5)

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from htm.core import LoopParams, loop_simulate
-from htm.errors import RecordError
+from htm.errors import InputError, RecordError
 from htm.ident.features import smooth
 from htm.ident.model import Candidate, Free, Model, lin, logf
 from htm.ident.records import Record
@@ -79,7 +79,7 @@ def params_from_meta(meta: dict[str, Any]) -> LoopParams:
 def effect_fields(effect: str) -> dict[str, str]:
     """{effect parameter name: LoopParams key} of one of the loop family's effects."""
     if effect not in EFFECT_FIELDS:
-        raise KeyError(f"unknown displacement-loop effect `{effect}`; known: {', '.join(EFFECT_FIELDS)}")
+        raise InputError(f"unknown displacement-loop effect `{effect}`; known: {', '.join(EFFECT_FIELDS)}")
     return dict(EFFECT_FIELDS[effect])
 
 

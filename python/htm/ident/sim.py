@@ -23,7 +23,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from htm.core import CHANNELS, Params, replay
-from htm.errors import RecordError, SolverError
+from htm.errors import InputError, RecordError, SolverError
 from htm.ident.records import Record
 
 # Open-loop predictions restart from the measured state this often [s].
@@ -68,12 +68,12 @@ def effect_fields(effect: str, channel: str | None = None) -> dict[str, str]:
     """{effect parameter name (EFFECTS.md): Params field} of one effect (sensor ones need `channel`)."""
     if effect in SENSOR_EFFECTS:
         if channel not in CHANNELS:
-            raise KeyError(f"effect `{effect}` needs a channel among {', '.join(CHANNELS)}, got {channel!r}")
+            raise InputError(f"effect `{effect}` needs a channel among {', '.join(CHANNELS)}, got {channel!r}")
         return {"sensor_offset": {_OFFSET_NAME[channel]: f"sensor_offset_{channel}"},
                 "sensor_gain": {"gain": f"sensor_gain_{channel}"},
                 "sensor_delay": {"delay_s": f"sensor_delay_{channel}_s"}}[effect]
     if effect not in EFFECT_FIELDS:
-        raise KeyError(f"unknown effect `{effect}`; known: {', '.join(EFFECT_IDS)}")
+        raise InputError(f"unknown effect `{effect}`; known: {', '.join(EFFECT_IDS)}")
     return dict(EFFECT_FIELDS[effect])
 
 
@@ -85,7 +85,7 @@ def with_effect(params: Params, effect: str, values: Mapping[str, float], channe
         p["valve_linear_flow"] = 0.0
     for name, value in values.items():
         if name not in fields:
-            raise KeyError(f"effect `{effect}` has no parameter `{name}`; it has {', '.join(fields) or 'none'}")
+            raise InputError(f"effect `{effect}` has no parameter `{name}`; it has {', '.join(fields) or 'none'}")
         p[fields[name]] = float(value)
     p.validate()
     return p
