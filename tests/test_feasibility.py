@@ -160,6 +160,27 @@ def test_stroke_refusal():
     assert "mm of stroke are left" in msg and "largest feasible ΔF" in msg, msg
 
 
+def test_a_variable_amplitude_sequence_is_judged_by_its_levels():
+    """[loading]'s constant ΔF fits the actuator; one block of the sequence does not: the check
+    judges the levels that run, and says how far the whole sequence could be scaled."""
+    d = doc(BEYOND)
+    d["run"] = {"mode": "full"}
+    d["loading"]["delta_f_n"] = 20e3
+    assert check(d, "force_tension").status == "ok"
+    d["variable_amplitude"] = {"blocks": [[50, 20e3, 0.1], [5, 63e3, 0.1], [20, 15e3, 0.5]]}
+    c = check(d, "force_tension")
+    assert c.status == "refused" and c.need == pytest.approx(70e3) and c.delta_f_n == pytest.approx(63e3)
+    msg = refusal(d)
+    assert "peak force 70 kN" in msg and "for the sequence's level of ΔF 63 kN" in msg, msg
+    assert f"scale the sequence by {0.9 * CAPACITY_N / 63e3:.3g}" in msg, msg
+    d["variable_amplitude"]["blocks"][1][1] = 0.99 * c.largest_delta_f_n
+    assert check(d, "force_tension").status == "marginal"
+    # the deepest valley of the sequence is judged against compression
+    d["variable_amplitude"] = {"blocks": [[50, 20e3, 0.1], [1, 60e3, -1.0]]}
+    c = check(d, "force_compression")
+    assert c.status == "refused" and c.need == pytest.approx(60e3)
+
+
 def test_the_override_is_explicit_and_a_boolean():
     d = doc(BEYOND)
     d["run"]["override_limits"] = True

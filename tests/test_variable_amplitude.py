@@ -2,6 +2,10 @@
 valleys) in the simulator and on the virtual rig: every cycle runs at its own level with the
 peak-valley compensation learning per cycle, the crack grows by each level's ΔK, the report
 counts the measured history with rainflow; bad input is one clear line."""
+import signal
+import subprocess
+import sys
+import time
 import tomllib
 from pathlib import Path
 
@@ -14,6 +18,7 @@ from htm.control import Session
 from htm.control.session import specimen_of
 from htm.devices.config import virtual_config
 from htm.errors import SpecError
+from htm.record.store import Store
 from htm.run import run_test
 from htm.spec import load, parse
 
@@ -109,6 +114,58 @@ def test_spectrum_file_in_simulation_and_report_counts_it_with_rainflow(tmp_path
     counted = np.array(core.rainflow(np.column_stack([t["fmax_n"][c], t["fmin_n"][c]]).ravel().tolist()))
     assert counted[:, 2].sum() == pytest.approx(c.sum(), abs=1.0), "one rainflow cycle per applied cycle"
     capsys.readouterr()
+
+
+def test_a_killed_spectrum_test_resumes_from_the_store_alone(tmp_path):
+    """The store keeps the spectrum inline: a test killed mid-run resumes from another folder
+    after its spectrum file is gone, and every cycle still runs its own level."""
+    from htm.spec import dumps
+    f, pv = _spectrum_file(tmp_path)
+    d = _doc(cycles=60_000)
+    d["law"]["c"] /= 20.0
+    d["variable_amplitude"] = {"spectrum_file": f.name}
+    spec_path = tmp_path / "va.toml"
+    spec_path.write_text(dumps(d))
+    store = tmp_path / "store"
+    htm = [sys.executable, "-m", "htm.cli"]
+    opts = ["--store", str(store), "--quiet", "--no-recording"]
+    proc = subprocess.Popen(htm + ["run", str(spec_path), "--out", str(tmp_path / "o")] + opts,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 120
+    while proc.poll() is None and time.monotonic() < deadline and not any(
+            p.stat().st_size > 50_000 for p in store.glob("tests/*/journal-000.htmj")):
+        time.sleep(0.02)
+    assert proc.poll() is None, "the test ended before it could be killed; make it longer"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    with Store(store) as s:
+        tid = s.list_tests()[0]["id"]
+        kept = tomllib.loads(s.get(tid)["spec"])["variable_amplitude"]
+    assert "spectrum_file" not in kept and np.array_equal(np.array(kept["spectrum"]), pv)
+    f.unlink()
+    r = subprocess.run(htm + ["resume", tid] + opts, cwd=tmp_path.parent, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    with Store(store) as s:
+        t, table = s.get(tid), s.cycles(tid)
+    assert t["status"] == "finished" and any(e["kind"] == "resumed" for e in t["events"])
+    c = np.asarray(table["cycle"])
+    assert np.array_equal(c, np.arange(1, len(c) + 1)) and len(c) >= 60_000, "no gap, no duplicate, run to the end"
+    j = _judged(table)
+    want = pv[(c[j] - 1) % len(pv)]
+    assert np.array_equal(table["fmax_target_n"][j], want[:, 0]), "each cycle at its own level after the resume"
+
+
+@pytest.mark.parametrize("va,needle", [
+    ({"spectrum": [[5000.0, 6000.0]]}, r"spectrum\[0\]: peak 5000 N must exceed its valley"),
+    ({"spectrum": []}, "non-empty list of \\[peak_n, valley_n\\]"),
+    ({"spectrum": [[5000.0, "x"]]}, r"spectrum\[0\].valley_n = 'x' must be a number"),
+    ({"spectrum": [[5000.0, 500.0]], "blocks": [[10, 4450.0, 0.1]]}, "one of them"),
+])
+def test_a_malformed_inline_spectrum_is_one_clear_line(va, needle):
+    d = _doc()
+    d["variable_amplitude"] = va
+    with pytest.raises(SpecError, match=needle):
+        parse(d)
 
 
 @pytest.mark.parametrize("text,needle", [

@@ -86,13 +86,17 @@ def _kn(f: float) -> str:
     return f"{f / 1e3:.3g} kN"
 
 
-def _largest(c: Check, r_ratio: float) -> str:
+def _largest(c: Check, r_ratio: float | None) -> str:
+    """How far the test could go; `r_ratio` None for a variable-amplitude sequence, whose
+    limiting level is named by its ΔF (the whole sequence scales with it)."""
     parts = []
     if c.largest_frequency_hz is not None and c.name in ("valve_flow", "frequency"):
         parts.append(f"largest feasible frequency {c.largest_frequency_hz:.3g} Hz")
     if c.largest_delta_f_n is not None and c.name != "frequency":
         over = " over the whole crack range" if c.name == "size_criterion" else ""
-        parts.append(f"largest feasible ΔF {_kn(c.largest_delta_f_n)}{over} (at R = {r_ratio:g}, asked {_kn(c.delta_f_n)})")
+        at = (f"at R = {r_ratio:g}, asked {_kn(c.delta_f_n)}" if r_ratio is not None else
+              f"for the sequence's level of ΔF {_kn(c.delta_f_n)}: scale the sequence by {c.largest_delta_f_n / c.delta_f_n:.3g}")
+        parts.append(f"largest feasible ΔF {_kn(c.largest_delta_f_n)}{over} ({at})")
     return "; ".join(parts)
 
 
@@ -100,7 +104,8 @@ def _sentence(d: dict[str, Any], config: dict[str, Any]) -> str:
     """The check's numbers in engineering units; refused and marginal checks add how far the
     test could go."""
     name, need, limit = d["name"], d["need"], d["limit"]
-    r = config["phases"][d["phase"]]["r_ratio"]
+    sequence = bool(config.get("blocks") or config.get("spectrum"))
+    r = None if sequence else config["phases"][d["phase"]]["r_ratio"]
     a_mm = d["a_m"] * 1e3
     if name == "force_tension":
         s = (f"peak force {_kn(need)}, the actuator gives {_kn(limit)} in tension "

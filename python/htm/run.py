@@ -15,7 +15,7 @@ import numpy as np
 
 from htm import core
 from htm.errors import HtmError
-from htm.spec import TestSpec, load, parse
+from htm.spec import TestSpec, load, parse, stored_text
 
 
 def run_spec(spec: TestSpec, mode: str | None = None, progress: bool = False) -> tuple[dict[str, Any], float]:
@@ -292,7 +292,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         from htm.record.store import Store
 
         with Store(args.store) as store:
-            test_id, out, wall = run_recorded(spec, Path(args.spec).read_text(), mode, store, progress=not args.quiet,
+            test_id, out, wall = run_recorded(spec, stored_text(args.spec, spec), mode, store, progress=not args.quiet,
                                               recording=not args.no_recording, spawn=args.spawn, connect=args.connect)
             print(f"store: test {test_id} in {store.root}" + ("" if args.no_recording else f" (recording {store.test_dir(test_id) / 'recording.rrd'})"))
             s = write_outputs(out_dir, spec, out, wall, mode)

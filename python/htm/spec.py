@@ -255,9 +255,23 @@ def read_spectrum(path: Path) -> list[tuple[float, float]]:
 
 
 def _variable_amplitude(va: dict, base: Path | None) -> tuple[list[tuple[int, float, float]], list[tuple[float, float]]]:
-    _keys(va, {"blocks", "spectrum_file"}, "variable_amplitude")
-    if ("blocks" in va) == ("spectrum_file" in va):
-        raise SpecError("variable_amplitude: give blocks = [[cycles, delta_f_n, r_ratio], ...] or spectrum_file = \"PATH\" (one of them)")
+    _keys(va, {"blocks", "spectrum_file", "spectrum"}, "variable_amplitude")
+    if sum(k in va for k in ("blocks", "spectrum_file", "spectrum")) != 1:
+        raise SpecError("variable_amplitude: give blocks = [[cycles, delta_f_n, r_ratio], ...], spectrum_file = \"PATH\" "
+                        "or spectrum = [[peak_n, valley_n], ...] (one of them)")
+    if "spectrum" in va:  # inline: what the store keeps, so a stored test needs no file beside it
+        pv = va["spectrum"]
+        if not (isinstance(pv, list) and pv and all(isinstance(c, list) and len(c) == 2 for c in pv)):
+            raise SpecError("variable_amplitude.spectrum must be a non-empty list of [peak_n, valley_n]")
+        out_pv = []
+        for k, c in enumerate(pv):
+            where = f"variable_amplitude.spectrum[{k}]"
+            d = dict(zip(("peak_n", "valley_n"), c))
+            peak, valley = _num(d, "peak_n", where, unit="N"), _num(d, "valley_n", where, unit="N")
+            if not peak > valley:
+                raise SpecError(f"{where}: peak {peak:g} N must exceed its valley {valley:g} N")
+            out_pv.append((peak, valley))
+        return [], out_pv
     if "spectrum_file" in va:
         p = Path(str(va["spectrum_file"]))
         return [], read_spectrum(p if p.is_absolute() or base is None else base / p)
@@ -420,6 +434,20 @@ def _explain(msg: str) -> str:
     return msg
 
 
+def stored_text(path: str | Path, spec: TestSpec) -> str:
+    """The spec text a store keeps for `spec` read from `path`: the file as written, or, when it
+    names a spectrum file, the spec with that spectrum inline (`htm resume` and a later review
+    then need no file beside the store, and the spectrum cannot change under the record)."""
+    text = Path(path).read_text()
+    doc = tomllib.loads(text)
+    va = doc.get("variable_amplitude", {})
+    if "spectrum_file" not in va:
+        return text
+    va["spectrum"] = [list(c) for c in spec.spectrum]
+    del va["spectrum_file"]
+    return f"# {Path(path).name} with its spectrum file inlined\n" + dumps(doc)
+
+
 def load(path: str | Path, *, check: bool = True) -> TestSpec:
     """Read and validate a TOML test spec.
 
@@ -486,4 +514,4 @@ def save(doc: dict[str, Any], path: str | Path, name: str = "test") -> TestSpec:
     return spec
 
 
-__all__ = ["TestSpec", "Loading", "parse", "load", "dumps", "save", "thesis_rig", "read_spectrum"]
+__all__ = ["TestSpec", "Loading", "parse", "load", "dumps", "save", "stored_text", "thesis_rig", "read_spectrum"]

@@ -5,7 +5,7 @@
 //! One formula per limit, here; callers format the numbers.
 use std::f64::consts::PI;
 
-use crate::engine::{hydraulic_stiffness, series_stiffness, targets, TestConfig};
+use crate::engine::{hydraulic_stiffness, series_stiffness, targets, Level, TestConfig};
 use crate::error::Result;
 
 /// A need above this fraction of its limit is marginal: it runs, but with little headroom.
@@ -65,19 +65,40 @@ fn status(need: f64, limit: f64) -> Status {
 /// (phase index, crack length a [m], target Fmax [N], target Fmin [N])
 type LoadPoint = (usize, f64, f64, f64);
 
-/// The targets at crack lengths spread over every phase.
+/// The targets at crack lengths spread over every phase, `SAMPLES` points from each phase's
+/// start; a variable-amplitude sequence replaces the phase's forces by its limiting levels.
 fn load_points(cfg: &TestConfig) -> Result<Vec<LoadPoint>> {
-    let mut out = Vec::with_capacity(cfg.phases.len() * SAMPLES);
+    let levels = limiting_levels(&cfg.sequence);
+    let mut out = Vec::with_capacity(cfg.phases.len() * SAMPLES * levels.len().max(1));
     let mut a0 = cfg.a0_m;
     for (i, ph) in cfg.phases.iter().enumerate() {
-        for k in 0..SAMPLES {
-            let a = a0 + (ph.end_a_m - a0) * k as f64 / (SAMPLES - 1) as f64;
-            let (fmax, fmin, _) = targets(cfg, ph, a0, a)?;
-            out.push((i, a, fmax, fmin));
+        let a_at = |k: usize| a0 + (ph.end_a_m - a0) * k as f64 / (SAMPLES - 1) as f64;
+        if levels.is_empty() {
+            for k in 0..SAMPLES {
+                let (fmax, fmin, _) = targets(cfg, ph, a0, a_at(k))?;
+                out.push((i, a_at(k), fmax, fmin));
+            }
+        }
+        for &(fmax, fmin) in &levels {
+            out.extend((0..SAMPLES).map(|k| (i, a_at(k), fmax, fmin)));
         }
         a0 = ph.end_a_m;
     }
     Ok(out)
+}
+
+/// The levels of a variable-amplitude sequence that set its limits: the highest peak, the
+/// deepest valley and the widest range (each once).
+fn limiting_levels(seq: &[Level]) -> Vec<(f64, f64)> {
+    let mut out: Vec<(f64, f64)> = Vec::new();
+    for key in [|l: &Level| l.fmax_n, |l: &Level| -l.fmin_n, |l: &Level| l.fmax_n - l.fmin_n] {
+        if let Some(l) = seq.iter().max_by(|x, y| key(x).total_cmp(&key(y))) {
+            if !out.contains(&(l.fmax_n, l.fmin_n)) {
+                out.push((l.fmax_n, l.fmin_n));
+            }
+        }
+    }
+    out
 }
 
 /// Largest static force of the cylinder on the specimen [N] in tension (+) and compression:
