@@ -255,6 +255,24 @@ def test_every_waveform_holds_two_percent_after_ramp_in(wave, mode):
     assert worst(t, in_test(t)).max() < 2.0
 
 
+@pytest.mark.parametrize("wave", list(WAVES))
+@pytest.mark.parametrize("f_hz, df_n", [(30.0, 4450.0), (40.0, 4450.0), (40.0, 6000.0), (45.0, 3000.0)])
+def test_in_the_band_from_the_first_full_amplitude_cycle_at_high_frequency(wave, f_hz, df_n):
+    """Feasible tests up to 45 Hz: with the default ramp-in (20 cycles or 1 s, whichever is
+    longer) the first 20 full-amplitude cycles are inside ±2 % (a 20-cycle ramp left the 6 kN
+    40 Hz triangle at 2.05 %); the ramp lasts the second."""
+    d = base_doc()
+    d["loading"].update(waveform=wave, frequency_hz=f_hz, delta_f_n=df_n, **WAVES[wave])
+    d["end"]["max_cycles"] = 5 + int(f_hz) + 25
+    spec = parse(d)
+    assert spec.feasibility().feasible
+    o = core.run_test(spec.to_config(), "full")
+    e = o["convergence"][0]
+    assert e["worst_first_df_pct"] < 2.0 and e["cycles_to_2pct"] == 0, e
+    ramp = o["table"]["events"] & START != 0
+    assert ramp.sum() == 5 + int(f_hz), "5 mean cycles, then the amplitude over 1 s"
+
+
 def test_a_waveform_beyond_the_valve_is_refused_while_a_sine_runs_in_band():
     """With a small valve (12 L/min), a steep trapezoid (rise 5 % of the cycle) needs 6.4× the
     sine's piston speed: refused before anything runs, with the speeds named; the sine on the

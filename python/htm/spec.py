@@ -121,11 +121,12 @@ class TestSpec:
             "thickness_m": self.thickness_m, "a0_m": self.a0_m, **self.material, "law": dict(self.law),
             "waveform": self.waveform, **self.waveform_shape, "frequency_hz": self.frequency_hz,
             "control_rate_hz": self.control_rate_hz, "phases": phases, "controller": dict(self.controller),
-            "start_mean_cycles": self.start["mean_cycles"], "start_amplitude_cycles": self.start["amplitude_cycles"],
-            "stop_cycles": self.start["stop_cycles"], "max_cycles": self.end["max_cycles"],
+            "start_mean_cycles": self.start["mean_cycles"], "stop_cycles": self.start["stop_cycles"], "max_cycles": self.end["max_cycles"],
             "size_criterion_action": self.end["size_criterion"], "tolerance_cycles": self.end["tolerance_cycles"],
             "tolerance_action": self.end["tolerance_action"], "stiffness_steps": list(self.stiffness_steps),
         }
+        if self.start["amplitude_cycles"] is not None:
+            cfg["start_amplitude_cycles"] = self.start["amplitude_cycles"]
         if self.blocks:
             cfg["blocks"] = list(self.blocks)
         if self.spectrum:
@@ -374,7 +375,8 @@ def parse(doc: dict, name: str = "test", base: Path | None = None, *, check: boo
     st = _table(doc, "start", "start", required=False)
     _keys(st, {"mean_cycles", "amplitude_cycles", "stop_cycles"}, "start")
     start = {"mean_cycles": _num(st, "mean_cycles", "start", 0.0, 1e4, default=DEFAULTS["start_mean_cycles"]),
-             "amplitude_cycles": _num(st, "amplitude_cycles", "start", 0.0, 1e4, default=DEFAULTS["start_amplitude_cycles"]),
+             # left out: 20 cycles or 1 s, whichever is longer (the core's `Envelope::for_frequency`)
+             "amplitude_cycles": _num(st, "amplitude_cycles", "start", 0.0, 1e4, default=None),
              "stop_cycles": _num(st, "stop_cycles", "start", 0.0, 1e4, default=DEFAULTS["stop_cycles"])}
     rig = _table(doc, "rig", "rig", required=False)
     _keys(rig, {"preset", "overrides"}, "rig")

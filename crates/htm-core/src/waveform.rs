@@ -120,7 +120,20 @@ impl Default for Envelope {
     }
 }
 
+/// The shortest amplitude ramp-in of a test that states none [s].
+pub const START_AMPLITUDE_MIN_S: f64 = 1.0;
+
 impl Envelope {
+    /// The default at test frequency `f_hz`: the amplitude ramps in over 20 cycles or
+    /// `START_AMPLITUDE_MIN_S`, whichever is longer. The loops learn per cycle, and above 20 Hz
+    /// the plant departs further from the reference each cycle (the oil column and the valve
+    /// round a triangle's corners): the force's error at the ramp's end falls as 1/length², so
+    /// 20 cycles leave a 40 Hz triangle at ≈ 2 %, 40 at ≈ 0.6 % (`benchmarks/million_cycles.py`).
+    pub fn for_frequency(f_hz: f64) -> Self {
+        let d = Envelope::default();
+        Envelope { amplitude_cycles: d.amplitude_cycles.max((f_hz * START_AMPLITUDE_MIN_S).ceil()), ..d }
+    }
+
     #[inline]
     pub fn start(&self, cycle_pos: f64) -> (f64, f64) {
         let ramp = |x: f64, n: f64| if n <= 0.0 { 1.0 } else { smoothstep((x / n).clamp(0.0, 1.0)) };
@@ -179,5 +192,13 @@ mod tests {
         assert!((e.start(4.0).1 - 0.5).abs() < 1e-12);
         assert_eq!(e.start(6.0), (1.0, 1.0));
         assert_eq!(e.start_cycles(), 6);
+    }
+
+    #[test]
+    fn the_default_ramp_in_lasts_20_cycles_or_a_second() {
+        assert_eq!(Envelope::for_frequency(10.0), Envelope::default());
+        assert_eq!(Envelope::for_frequency(20.0).amplitude_cycles, 20.0);
+        assert_eq!(Envelope::for_frequency(40.0).amplitude_cycles, 40.0);
+        assert_eq!(Envelope::for_frequency(33.3).amplitude_cycles, 34.0);
     }
 }

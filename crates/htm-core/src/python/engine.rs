@@ -73,7 +73,8 @@ pub(super) fn config_from(d: &Bound<'_, PyDict>) -> PyResult<TestConfig> {
     let controller = need::<Bound<'_, PyAny>>(d, "controller")?.extract::<ControllerSpecArgs>()
         .map_err(|e| InputError::new_err(format!("test config controller: {e}")))?.build()?;
     // every default is the core's (`Limits`, `Envelope`, `JumpConfig` defaults, `DEFAULT_*`)
-    let (dj, dl, de) = (JumpConfig::default(), Limits::default(), Envelope::default());
+    let frequency_hz: f64 = need(d, "frequency_hz")?;
+    let (dj, dl, de) = (JumpConfig::default(), Limits::default(), Envelope::for_frequency(frequency_hz));
     Ok(TestConfig {
         params,
         rtol: opt(d, "rtol", engine::DEFAULT_RTOL)?,
@@ -82,7 +83,7 @@ pub(super) fn config_from(d: &Bound<'_, PyDict>) -> PyResult<TestConfig> {
         law,
         a0_m: need(d, "a0_m")?,
         waveform,
-        frequency_hz: need(d, "frequency_hz")?,
+        frequency_hz,
         control_rate_hz: opt(d, "control_rate_hz", engine::DEFAULT_CONTROL_RATE_HZ)?,
         phases,
         controller,
@@ -237,14 +238,14 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     Ok(())
 }
 
-/// The value a config key takes when the config leaves it out (keys as in `run_test`'s config).
+/// The value a config key takes when the config leaves it out (keys as in `run_test`'s config;
+/// `start_amplitude_cycles` depends on the frequency: `Envelope::for_frequency`).
 fn test_defaults(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     let (dj, dl, de) = (JumpConfig::default(), Limits::default(), Envelope::default());
     let d = PyDict::new(py);
     d.set_item("rtol", engine::DEFAULT_RTOL)?;
     d.set_item("control_rate_hz", engine::DEFAULT_CONTROL_RATE_HZ)?;
     d.set_item("start_mean_cycles", de.mean_cycles)?;
-    d.set_item("start_amplitude_cycles", de.amplitude_cycles)?;
     d.set_item("stop_cycles", de.stop_cycles)?;
     d.set_item("max_cycles", dl.max_cycles)?;
     d.set_item("size_criterion_action", dl.size_criterion.name())?;
