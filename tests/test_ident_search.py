@@ -125,3 +125,17 @@ def test_a_ripple_is_placed_to_a_fraction_of_one_over_the_record():
     residual = {c: a * np.sin(2 * np.pi * f_pump * t + 0.3) + rng.normal(0, 1.0, n) for c, a in (("p_a", 0.5), ("p_b", 0.3))}
     found = _ripple_frequencies(Record(cols, {}, "ripple"), residual, rate)
     assert found and abs(found[0] - f_pump) < 0.01 * rate / n
+
+
+def test_two_faults_of_one_sensor_are_a_tie_only_within_the_gain_that_counts():
+    # Held-out costs after (1 + dcost): 0.0988 against 0.0972 (an offset on a pressure that moves
+    # little, read as well by a gain) is a tie, named by PREFERENCE; 0.116 against 0.154 (a
+    # gain on a pressure that swings) is not.
+    from htm.ident.search import MIN_GAIN, _tied
+
+    assert _tied({"ok": True, "dcost": -0.9012}, {"ok": True, "dcost": -0.9028})
+    assert not _tied({"ok": True, "dcost": -0.884}, {"ok": True, "dcost": -0.846})
+    assert not _tied({"ok": True, "dcost": -0.9012}, {"ok": False, "dcost": -0.9028}), "a contender that does not pay off"
+    c = 0.2
+    assert _tied({"ok": True, "dcost": c - 1.0}, {"ok": True, "dcost": c * (1.0 - 0.99 * MIN_GAIN) - 1.0})
+    assert not _tied({"ok": True, "dcost": c - 1.0}, {"ok": True, "dcost": c * (1.0 - 1.01 * MIN_GAIN) - 1.0})

@@ -190,9 +190,14 @@ def search(prob: Problem, base: Model, nominal: Any, pool: list[Candidate], rate
             log("polished", cand.label, cand.report(trial.params()), polished[-1][1])
         if len(polished) == 2:
             polished = _on_common_base(prob, pred, model, polished, log)
-        # Both at the noise floor: the record cannot tell them apart; name the more common effect
-        # (PREFERENCE: an offset before a gain before a delay...) and say so.
+        # Both at the noise floor, or two faults of one sensor whose held-out costs are apart by
+        # less than the MIN_GAIN that makes a refit count at all (a reading that moves little
+        # about its mean is scaled or shifted alike): the record cannot tell them apart; name
+        # the more common effect (PREFERENCE: an offset before a gain before a delay...) and say so.
         at_floor = [g for g in polished if max(prob.ratios(g[5], rate).values()) <= SYSTEMATIC]
+        if len(polished) == 2 and polished[0][0].channel is not None and polished[0][0].channel == polished[1][0].channel \
+                and _tied(polished[0][1], polished[1][1]):
+            at_floor = polished
         if len(at_floor) == 2:
             at_floor.sort(key=lambda g: PREFERENCE.index(g[0].effect) if g[0].effect in PREFERENCE else len(PREFERENCE))
             cand, verdict, trial, twork, tjac, tpred = at_floor[0]
@@ -301,6 +306,13 @@ def _tone(prob: Problem, model: Model, cand: Candidate) -> tuple[Model, dict]:
     return trial, twork
 
 
+def _tied(a: dict, b: dict) -> bool:
+    """Two verdicts whose held-out costs after (1 + dcost of the cost before) differ by less than
+    MIN_GAIN of the larger: no evidence for either over the other by the search's own standard."""
+    ca, cb = 1.0 + a["dcost"], 1.0 + b["dcost"]
+    return a["ok"] and b["ok"] and abs(ca - cb) < MIN_GAIN * max(ca, cb)
+
+
 def _on_common_base(prob: Problem, pred0: dict, model: Model, polished: list[tuple], log: Log) -> list[tuple]:
     """Two contenders polished apart may have settled their base parameters in different basins
     (a flat cost lets them wander), and the better base would then decide between the effects.
@@ -319,10 +331,15 @@ def _on_common_base(prob: Problem, pred0: dict, model: Model, polished: list[tup
         mverdict = pays_off(prob, pred0, moved, mpred, model, cand)
         log("on the other's base", cand.label, cand.report(moved.params()), mverdict)
         if mverdict["dbic"] < verdict["dbic"]:
-            # one step with all free: the Jacobian of every parameter, for the screens to come
-            trial, twork, tjac = fit(prob, moved, iters=1, pred0=mwork)
-            tpred = prob.whole(trial, twork)
-            verdict = pays_off(prob, pred0, trial, tpred, model, cand)
+            # One step with all free: the Jacobian of every parameter (differenced at `moved`)
+            # for the screens to come. The step fits the fit blocks and may lose on the held-out
+            # ones; then `moved` stays, or the step would decide between the contenders.
+            strial, swork, tjac = fit(prob, moved, iters=1, pred0=mwork)
+            spred = prob.whole(strial, swork)
+            sverdict = pays_off(prob, pred0, strial, spred, model, cand)
+            log("one step on", cand.label, cand.report(strial.params()), sverdict)
+            trial, twork, tpred, verdict = ((strial, swork, spred, sverdict) if sverdict["dbic"] <= mverdict["dbic"]
+                                            else (moved, mwork, mpred, mverdict))
         out.append((cand, verdict, trial, twork, tjac, tpred))
     return out
 
