@@ -93,7 +93,7 @@ def test_an_offset_a_tolerated_gain_would_read_is_not_claimed():
 
 
 def test_a_null_bias_or_a_leak_within_a_valves_own_null_is_not_claimed():
-    # Sizes from the valve's own rating: a null bias from 0.2 % of the rated command, a leak
+    # Sizes from the valve's own rating: a null bias or a dead band from 0.2 % of the rated command, a leak
     # across the piston whose flow at supply pressure reaches 0.5 % of the rated flow.
     from htm.ident import features as ft
     from htm.ident import proving
@@ -109,6 +109,9 @@ def test_a_null_bias_or_a_leak_within_a_valves_own_null_is_not_claimed():
     assert pool["valve_null_bias"].claimable({"bias_v": -2.0 * bias})
     assert not pool["internal_leakage"].claimable({"coeff_m3_per_s_pa": 0.5 * leak})
     assert pool["internal_leakage"].claimable({"coeff_m3_per_s_pa": 2.0 * leak})
+    # a dead band about the null no wider than the null's own setting is the metering edges' form
+    assert not pool["valve_deadband"].claimable({"half_width_v": 0.5 * bias})
+    assert pool["valve_deadband"].claimable({"half_width_v": 2.0 * bias})
 
 
 def test_a_ripple_is_placed_to_a_fraction_of_one_over_the_record():

@@ -223,19 +223,31 @@ def search(prob: Problem, base: Model, nominal: Any, pool: list[Candidate], rate
     # Backward check, latest first: a finding the others make redundant is dropped. Without it the
     # model is refitted from where the search left it and from the base parameters anew: a
     # finding added late may only have led the fit out of a basin it had settled in.
-    for f in list(reversed(findings)):
+    def too_small(f: Finding) -> bool:
         # Refits after a finding move its parameters too: one that ends below a claimable size goes.
-        small = f.cand.claimable is not None and not f.cand.claimable(f.cand.report(model.params()))
-        if len(findings) < 2 and not small:
-            break  # a single finding was weighed against the model without it when it was made
+        return f.cand.claimable is not None and not f.cand.claimable(f.cand.report(model.params()))
+
+    def refit_without(f: Finding) -> tuple[Model, dict, dict, np.ndarray]:
         fits = [fit(prob, start, iters=REFIT_ITERS) for start in _restarts(model.without(f.cand, nominal), x0, xn)]
         wmodel, wwork, wjac = min(fits, key=lambda g: prob.fit_cost(g[1]))
-        wpred = prob.whole(wmodel, wwork)
+        return wmodel, prob.whole(wmodel, wwork), wwork, wjac
+
+    for f in list(reversed(findings)):
+        small = too_small(f)
+        if len(findings) < 2 and not small:
+            break  # a single finding was weighed against the model without it when it was made
+        wmodel, wpred, wwork, wjac = refit_without(f)
         dbic, dcost = prob.bic_delta(wpred, pred, max(1, len(f.cand.frees)))
         log("backward check", f.cand.label, f"dBIC {dbic:.0f} dcost {dcost:+.3f}")
         if small or not (dbic < 0 and dcost < -MIN_GAIN):
             findings.remove(f)
             model, pred, work_pred, jac = wmodel, wpred, wwork, wjac
+    # A drop refits the model, which moves the findings checked before it: one it left below a
+    # claimable size (a leak gone to zero once the dead band beside it went) goes too.
+    while small_ones := [f for f in findings if too_small(f)]:
+        log("below a claimable size after a drop", small_ones[-1].cand.label)
+        model, pred, work_pred, jac = refit_without(small_ones[-1])
+        findings.remove(small_ones[-1])
     if findings and findings[0].pred_before is not base_pred:
         first = findings[0]  # after a drop, the first remaining finding starts from the baseline
         first.pred_before = base_pred

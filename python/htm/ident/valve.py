@@ -18,9 +18,10 @@ from htm.ident.records import Record
 MIN_ASYMMETRY = 0.1
 # A sensor's gain claimed off from this relative error (transducers are calibrated to ±0.1-0.5 %).
 MIN_GAIN_ERROR = 0.01
-# A valve's null claimed biased from this share of its rated command: a servo-valve's null is set
-# to about 0.1 % of it, and its amplifier's offset is of that order too; a smaller bias is the
-# metering edges' form (underlap, asymmetric edges) that a fit takes up.
+# A valve's null claimed biased, or a dead band about it, from this share of its rated command: a
+# servo-valve's null is set to about 0.1 % of it, and its amplifier's offset is of that order too;
+# a smaller bias or band is the metering edges' form (underlap, edges that open smoothly) that a
+# fit takes up.
 MIN_NULL_BIAS = 0.002
 # Leakage across the piston claimed from this share of the valve's rated flow at supply pressure:
 # a servo-valve's own null (tare) leakage is about 1-3 % of it, and the base model's underlap takes
@@ -143,12 +144,15 @@ class ValveFamily:
         def wider_than_noise(q: dict[str, float]) -> bool:
             return q["half_width_v"] >= u_noise
 
+        def wider_than_null(q: dict[str, float]) -> bool:
+            return wider_than_noise(q) and q["half_width_v"] >= MIN_NULL_BIAS * p["valve_max_command_v"]
+
         out += [
             cand("valve_null_bias", None, (lin("valve_null_bias_v", 0.02, -50.0, 50.0),), "small |u|",
                  claimable=_share_of("bias_v", MIN_NULL_BIAS * p["valve_max_command_v"])),
             cand("valve_dynamics", None, (lin("valve_tau_s", 1e-3, 0.0, 100.0, step=2.0),), "du/dt"),
             cand("valve_deadband", None, (lin("valve_deadband_half_width_v", 0.05, 0.0, 40.0),), "small |u|",
-                 claimable=wider_than_noise),
+                 claimable=wider_than_null),
             cand("valve_hysteresis", None, (lin("valve_hysteresis_half_width_v", 0.05, 0.0, 40.0),), "sign(du/dt)",
                  claimable=wider_than_noise),
             cand("supply_pressure_sag", None, (lin("supply_resistance_pa_s_per_m3", 1e9, 0.0, 1e3),), "v"),
