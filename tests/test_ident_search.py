@@ -142,3 +142,39 @@ def test_two_faults_of_one_sensor_are_a_tie_only_within_the_gain_that_counts():
     c = 0.2
     assert _tied({"ok": True, "dcost": c - 1.0}, {"ok": True, "dcost": c * (1.0 - 0.99 * MIN_GAIN) - 1.0})
     assert not _tied({"ok": True, "dcost": c - 1.0}, {"ok": True, "dcost": c * (1.0 - 1.01 * MIN_GAIN) - 1.0})
+
+
+def test_a_sensor_fault_must_show_in_its_own_reading():
+    # A sensor's offset also moves the other channels (open-loop runs restart from the readings), so
+    # it can buy a fit elsewhere while its own reading gets worse: toy channel `a` carries a bias
+    # nothing models, and an "offset on b" that shifts `a` ten times as much removes it. It pays
+    # off by the cost but is not b's fault; a true offset of `b` is.
+    from htm.ident.fit import Problem, blocks
+    from htm.ident.model import Candidate, lin
+    from htm.ident.records import Record
+    from htm.ident.search import pays_off
+
+    rng = np.random.default_rng(5)
+    n = 4000
+    t = np.arange(n) * 1e-3
+    x, z = np.sin(2 * np.pi * 3 * t), np.cos(2 * np.pi * 5 * t)
+
+    def simulate(plist, rec, **opts):
+        m = len(rec.columns["t"])
+        return [{"a": x[:m] + 10.0 * p["off_b"], "b": z[:m] + p["off_b"]} for p in plist]
+
+    offset_b = Candidate("sensor_offset", "b", (lin("off_b", 0.01, -1e3, 1e3),), "constant", fields=(("offset", "off_b"),))
+    fit_mask, val_mask = blocks(n, n, 1e3)
+    verdicts = {}
+    for name, a, b in (("bias on a", x + 1.0, z), ("offset on b", x + 1.0, z + 0.1)):
+        noise = rng.normal(0, 0.05, (2, n))
+        rec = Record({"t": t, "y": z, "a": a + noise[0], "b": b + noise[1]}, {}, name)
+        prob = Problem(rec, simulate, ["a", "b"], {"a": 0.05, "b": 0.05}, n, fit_mask, val_mask)
+        base = Model({"off_b": 0.0, "k": 0.0}, [lin("k", 1.0, -1.0, 1.0)], np.zeros(1))
+        pred0 = prob.predict([base.params()], whole=True)[0]
+        trial = base.with_candidate(offset_b, 10.0).at(np.array([0.0, 10.0]))  # off_b = 0.1
+        tpred = prob.predict([trial.params()], whole=True)[0]
+        verdicts[name] = pays_off(prob, pred0, trial, tpred, base, offset_b)
+    assert verdicts["bias on a"]["dcost"] < -0.5, "it does buy the fit of channel a"
+    assert not verdicts["bias on a"]["ok"] and verdicts["bias on a"]["explained"] < 0
+    assert verdicts["offset on b"]["ok"] and verdicts["offset on b"]["explained"] > 0.9

@@ -141,12 +141,13 @@ class Problem:
         floor = sum(n * math.log(max(s1[c][0] / max(n, 1), 1.0) / max(s0[c][0] / max(n, 1), 1.0)) for c, (_, n) in s0.items())
         return d + extra * math.log(max(n_all, 2)), math.exp(floor / max(n_all, 1)) - 1.0
 
-    def explained(self, before: dict, after: dict) -> float:
-        """The largest share, over the channels, of the validation residual's systematic part
-        (its mean square above the noise) that going from `before` to `after` removes."""
+    def explained(self, before: dict, after: dict, only: str | None = None) -> float:
+        """The largest share, over the channels (or channel `only`), of the validation residual's
+        systematic part (its mean square above the noise) that going from `before` to `after` removes."""
         s0 = self.channel_ssr(before, self.val_mask)
         s1 = self.channel_ssr(after, self.val_mask)
-        shares = [(s0[c][0] - s1[c][0]) / n / max(s0[c][0] / n - 1.0, 1e-12) for c, (_, n) in s0.items() if n > 0]
+        shares = [(s0[c][0] - s1[c][0]) / n / max(s0[c][0] / n - 1.0, 1e-12) for c, (_, n) in s0.items()
+                  if n > 0 and only in (None, c)]
         return max(shares, default=0.0)
 
 

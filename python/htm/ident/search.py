@@ -11,6 +11,7 @@ import numpy as np
 from htm.ident import features as ft
 from htm.ident.fit import Problem, fit
 from htm.ident.model import Candidate, Model
+from htm.ident.sim import SENSOR_EFFECTS
 
 # Non-noise residual over the noise floor (features.systematic_ratio): the search stops at or below.
 SYSTEMATIC = 1.0
@@ -402,7 +403,10 @@ def pays_off(prob: Problem, pred0: dict, trial: Model, tpred: dict, before: Mode
     dbic, dcost = prob.bic_delta(pred0, tpred, k)
     abl = prob.predict([trial.ablated(before, cand).params()], whole=True)[0]
     abic, acost = prob.bic_delta(abl, tpred, k)
-    share = prob.explained(pred0, tpred)
+    # A sensor's fault is in its own reading: there is its signature. (Through the restarts from the
+    # measured state it also moves the other channels, so there it can buy a fit it does not explain.)
+    own = cand.channel if cand.effect in SENSOR_EFFECTS and cand.channel in prob.channels else None
+    share = prob.explained(pred0, tpred, only=own)
     big = cand.claimable is None or cand.claimable(cand.report(trial.params()))
     ok = dbic < 0 and dcost < -MIN_GAIN and abic < 0 and acost < -MIN_GAIN and share >= MIN_SHARE and big
     return {"ok": bool(ok), "dbic": dbic, "dcost": dcost, "ablation_dcost": acost, "explained": share, "claimable": bool(big)}
