@@ -99,7 +99,8 @@ def first_cycles_table(ramp_cycles: float | None = None) -> tuple[list[dict], fl
             d["loading"].update(waveform=wave, frequency_hz=f, **shape)
             if ramp_cycles is not None:
                 d["start"]["amplitude_cycles"] = ramp_cycles
-            d["end"]["max_cycles"] = 5 + max(20, int(f)) + 40
+            ramp = core.start_amplitude_cycles(f) if ramp_cycles is None else ramp_cycles
+            d["end"]["max_cycles"] = int(d["start"]["mean_cycles"] + ramp) + 40
             row: dict = {"waveform": wave, "frequency_hz": f}
             try:
                 o = core.run_test(parse(d).to_config(), "full")

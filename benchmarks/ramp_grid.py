@@ -10,14 +10,13 @@ from __future__ import annotations
 
 import json
 import tomllib
-from pathlib import Path
+
+from million_cycles import ROOT, WAVES  # the table's waveforms, off its frequencies
 
 from htm import core
 from htm.errors import InfeasibleTest
 from htm.spec import parse
 
-ROOT = Path(__file__).resolve().parents[1]
-WAVES = {"sine": {}, "triangle": {}, "trapezoid": {"rise_fraction": 0.25, "hold_fraction": 0.25}}
 SIZES = {"W50.8": (0.0508, 0.00635, 0.0152), "W101.6": (0.1016, 0.0127, 0.0304)}
 FREQS = (25.0, 30.0, 35.0, 40.0, 45.0, 50.0)
 FORCES = (3000.0, 4450.0, 6000.0)
@@ -31,7 +30,8 @@ def case(wave: str, f: float, df: float, size: str, ramp_cycles: float | None) -
     d["loading"].update(waveform=wave, frequency_hz=f, delta_f_n=df, **WAVES[wave])
     if ramp_cycles is not None:
         d["start"]["amplitude_cycles"] = ramp_cycles
-    d["end"]["max_cycles"] = 5 + max(20, int(f)) + 25
+    ramp = core.start_amplitude_cycles(f) if ramp_cycles is None else ramp_cycles
+    d["end"]["max_cycles"] = int(d["start"]["mean_cycles"] + ramp) + 25
     try:
         spec = parse(d)
     except InfeasibleTest:

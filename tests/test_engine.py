@@ -271,6 +271,7 @@ def test_in_the_band_from_the_first_full_amplitude_cycle_at_high_frequency(wave,
     assert e["worst_first_df_pct"] < 2.0 and e["cycles_to_2pct"] == 0, e
     ramp = o["table"]["events"] & START != 0
     assert ramp.sum() == 5 + int(f_hz), "5 mean cycles, then the amplitude over 1 s"
+    assert core.start_amplitude_cycles(f_hz) == int(f_hz), "the core says the same ramp-in"
 
 
 def test_a_waveform_beyond_the_valve_is_refused_while_a_sine_runs_in_band():

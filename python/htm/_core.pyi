@@ -8,7 +8,7 @@ __all__ = [
     "HtmError", "InputError", "ParameterError", "SolverError", "__version__",
     "Params", "Machine", "g_ct", "h_ct", "a_range", "stress_intensity", "size_criterion", "compliance_ct", "stiffness_ct",
     "crack_length_from_compliance_ct", "growth_rate", "rainflow", "newman_f", "life", "life_curve", "crack_after", "pmax_from_delta_p",
-    "CyclicController", "Detectors", "RigPlant", "Progress", "EVENTS", "run_test", "validate_test", "run_batch", "TestRun",
+    "CyclicController", "Detectors", "RigPlant", "Progress", "EVENTS", "run_test", "validate_test", "start_amplitude_cycles", "run_batch", "TestRun",
     "feasibility", "MARGINAL_FRACTION", "RESONANCE_FRACTION",
     "friction_force", "LoopParams", "loop_simulate", "replay",
     "CHANNELS", "RAW_COLUMNS", "RAW_POLICY", "TEST_DEFAULTS", "TEST_R_RATIO_RANGE", "LOAD_R_RATIO_RANGE", "MAX_TOLERANCE",
@@ -123,6 +123,7 @@ class Progress:
 
 def run_test(config: dict[str, Any], mode: str = "full", progress: Progress | None = None) -> dict[str, Any]: ...
 def validate_test(config: dict[str, Any]) -> None: ...
+def start_amplitude_cycles(frequency_hz: float) -> float: ...
 def run_batch(configs: list[dict[str, Any]], mode: str = "full", threads: int = 0) -> list[dict[str, Any]]: ...
 
 # --- know before you start (crates/htm-core/src/feasibility.rs) ---

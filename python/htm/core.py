@@ -6,7 +6,8 @@ and range of a test config and the vocabulary the record shares with it; Python 
 instead of restating them:
 
 - `TEST_DEFAULTS`: the value of each config key a spec leaves out (``rtol``, ``control_rate_hz``,
-  start-up cycles, end conditions, cycle-jump control);
+  start-up cycles, end conditions, cycle-jump control); the amplitude ramp-in, which depends on the
+  frequency, is `start_amplitude_cycles(frequency_hz)`;
 - `TEST_R_RATIO_RANGE` ``[lo, hi)`` of a test phase, `LOAD_R_RATIO_RANGE` of a load (life
   prediction, E647 data), `MAX_TOLERANCE`, `TEST_TOLERANCE`, `PRECRACK_TOLERANCE`,
   `MIN_SAMPLES_PER_CYCLE`, `MAX_CONTROL_RATE_HZ` [Hz], `E647_MIN_K_GRADIENT_PER_M` [1/m], `RTOL_RANGE`;
@@ -67,6 +68,7 @@ from htm._core import (
     run_batch,
     run_test,
     size_criterion,
+    start_amplitude_cycles,
     stiffness_ct,
     stress_intensity,
     validate_test,
@@ -80,5 +82,5 @@ __all__ = [
     "Progress", "RigPlant", "SolverError", "TestRun", "__version__",
     "a_range", "compliance_ct", "crack_after", "crack_length_from_compliance_ct", "feasibility", "friction_force", "g_ct",
     "growth_rate", "h_ct", "life", "life_curve", "loop_simulate", "newman_f", "pmax_from_delta_p", "rainflow", "replay",
-    "run_batch", "run_test", "size_criterion", "stiffness_ct", "stress_intensity", "validate_test",
+    "run_batch", "run_test", "size_criterion", "start_amplitude_cycles", "stiffness_ct", "stress_intensity", "validate_test",
 ]

@@ -187,6 +187,13 @@ fn run_test<'py>(py: Python<'py>, config: &Bound<'py, PyDict>, mode: &str, progr
     outcome_dict(py, o)
 }
 
+/// The amplitude ramp-in [cycles] of a test at `frequency_hz` that states none
+/// (`Envelope::for_frequency`: 20 cycles or 1 s, whichever is longer).
+#[pyfunction]
+fn start_amplitude_cycles(frequency_hz: f64) -> f64 {
+    Envelope::for_frequency(frequency_hz).amplitude_cycles
+}
+
 /// Check a config without running it (raises ParameterError/InputError naming the field).
 #[pyfunction]
 fn validate_test(config: &Bound<'_, PyDict>) -> PyResult<()> {
@@ -233,6 +240,7 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyProgress>()?;
     m.add_function(wrap_pyfunction!(run_test, m)?)?;
     m.add_function(wrap_pyfunction!(validate_test, m)?)?;
+    m.add_function(wrap_pyfunction!(start_amplitude_cycles, m)?)?;
     m.add_function(wrap_pyfunction!(run_batch, m)?)?;
     register_session(m)?;
     Ok(())
