@@ -176,5 +176,26 @@ def test_a_sensor_fault_must_show_in_its_own_reading():
         tpred = prob.predict([trial.params()], whole=True)[0]
         verdicts[name] = pays_off(prob, pred0, trial, tpred, base, offset_b)
     assert verdicts["bias on a"]["dcost"] < -0.5, "it does buy the fit of channel a"
-    assert not verdicts["bias on a"]["ok"] and verdicts["bias on a"]["explained"] < 0
+    assert not verdicts["bias on a"]["ok"] and verdicts["bias on a"]["explained"] <= 0
     assert verdicts["offset on b"]["ok"] and verdicts["offset on b"]["explained"] > 0.9
+
+
+def test_a_channel_at_its_noise_has_no_systematic_part_to_share():
+    # Channel `a` reads only its noise: a change that nudges its prediction by a fiftieth of the
+    # noise explains none of a systematic part it does not have (counted as a share of a mean
+    # square a hair above 1 it was millions); `b`'s offset is explained whole.
+    from htm.ident.fit import Problem, blocks
+    from htm.ident.records import Record
+
+    rng = np.random.default_rng(7)
+    n = 4000
+    t = np.arange(n) * 1e-3
+    z = np.cos(2 * np.pi * 5 * t)
+    rec = Record({"t": t, "y": z, "a": rng.normal(0, 0.05, n), "b": z + 0.1 + rng.normal(0, 0.05, n)}, {}, "toy")
+    fit_mask, val_mask = blocks(n, n, 1e3)
+    prob = Problem(rec, lambda plist, rec, **o: [], ["a", "b"], {"a": 0.05, "b": 0.05}, n, fit_mask, val_mask)
+    before = {"a": np.full(n, 0.001), "b": z}
+    after = {"a": np.zeros(n), "b": z + 0.1}
+    assert prob.explained(before, after, only="a") == 0.0
+    assert prob.explained(before, after) > 0.95
+    assert prob.explained(before, before) == 0.0

@@ -27,6 +27,9 @@ JACOBIAN_EVERY = 2
 # `prior` (normalised coordinates) costs: it gives the flat valleys (bulk modulus vs dead volumes)
 # curvature without moving what the data determine.
 PRIOR_SHARE = 0.003
+# A channel's residual has a systematic part only where its mean square (noise-scaled) exceeds 1 by
+# this many standard deviations of white noise's own mean square.
+SIGNIFICANT = 3.0
 
 Predictor = Callable[..., list[dict[str, np.ndarray]]]
 
@@ -146,8 +149,11 @@ class Problem:
         systematic part (its mean square above the noise) that going from `before` to `after` removes."""
         s0 = self.channel_ssr(before, self.val_mask)
         s1 = self.channel_ssr(after, self.val_mask)
-        shares = [(s0[c][0] - s1[c][0]) / n / max(s0[c][0] / n - 1.0, 1e-12) for c, (_, n) in s0.items()
-                  if n > 0 and only in (None, c)]
+        # A channel counts only where its mean square stands above the noise's by more than white
+        # noise's own scatter (SIGNIFICANT standard deviations, sqrt(2/n) each): at the floor there
+        # is no systematic part to share, and a sliver of it would read as a huge share.
+        shares = [(s0[c][0] - s1[c][0]) / n / (s0[c][0] / n - 1.0) for c, (_, n) in s0.items()
+                  if n > 0 and only in (None, c) and s0[c][0] / n - 1.0 > SIGNIFICANT * np.sqrt(2.0 / n)]
         return max(shares, default=0.0)
 
 

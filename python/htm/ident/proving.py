@@ -133,7 +133,8 @@ def supply_profile(ref: np.ndarray, rate_hz: float) -> np.ndarray:
 
 def make_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, seed: int, rate_hz: float = 500,
                 duration_s: float = 20, rig_spread: float = 0.3, noise: bool = True, experiment: str = "rich",
-                specimen: bool | None = None, effect_outside_table: str | None = None) -> tuple[Record, dict[str, Any]]:
+                specimen: bool | None = None, effect_outside_table: str | None = None,
+                supply_pa: float | None = None) -> tuple[Record, dict[str, Any]]:
     """A closed-loop position record of the simulated rig with `effects` on (EFFECTS.md ids ->
     parameter dicts in EFFECTS.md names; sensor effects carry `channel`; empty dicts take
     `DEFAULT_EFFECTS`). The experiment is position control (`rich_reference`, "rich") or force
@@ -143,7 +144,8 @@ def make_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, seed:
     and quantization (`NOISE_STD`, `QUANTUM`) inside the loop. A specimen (2e6 N/m, with an `f`
     column) is fitted when asked, or when an effect needs one. `effect_outside_table`:
     "friction_bump" adds a position-dependent friction bump, "supply_ripple" a pump's ripple on the
-    supply: structure that no EFFECTS.md id describes.
+    supply: structure that no EFFECTS.md id describes. `supply_pa` sets the power unit's nominal
+    pressure (default: the thesis rig's), declared in the metadata like any rig's.
 
     Returns (record, truth) with truth = {"effects": {id: {"channel", "params"}}, "params": the
     true Params as a dict, "spread": {field: factor}, "outside": name or None}.
@@ -176,6 +178,10 @@ def make_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, seed:
 
     rng = np.random.default_rng(seed)
     nominal = Params("base")
+    if supply_pa is not None:
+        if not (2e6 <= supply_pa <= 5e7):
+            raise InputError(f"supply_pa = {supply_pa}: allowed [2e6, 5e7] Pa")
+        nominal["supply_pressure_pa"] = float(supply_pa)
     meta: dict[str, Any] = {
         "format": FORMAT,
         "sample_rate_hz": rate_hz,
@@ -245,7 +251,10 @@ MATRIX: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
     ("internal_leakage", {"internal_leakage": {}}, {}),
     ("friction_asymmetry", {"friction_asymmetry": {}}, {}),
     ("pressure_dependent_friction", {"pressure_dependent_friction": {}}, {}),
-    ("entrained_air", {"entrained_air": {}}, {}),
+    # free air softens the oil only where the chambers run at low pressure (at 5 % it takes about
+    # 40 % of the oil's stiffness at 30 bar, 6 % at 95 bar): this case runs its power unit at
+    # 70 bar, as a lab would to see air, so the record carries the effect's signature
+    ("entrained_air", {"entrained_air": {}}, {"supply_pa": 7.0e6}),
     ("load_pressure_feedback", {"load_pressure_feedback": {}}, {}),
     ("specimen_nonlinearity", {"specimen_nonlinearity": {}}, {}),
     ("pair:valve_null_bias+sensor_offset", {"valve_null_bias": {}, "sensor_offset": {"channel": "p_a", "offset_pa": 4e5}}, {}),
@@ -260,7 +269,9 @@ MATRIX: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
     ("outside:friction_bump", {}, {"effect_outside_table": "friction_bump"}),
     ("outside:supply_ripple", {}, {"effect_outside_table": "supply_ripple"}),
 ]
-MATRIX_SEED = {"A": 100, "B": 7100}  # seed set -> shift; set B was never looked at while tuning
+# seed set -> shift. B was never looked at while tuning, until its entrained_air case showed that
+# case carried no signature at the thesis supply; C was drawn after that change, and never tuned to.
+MATRIX_SEED = {"A": 100, "B": 7100, "C": 14100}
 MATRIX_DURATION_S = 10.0
 
 
@@ -279,7 +290,8 @@ def matrix_record(case: str, seed_set: str = "A") -> tuple[Record, dict[str, Any
 def judge(report: Mapping[str, Any], truth: Mapping[str, Any]) -> list[str]:
     """What is wrong with a diagnosis of a proving-ground record (empty: it passes): the findings
     must be the true effects (id, and channel for sensor effects and the specimen's force), every
-    true parameter within 30 %, some channel's error at least halved by them, and `unexplained`
+    true parameter within 30 %, some channel's error above its sensor noise at least halved by
+    them, and `unexplained`
     false — except for an effect outside the table, which must leave no finding and be
     unexplained."""
     found = [(f["effect"], f["channel"]) for f in report["findings"]]
@@ -302,6 +314,15 @@ def judge(report: Mapping[str, Any], truth: Mapping[str, Any]) -> list[str]:
             est = by_id.get(eid, {}).get("params", {}).get(name)
             if est is None or abs(est - true) > 0.3 * abs(true):
                 problems.append(f"{eid}.{name}: estimated {est}, true {true:.4g}")
-    if want and not any(report["final"]["rmse"][c] <= 0.5 * report["baseline"]["rmse"][c] for c in report["final"]["rmse"]):
-        problems.append("no channel's error halved")
+    if want and not any(0.0 < 0.5 * _above_noise(report["baseline"]["rmse"][c], c) >= _above_noise(report["final"]["rmse"][c], c)
+                        for c in report["final"]["rmse"]):
+        problems.append("no channel's error above its sensor noise halved")
     return problems
+
+
+def _above_noise(rmse: float, channel: str) -> float:
+    """The part of a channel's error that a model can remove: its rms less the sensor's white
+    noise and quantization (which no model predicts: a weak effect near the noise could never
+    halve the whole error)."""
+    floor2 = NOISE_STD.get(channel, 0.0) ** 2 + QUANTUM.get(channel, 0.0) ** 2 / 12.0
+    return float(np.sqrt(max(rmse * rmse - floor2, 0.0)))
