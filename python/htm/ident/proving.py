@@ -291,9 +291,8 @@ def judge(report: Mapping[str, Any], truth: Mapping[str, Any]) -> list[str]:
     """What is wrong with a diagnosis of a proving-ground record (empty: it passes): the findings
     must be the true effects (id, and channel for sensor effects and the specimen's force), every
     true parameter within 30 %, some channel's error above its sensor noise at least halved by
-    them, and `unexplained`
-    false — except for an effect outside the table, which must leave no finding and be
-    unexplained."""
+    them, and `unexplained` false — except for an effect outside the table, which must leave no
+    finding and be unexplained."""
     found = [(f["effect"], f["channel"]) for f in report["findings"]]
     chan = {"specimen_nonlinearity": "f"}
     want = {(e, t["channel"] or chan.get(e)) for e, t in truth["effects"].items()}
