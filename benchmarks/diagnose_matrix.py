@@ -1,7 +1,7 @@
 """The effect matrix (`htm.ident.proving.MATRIX`) on a seed set, judged as the test suite judges
 set A (`proving.judge`): prints one JSON line per case and a JSON summary (passed, failures,
-seconds). Seed sets B and C are the same cases on rigs and noise that no constant was adjusted
-against (C drawn last; see `proving.MATRIX_SEED`).
+seconds). Seed sets B, C and D are the same cases on rigs and noise that no constant was adjusted
+against (D drawn last and run once; see `proving.MATRIX_SEED`).
 
     .venv/bin/python benchmarks/diagnose_matrix.py --seed-set B
 """
