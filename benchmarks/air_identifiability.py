@@ -24,13 +24,11 @@ CASE = "entrained_air"
 def main() -> int:
     shipped = list(valve.OTHER_FREES)
     pinned = [dataclasses.replace(f, hi=1e-3) if f.key == "bulk_modulus_slope" else f for f in shipped]
-    i = [c[0] for c in proving.MATRIX].index(CASE)
-    effects, kw = proving.MATRIX[i][1], proving.MATRIX[i][2]
+    low = next(kw for case, _, kw in proving.MATRIX if case == CASE)["supply_pa"]  # the case's own supply
     for seed_set in sorted(proving.MATRIX_SEED):
-        for supply_pa, frees in ((None, shipped), (None, pinned), (kw["supply_pa"], shipped)):
+        for supply_pa, frees in ((None, shipped), (None, pinned), (low, shipped)):
             valve.OTHER_FREES[:] = frees
-            rec, truth = proving.make_record(effects, seed=proving.MATRIX_SEED[seed_set] + i,
-                                             duration_s=proving.MATRIX_DURATION_S, supply_pa=supply_pa)
+            rec, truth = proving.matrix_record(CASE, seed_set, supply_pa=supply_pa)  # None: the thesis rig's
             t0 = time.perf_counter()
             report = diagnose(rec)
             air = [f["params"]["air_fraction"] for f in report["findings"] if f["effect"] == CASE]

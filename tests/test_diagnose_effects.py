@@ -4,9 +4,9 @@ pairs, force control, clean records and an effect outside the table, diagnosed b
 30 %, some channel's error above its sensor noise at least halved, nothing unexplained; nothing
 claimed and `unexplained` for the effect outside the table).
 
-Seed set A runs here. Seed sets B and C — the same cases on rigs and noise no constant was
-adjusted against — run in `benchmarks/diagnose_matrix.py --seed-set B` (and `C`; the pass rates
-are in the README and the closing notes).
+Seed set A runs here. Seed sets B, C and D — the same cases on rigs and noise no constant was
+adjusted against — run in `benchmarks/diagnose_matrix.py --seed-set B` (and `C`, `D`; the pass
+rates are in the README and the closing notes).
 """
 from __future__ import annotations
 

@@ -276,8 +276,9 @@ MATRIX_SEED = {"A": 100, "B": 7100, "C": 14100, "D": 21100}
 MATRIX_DURATION_S = 10.0
 
 
-def matrix_record(case: str, seed_set: str = "A") -> tuple[Record, dict[str, Any]]:
-    """The record and truth of one effect-matrix case in one seed set."""
+def matrix_record(case: str, seed_set: str = "A", **overrides: Any) -> tuple[Record, dict[str, Any]]:
+    """The record and truth of one effect-matrix case in one seed set; `overrides`: `make_record`
+    keywords over the case's own (a variant of the case on the same rig and noise)."""
     names = [c[0] for c in MATRIX]
     if case not in names:
         raise InputError(f"unknown matrix case {case!r}; cases: {', '.join(names)}")
@@ -285,7 +286,7 @@ def matrix_record(case: str, seed_set: str = "A") -> tuple[Record, dict[str, Any
         raise InputError(f"unknown seed set {seed_set!r}; use one of {', '.join(MATRIX_SEED)}")
     i = names.index(case)
     _, effects, kw = MATRIX[i]
-    return make_record(effects, seed=MATRIX_SEED[seed_set] + i, duration_s=MATRIX_DURATION_S, **kw)
+    return make_record(effects, seed=MATRIX_SEED[seed_set] + i, duration_s=MATRIX_DURATION_S, **{**kw, **overrides})
 
 
 def judge(report: Mapping[str, Any], truth: Mapping[str, Any]) -> list[str]:
