@@ -1,8 +1,11 @@
-"""Every command in the README runs as written: each fenced `sh` and `python` block is executed in a
-temporary folder (the checkout's examples, benchmarks, data and environment linked in) with a
-temporary test store. A block that cannot run here (an interactive console, a
-server that runs until interrupted, the test suite itself) says so in the line right above it
-("not run by the README test: why"); its command lines are then checked to parse."""
+"""Every command in the README and the documentation site (`docs/`) runs as written: each fenced
+`sh` and `python` block is executed in a temporary folder (the checkout's examples, benchmarks, data
+and environment linked in) with a temporary test store. A block that cannot run here (an
+interactive console, a server that runs until interrupted, the test suite itself, a benchmark of
+minutes) says so in the line right above it, as a comment on the site (`<!-- not run by the docs
+test: why -->`) or as text ("not run by the README test: why"); its command lines are then checked
+to parse. A block that appears twice runs once. Besides: the README stays a five-minute read
+(≤ 8 KB) and every page of `docs/` is in the site's navigation (`mkdocs.yml`)."""
 from __future__ import annotations
 
 import os
@@ -17,23 +20,27 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
-MARKER = "not run by the README test"
+PAGES = [README, *sorted((ROOT / "docs").rglob("*.md"))]
+MARKER = re.compile(r"not run by the (README|docs) test")
 BLOCK_TIMEOUT_S = 300
 FENCE = re.compile(r"^```(\w*)\n(.*?)^```", re.S | re.M)
+README_MAX_BYTES = 8 * 1024
 
 
-def blocks() -> list[tuple[int, str, str, str | None]]:
-    """(line, language, code, reason it is not run or None) of every sh/python block."""
-    text = README.read_text()
+def blocks() -> list[tuple[str, int, str, str, str | None]]:
+    """(page, line, language, code, reason it is not run or None) of every sh/python block."""
     out = []
-    for m in FENCE.finditer(text):
-        lang = m.group(1)
-        if lang not in ("sh", "python"):
-            continue
-        line = text.count("\n", 0, m.start()) + 1
-        before = [ln for ln in text[: m.start()].splitlines() if ln.strip()]
-        reason = before[-1] if before and MARKER in before[-1] else None
-        out.append((line, lang, m.group(2), reason))
+    for page in PAGES:
+        text = page.read_text()
+        name = page.relative_to(ROOT).as_posix()
+        for m in FENCE.finditer(text):
+            lang = m.group(1)
+            if lang not in ("sh", "python"):
+                continue
+            line = text.count("\n", 0, m.start()) + 1
+            before = [ln for ln in text[: m.start()].splitlines() if ln.strip()]
+            reason = before[-1] if before and MARKER.search(before[-1]) else None
+            out.append((name, line, lang, m.group(2), reason))
     return out
 
 
@@ -60,7 +67,8 @@ def env_for(work: Path) -> dict[str, str]:
     return env
 
 
-README_BLOCKS = blocks()
+DOC_BLOCKS = blocks()
+BLOCK_IDS = [f"{b[0]}:{b[1]}-{b[2]}" for b in DOC_BLOCKS]
 
 
 def run_block(work: Path, lang: str, code: str) -> subprocess.CompletedProcess:
@@ -78,32 +86,46 @@ def cost(code: str) -> int:
 
 @pytest.fixture(scope="module")
 def ran(tmp_path_factory):
-    """Every runnable block, each in its own checkout-like folder and store, two at a time (the
-    machine's cores), the longest first."""
-    todo = [(b[0], b[1], b[2]) for b in README_BLOCKS if b[3] is None]
-    todo.sort(key=lambda b: -cost(b[2]))
-    base = tmp_path_factory.mktemp("readme")
+    """Every runnable block (a block repeated on two pages once), each in its own checkout-like
+    folder and store, two at a time (the machine's cores), the longest first; keyed by the code."""
+    todo = {(b[2], b[3]) for b in DOC_BLOCKS if b[4] is None}
+    order = sorted(todo, key=lambda b: -cost(b[1]))
+    base = tmp_path_factory.mktemp("docs")
     with ThreadPoolExecutor(2) as pool:
-        futs = {line: pool.submit(run_block, layout(base / f"line{line}"), lang, code) for line, lang, code in todo}
-        return {line: f.result() for line, f in futs.items()}
+        futs = {code: pool.submit(run_block, layout(base / f"block{i}"), lang, code) for i, (lang, code) in enumerate(order)}
+        return {code: f.result() for code, f in futs.items()}
 
 
-def test_the_readme_has_blocks_and_every_skip_says_why():
-    assert len(README_BLOCKS) >= 6
-    for line, _, _, reason in README_BLOCKS:
+def test_the_docs_have_blocks_and_every_skip_says_why():
+    assert len(DOC_BLOCKS) >= 20
+    assert sum(1 for b in DOC_BLOCKS if b[0] == "README.md" and b[4] is None) >= 2, "the README's tour runs"
+    for page, line, _, _, reason in DOC_BLOCKS:
         if reason is not None:
-            assert len(reason.split(MARKER, 1)[1].strip(" :—-_*.()")) > 10, f"README line {line}: say why it is not run"
+            why = MARKER.split(reason, 1)[-1]
+            assert len(why.strip(" :—-_*.()>")) > 10, f"{page} line {line}: say why it is not run"
 
 
-@pytest.mark.parametrize("line,lang,code,reason", README_BLOCKS, ids=[f"line{b[0]}-{b[1]}" for b in README_BLOCKS])
-def test_readme_block_runs_as_written(tmp_path, request, line, lang, code, reason):
+def test_the_readme_is_a_five_minute_read():
+    size = len(README.read_bytes())
+    assert size <= README_MAX_BYTES, f"README.md is {size} bytes; move the detail into docs/ (≤ {README_MAX_BYTES})"
+
+
+def test_every_page_is_in_the_site_navigation():
+    nav = (ROOT / "mkdocs.yml").read_text()
+    pages = {p.relative_to(ROOT / "docs").as_posix() for p in PAGES if p != README}
+    missing = sorted(p for p in pages if not re.search(rf":\s*{re.escape(p)}\s*$", nav, re.M))
+    assert not missing, f"pages not in mkdocs.yml's nav: {missing}"
+
+
+@pytest.mark.parametrize("page,line,lang,code,reason", DOC_BLOCKS, ids=BLOCK_IDS)
+def test_doc_block_runs_as_written(tmp_path, request, page, line, lang, code, reason):
     if reason is not None:
         work = layout(tmp_path)
         for cmd in commands(code):
             check_parses(cmd, work)
         return
-    p = request.getfixturevalue("ran")[line]
-    assert p.returncode == 0, f"README block at line {line} failed ({p.returncode}):\n{p.stdout[-3000:]}\n{p.stderr[-3000:]}"
+    p = request.getfixturevalue("ran")[code]
+    assert p.returncode == 0, f"{page}: block at line {line} failed ({p.returncode}):\n{p.stdout[-3000:]}\n{p.stderr[-3000:]}"
     assert "Traceback" not in p.stderr, p.stderr[-3000:]
 
 
