@@ -65,6 +65,34 @@ def read_line(proc: subprocess.Popen, needle: str, timeout_s: float, seen: list[
     raise AssertionError(f"`{needle}` not printed within {timeout_s} s; output:\n{''.join(seen)}")
 
 
+WANT = {f"/{e}" for e in (*streams.CYCLE_GROUPS, *streams.SIGNAL_GROUPS, "crack/dadn_vs_delta_k", "events")}
+
+
+def served_entities(grpc_port: int, saved: Path, want: set[str] = WANT, timeout_s: float = 30) -> tuple[set[str], int]:
+    """What the stream proxy on `grpc_port` serves a client that connects now (`rerun --save`):
+    its entity paths and the number of views of its blueprint."""
+    exe = str(rerun_executable())
+    late = subprocess.Popen([exe, "--save", str(saved), f"rerun+http://127.0.0.1:{grpc_port}/proxy", "--port", str(free_pair())],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    entities: set[str] = set()
+    views = 0
+    try:
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < timeout_s:
+            time.sleep(1)
+            if not saved.exists():
+                continue
+            out = subprocess.run([exe, "rrd", "print", str(saved)], capture_output=True, text=True, timeout=60).stdout
+            entities = {ln.split(" - ")[1] for ln in out.splitlines() if ln.startswith("Chunk(") and ln.count(" - ") >= 2}
+            views = len({e.split("/")[2] for e in entities if e.startswith("/view/")})
+            if want <= entities and views >= VIEW_COUNT:
+                break
+    finally:
+        late.terminate()
+        late.wait(10)
+    return entities, views
+
+
 class DevTools:
     """A minimal Chrome DevTools Protocol client over one page's websocket."""
 
@@ -204,28 +232,8 @@ def test_the_web_viewer_loads_connects_and_serves_the_tests_stream(served):
     assert len(console_errors) <= offhost, (console_errors, offhost)
 
     # the server's side, read back by a late client: every entity of the layout and the blueprint's views
-    saved = tmp / "late.rrd"
-    exe = str(rerun_executable())
-    late = subprocess.Popen([exe, "--save", str(saved), f"rerun+http://127.0.0.1:{port + 1}/proxy", "--port", str(free_pair())],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    want = {f"/{e}" for e in (*streams.CYCLE_GROUPS, *streams.SIGNAL_GROUPS, "crack/dadn_vs_delta_k", "events")}
-    entities: set[str] = set()
-    views = 0
-    try:
-        t0 = time.monotonic()
-        while time.monotonic() - t0 < 30:
-            time.sleep(1)
-            if not saved.exists():
-                continue
-            out = subprocess.run([exe, "rrd", "print", str(saved)], capture_output=True, text=True, timeout=60).stdout
-            entities = {ln.split(" - ")[1] for ln in out.splitlines() if ln.startswith("Chunk(") and ln.count(" - ") >= 2}
-            views = len({e.split("/")[2] for e in entities if e.startswith("/view/")})
-            if want <= entities and views >= VIEW_COUNT:
-                break
-    finally:
-        late.terminate()
-        late.wait(10)
-    assert want <= entities, f"the server lacks {sorted(want - entities)}"
+    entities, views = served_entities(port + 1, tmp / "late.rrd")
+    assert WANT <= entities, f"the server lacks {sorted(WANT - entities)}"
     assert views == VIEW_COUNT, f"the blueprint served has {views} views, the recording's layout {VIEW_COUNT}"
 
     # stopping the server: Ctrl-C ends `htm run` cleanly, the test recorded as finished
@@ -256,3 +264,40 @@ def test_serve_web_needs_the_recording(tmp_path):
                         "--no-recording", "--serve-web", str(free_pair())], cwd=tmp_path,
                        env=dict(os.environ, HTM_STORE=str(tmp_path / "store")), capture_output=True, text=True, timeout=60)
     assert p.returncode == 2 and "--serve-web" in p.stderr and "Traceback" not in p.stderr, p.stderr
+
+
+def test_the_consoles_key_serves_the_tests_it_records_to_the_web_viewer(store, monkeypatch):
+    """ctrl+w in `htm-tui`: the tests recorded from then on stream to the web viewer (the live device
+    loop's recording, through `htm.record.web.serve_live`)."""
+    import asyncio
+
+    from htm.record import web
+    from htm.tui.app import HtmApp
+
+    port = free_pair()
+    monkeypatch.setenv("HTM_WEB_PORT", str(port))
+
+    async def go():
+        app = HtmApp(store=store)
+        async with app.run_test(size=(160, 60)) as pilot:
+            t0 = time.monotonic()
+            while app.session is None and time.monotonic() - t0 < 30:
+                await pilot.pause(0.1)
+            await pilot.press("ctrl+w")
+            await pilot.pause(0.5)
+            assert web.live_url() == f"rerun+http://127.0.0.1:{port + 1}/proxy"
+            assert any(f":{port}/" in str(n.message) for n in app._notifications), "the console names the page"
+            await pilot.press("f4", "s")
+            while app.session.snapshot()["cycles"] < 20 and time.monotonic() - t0 < 90:
+                await pilot.pause(0.2)
+            await pilot.press("x")
+            while not (app.session.recorder is not None and app.session.recorder.status is not None) and time.monotonic() - t0 < 120:
+                await pilot.pause(0.2)
+
+    try:
+        asyncio.run(go())
+        entities, _ = served_entities(port + 1, store.parent / "late.rrd", want={"/cycle/force_n", "/events"})
+        assert {"/cycle/force_n", "/events"} <= entities, f"the console's test is not on the web viewer: {sorted(entities)}"
+    finally:
+        web.stop_live()
+    assert web.live_url() is None

@@ -15,11 +15,16 @@ would show in the viewer as a second, empty recording. The child is ended with t
 
 `serving(cmd)` wraps `htm run` and `htm resume`: with `--serve-web [PORT]` the viewer starts before
 the test, the test streams to it, and after the test it keeps serving until Ctrl-C.
+
+`serve_live(port)` serves every test this process records from then on (the console's key, a
+`Session` script): a `Recording` opened without `connect` or `spawn` streams to the live viewer.
 """
 from __future__ import annotations
 
+import atexit
 import contextlib
 import functools
+import os
 import signal
 import socket
 import subprocess
@@ -90,11 +95,11 @@ class WebViewer:
 
     def __init__(self, port: int = DEFAULT_PORT, *, bind: str = "0.0.0.0", server_memory_limit: str = "1GiB"):
         if not 0 < port < 65535:
-            raise HtmError(f"--serve-web {port}: a port is 1 to 65534 (the stream takes the next one)")
+            raise HtmError(f"web viewer port {port}: a port is 1 to 65534 (the stream takes the next one)")
         self.port, self.grpc_port, self.bind = port, port + 1, bind
         for p in (self.port, self.grpc_port):
             if not _port_free(bind, p):
-                raise HtmError(f"--serve-web {port}: port {p} on {bind} is in use; give another port "
+                raise HtmError(f"web viewer: port {p} on {bind} is in use; give another port "
                                f"(the page takes PORT, the stream PORT+1); nothing was run")
         cmd = [str(rerun_executable()), "--serve-web", "--bind", bind, "--port", str(self.grpc_port),
                "--web-viewer-port", str(self.port), "--server-memory-limit", server_memory_limit,
@@ -107,7 +112,7 @@ class WebViewer:
         while not (_listening(self.port) and _listening(self.grpc_port)):
             if self.proc.poll() is not None or time.monotonic() - t0 > START_TIMEOUT_S:
                 err = self._stop()
-                raise HtmError(f"--serve-web {port}: rerun's web viewer did not start ({err or 'no message'})")
+                raise HtmError(f"web viewer on port {port}: rerun's web viewer did not start ({err or 'no message'})")
             time.sleep(0.05)
 
     @property
@@ -166,6 +171,38 @@ class WebViewer:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+_live: WebViewer | None = None
+
+
+def serve_live(port: int | None = None, **kw: Any) -> WebViewer:
+    """Serve every test recorded by this process from now on to rerun's web viewer (the same
+    viewer again if one is already serving); it stops when the process exits or `stop_live()`.
+    The page's port: `port`, else `$HTM_WEB_PORT`, else 9090 (the stream on the next one)."""
+    global _live
+    if _live is None or _live.proc.poll() is not None:
+        if port is None:
+            env = os.environ.get("HTM_WEB_PORT", "")
+            if env and not env.isdigit():
+                raise HtmError(f"HTM_WEB_PORT={env!r} is not a port number")
+            port = int(env) if env else DEFAULT_PORT
+        _live = WebViewer(port, **kw)
+        atexit.register(stop_live)
+    return _live
+
+
+def live_url() -> str | None:
+    """The stream address of the live viewer `serve_live` started, or None."""
+    return _live.grpc_url if _live is not None and _live.proc.poll() is None else None
+
+
+def stop_live() -> None:
+    """Stop the live viewer, if any."""
+    global _live
+    if _live is not None:
+        _live.close()
+        _live = None
 
 
 def serving(cmd: Callable[[Any], int]) -> Callable[[Any], int]:
