@@ -2,7 +2,7 @@
 each holding out every fourth specimen (1, 5, 9, ... then 2, 6, 10, ...): Paris fits of the other
 30, a Monte Carlo campaign of `--samples` simulated tests over their (log10 C, m), the 5–95 % band's
 coverage of the 10 held out, and each held-out specimen's prediction updated from its own points up
-to a quarter of the median life. Prints JSON (the README's numbers).
+to a quarter of the median life. Prints JSON (the numbers of docs/validation.md).
 
     python examples/virkler_band.py [--samples 400] [--out out/virkler-band]
 """

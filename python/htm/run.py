@@ -15,6 +15,7 @@ import numpy as np
 
 from htm import core
 from htm.errors import HtmError
+from htm.record import web
 from htm.spec import TestSpec, load, parse, stored_text
 
 
@@ -333,7 +334,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_store_args(p)
     p.add_argument("--no-store", action="store_true", help="do not record into the store (no journal, no resume, no recording)")
-    p.set_defaults(func=cmd_run)
+    p.set_defaults(func=web.serving(cmd_run))
 
     r = sub.add_parser("resume", help="continue a simulated test after a crash or a stop",
                        description="Continue a test from its journal: the engine state of the last block written "
@@ -342,7 +343,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--out", help="also write summary.json, cycles.parquet and the report here")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     add_store_args(r)
-    r.set_defaults(func=cmd_resume)
+    r.set_defaults(func=web.serving(cmd_resume))
 
 
 def writable(out_dir: Path) -> None:
@@ -363,3 +364,6 @@ def add_store_args(p: argparse.ArgumentParser) -> None:
     g = p.add_mutually_exclusive_group()
     g.add_argument("--spawn", action="store_true", help="also stream to a rerun viewer started now")
     g.add_argument("--connect", metavar="URL", help="also stream to a running rerun viewer (e.g. rerun+http://127.0.0.1:9876/proxy)")
+    g.add_argument("--serve-web", nargs="?", type=int, const=web.DEFAULT_PORT, metavar="PORT",
+                   help=f"also serve the live test to rerun's web viewer: the page on PORT (default {web.DEFAULT_PORT}), "
+                        "the stream on PORT+1, every interface; after the test it keeps serving until Ctrl-C")

@@ -72,7 +72,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "simulated tests, run them in chunks on all local cores or a Dask cluster, and write "
                                    "one table (inputs, life, end reason, force errors, validity) into the store. "
                                    "Running it again continues where it stopped.",
-                       epilog="see examples/campaign_ct.toml and README § Campaigns")
+                       epilog="see examples/campaign_ct.toml and docs/guide/campaigns.md")
     p.add_argument("campaign", help="campaign file (TOML)")
     p.add_argument("--cluster", metavar="tcp://HOST:PORT", default=cluster.default_address(),
                    help="run the chunks on this Dask scheduler's workers (default $HTM_CLUSTER; unset: this machine)")

@@ -164,6 +164,10 @@ class Recording:
         self.rec = rr.RecordingStream(APP_ID, recording_id=recording_id)
         self.spool = _Spool(path)
         sinks: list[Any] = [rr.FileSink(self.spool.sink_path)]
+        if not (spawn or connect):
+            from htm.record.web import live_url
+
+            connect = live_url()  # a live web viewer of this process (`htm.record.web.serve_live`)
         if spawn:
             self.rec.spawn(connect=False)
             sinks.append(rr.GrpcSink())

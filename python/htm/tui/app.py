@@ -88,6 +88,7 @@ class HtmApp(App[None]):
         Binding("f5", "tab('results')", "results", show=False),
         Binding("f6", "tab('diagnose')", "diagnose", show=False),
         Binding("ctrl+s", "simulate", "simulate"),
+        Binding("ctrl+w", "web", "web viewer", show=False),  # htm.record.web: tests from now on to a browser
         Binding("q", "quit", "quit"),
     ]
     CSS = """
@@ -234,6 +235,17 @@ class HtmApp(App[None]):
     def on_tabbed_content_tab_activated(self, ev: TabbedContent.TabActivated) -> None:
         if ev.pane.id == "results":  # tests may have ended since: show the store as it is now
             self.query_one(ResultsPane).action_refresh()
+
+    def action_web(self) -> None:
+        """Serve the tests recorded from now on to rerun's web viewer ($HTM_WEB_PORT or 9090, the stream on the next port)."""
+        from htm.record import web
+
+        try:
+            viewer = web.serve_live()
+        except HtmError as e:
+            self.notify(str(e), severity="error", timeout=10)
+            return
+        self.notify(f"tests recorded from now on: {viewer.page_urls()[-1]}", timeout=30)
 
     def action_simulate(self) -> None:
         self.query_one(SetupPane).action_simulate()
