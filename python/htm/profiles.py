@@ -13,11 +13,14 @@ reference, N for a force reference).
 from __future__ import annotations
 
 import csv
+import io
+import math
 from pathlib import Path
 
 import numpy as np
 
 from htm.errors import InputError
+from htm.inputs import read_text
 
 # the longest profile [samples]: every sample becomes a row of ~10 float columns in memory and
 # in the record (10⁷ samples ≈ 5.6 h at 500 Hz, ≈ 1 GB)
@@ -66,10 +69,7 @@ def _num(args: dict[str, str], key: str, text: str, positive: bool = False) -> f
 
 def _read_csv(path: str, column: str | None, text: str) -> np.ndarray:
     p = Path(path)
-    if not p.is_file():
-        raise InputError(f"profile segment `{text}`: no file {p}")
-    with p.open(newline="") as fh:
-        rows = list(csv.reader(fh))
+    rows = list(csv.reader(io.StringIO(read_text(p, "profile CSV", InputError), newline="")))
     if len(rows) < 2:
         raise InputError(f"profile segment `{text}`: {p} has no data rows")
     header = [h.strip() for h in rows[0]]
@@ -77,13 +77,18 @@ def _read_csv(path: str, column: str | None, text: str) -> np.ndarray:
     if col not in header:
         raise InputError(f"profile segment `{text}`: {p} has no column `{col}` (columns: {', '.join(header)})")
     i = header.index(col)
-    try:
-        values = np.array([float(r[i]) for r in rows[1:] if r], dtype=float)
-    except (ValueError, IndexError):
-        raise InputError(f"profile segment `{text}`: column `{col}` of {p} is not numeric") from None
-    if not np.all(np.isfinite(values)):
-        raise InputError(f"profile segment `{text}`: column `{col}` of {p} holds NaN or inf")
-    return values
+    values = []
+    for row, r in enumerate(rows[1:], start=2):
+        if not r:
+            continue
+        try:
+            values.append(float(r[i]))
+        except (ValueError, IndexError):
+            raise InputError(f"{p}: row {row}: `{col}` = {r[i] if i < len(r) else ''!r} is not a number "
+                             f"(profile segment `{text}`)") from None
+        if not math.isfinite(values[-1]):
+            raise InputError(f"{p}: row {row}: `{col}` = {r[i]} is not a finite number (profile segment `{text}`)")
+    return np.array(values, dtype=float)
 
 
 def build(spec: str | list[str], rate_hz: float) -> np.ndarray:

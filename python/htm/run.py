@@ -33,16 +33,19 @@ def run_spec(spec: TestSpec, mode: str | None = None, progress: bool = False) ->
     t0 = time.perf_counter()
     th = threading.Thread(target=work, daemon=True)
     th.start()
-    limit = spec.end["max_cycles"]
+    bar = test_progress(spec, 0) if progress else None
     while True:
         th.join(0.2)
         if not th.is_alive():
             break
-        if progress:  # the final line is drawn once, below
-            _bar(prog.cycles, limit, time.perf_counter() - t0)
+        if bar:
+            bar.update(prog.cycles, *_cycle_fraction(spec, prog.cycles))
     wall = time.perf_counter() - t0
-    if progress:
-        _bar(prog.cycles, limit, wall, done=True)
+    if bar:
+        out = box.get("out")
+        if out:
+            bar.update(int(out["cycles"]), *_crack_fraction(spec, int(out["cycles"]), float(out["a_end_m"])))
+        bar.close(out["end_reason"] if out else "failed")
     if "err" in box:
         raise box["err"]
     return box["out"], wall
@@ -81,7 +84,7 @@ RAW_POLICY = core.RAW_POLICY
 CHUNK_S = 0.25
 
 
-def drive(sess: Any, writer: Any, limit: int, progress: bool) -> tuple[dict[str, Any], float]:
+def drive(sess: Any, writer: Any, spec: TestSpec | None, progress: bool) -> tuple[dict[str, Any], float]:
     """Advance `sess` (a `core.TestRun`) chunk by chunk into `writer` (a `TestWriter`) to the
     end; returns (the run's summary, wall seconds). A recording error stops the test safely
     (the journal keeps what was written, `htm resume` continues)."""
@@ -90,6 +93,7 @@ def drive(sess: Any, writer: Any, limit: int, progress: bool) -> tuple[dict[str,
     cols = core.RAW_COLUMNS
     t0 = time.perf_counter()
     engine_s = 0.0
+    bar = test_progress(spec, sess.cycle) if progress and spec is not None else None
     try:
         while not sess.finished:
             te = time.perf_counter()
@@ -98,19 +102,24 @@ def drive(sess: Any, writer: Any, limit: int, progress: bool) -> tuple[dict[str,
             raw = d["raw"]
             rawd = {k: raw[:, i] for i, k in enumerate(cols)} if len(raw) else None
             writer.cycles(d["table"], rawd, None if d["end_reason"] else bytes(sess.snapshot()))
-            if progress:
-                _bar(sess.cycle, limit, time.perf_counter() - t0)
+            if bar:
+                bar.update(sess.cycle, *_crack_fraction(spec, sess.cycle, sess.a_m))
     except RecordError as e:
+        if bar:
+            bar.close("recording failed")
         writer.interrupt("recording_failed", str(e))
         raise RecordError(f"{e} — test stopped safely at cycle {writer.last_cycle:,}; what was recorded is kept "
                           f"(`htm resume {writer.id}` continues once the cause is fixed)") from None
     except KeyboardInterrupt:
+        if bar:
+            bar.close("interrupted")
         writer.interrupt("interrupted", "by the operator")
         raise HtmError(f"interrupted at cycle {writer.last_cycle:,}; `htm resume {writer.id}` continues") from None
     wall = time.perf_counter() - t0
-    if progress:
-        _bar(sess.cycle, limit, wall, done=True)
-    return dict(sess.outcome(), engine_wall_s=engine_s), wall
+    outcome = sess.outcome()
+    if bar:
+        bar.close(outcome["end_reason"] if outcome else None)
+    return dict(outcome, engine_wall_s=engine_s), wall
 
 
 def run_recorded(spec: TestSpec, spec_text: str, mode: str, store: Any, progress: bool = False, *,
@@ -133,7 +142,7 @@ def run_recorded(spec: TestSpec, spec_text: str, mode: str, store: Any, progress
 
 def _finish(writer: Any, sess: Any, spec: TestSpec, mode: str, progress: bool) -> tuple[str, dict[str, Any], float]:
     try:
-        out, wall = drive(sess, writer, spec.end["max_cycles"], progress)
+        out, wall = drive(sess, writer, spec, progress)
     except HtmError as e:
         if not writer.journal.closed:  # an engine error: the test failed, its rows stay
             writer.close("failed", "engine_error", {"error": str(e)})
@@ -189,14 +198,25 @@ def resume_recorded(store: Any, test_id: str, progress: bool = False, *, recordi
     return tid, spec, mode, out, wall
 
 
-def _bar(cycles: int, limit: int, wall: float, done: bool = False) -> None:
-    rate = cycles / wall if wall > 0 else 0.0
-    frac = min(cycles / limit, 1.0) if limit < 100_000_000 else None
-    bar = "#" * int(30 * frac) + "-" * (30 - int(30 * frac)) if frac is not None else "~" * (int(wall * 4) % 30 + 1)
-    sys.stderr.write(f"\r[{bar:<30}] {cycles:>10,} cycles  {rate:>10,.0f} cycles/s  {wall:6.1f} s")
-    if done:
-        sys.stderr.write("\n")
-    sys.stderr.flush()
+def test_progress(spec: TestSpec, start_cycle: int) -> Any:
+    """The progress line of a test: toward its end crack size (a/W) or its cycle limit."""
+    from htm.terminal import Progress
+
+    return Progress(None, "cycles", spec.name, start=start_cycle)
+
+
+def _crack_fraction(spec: TestSpec, cycles: int, a_m: float) -> tuple[float, str]:
+    """(fraction of the way to the end condition, what to show): the crack's way from a0 to the
+    end size or the cycles' way to max_cycles, whichever is further."""
+    a_end = spec.phases[-1].end_a_m
+    fa = (a_m - spec.a0_m) / (a_end - spec.a0_m) if a_end > spec.a0_m else 0.0
+    f = max(fa, cycles / spec.end["max_cycles"])
+    return f, f"a {a_m * 1e3:.2f} mm, a/W {a_m / spec.width_m:.3f} of {a_end / spec.width_m:.3f}"
+
+
+def _cycle_fraction(spec: TestSpec, cycles: int) -> tuple[float, str]:
+    """Without the crack size (a run outside the store reports only cycles): the cycle limit's share."""
+    return cycles / spec.end["max_cycles"], f"of at most {spec.end['max_cycles']:,}"
 
 
 def summary(spec: TestSpec, out: dict[str, Any], wall: float, mode: str) -> dict[str, Any]:
