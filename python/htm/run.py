@@ -16,6 +16,7 @@ import numpy as np
 from htm import core
 from htm.errors import HtmError
 from htm.spec import TestSpec, load, parse, stored_text
+from htm.terminal import add_json_flag, emit_json, path
 
 
 def run_spec(spec: TestSpec, mode: str | None = None, progress: bool = False) -> tuple[dict[str, Any], float]:
@@ -283,6 +284,12 @@ def cmd_check(args: argparse.Namespace) -> int:
     """`htm run --check SPEC`: every feasibility check; exit 1 when the rig cannot run it."""
     spec = load(args.spec, check=False)
     feas = spec.feasibility()
+    if args.json:
+        from dataclasses import asdict
+
+        emit_json({"spec": spec.name, "feasible": feas.feasible, "verdict": feas.verdict(),
+                   "override_limits": spec.override_limits, "checks": [asdict(c) for c in feas.checks]})
+        return 0 if feas.feasible else 1
     print(f"{spec.name}: can the rig run this test?")
     print(feas.table())
     if not feas.feasible and spec.override_limits:
@@ -314,15 +321,20 @@ def cmd_run(args: argparse.Namespace) -> int:
         with Store(args.store) as store:
             test_id, out, wall = run_recorded(spec, stored_text(args.spec, spec), mode, store, progress=not args.quiet,
                                               recording=not args.no_recording, spawn=args.spawn, connect=args.connect)
-            print(f"store: test {test_id} in {store.root}" + ("" if args.no_recording else f" (recording {store.test_dir(test_id) / 'recording.rrd'})"))
+            if not args.json:
+                print(f"store: test {test_id} in {path(store.root)}"
+                      + ("" if args.no_recording else f" (recording {path(store.test_dir(test_id) / 'recording.rrd')})"))
             s = write_outputs(out_dir, spec, out, wall, mode)
             # the outputs a person reads, referenced from the catalogue (Results, `htm db show`)
             store.add_file(test_id, "summary", out_dir / "summary.json")
             if s["report"] and not s["report"].startswith("not"):
                 store.add_file(test_id, "report", Path(s["report"]))
+    if args.json:
+        emit_json(dict(s, test_id=None if args.no_store else test_id, out=str(out_dir)))
+        return 0
     print(summary_text(spec, s))
     report = f", {Path(s['report']).name}" if s["report"] and not s["report"].startswith("not") else ""
-    print(f"outputs: {out_dir}/summary.json, cycles.parquet, summary.txt{report}")
+    print(f"outputs: {path(out_dir)}/summary.json, cycles.parquet, summary.txt{report}")
     return 0
 
 
@@ -333,9 +345,13 @@ def cmd_resume(args: argparse.Namespace) -> int:
         test_id, spec, mode, out, wall = resume_recorded(store, args.id, progress=not args.quiet, recording=not args.no_recording,
                                                          spawn=args.spawn, connect=args.connect)
         t = store.get(test_id)
+    s = write_outputs(Path(args.out), spec, out, wall, mode) if args.out and "cycles" in out else None
+    if args.json:
+        emit_json({"test_id": test_id, "status": t["status"], "end_reason": t["end_reason"], "cycles": t["cycles"],
+                   "summary": s})
+        return 0
     print(f"test {test_id}: {t['status']}, {t['end_reason']} after {t['cycles']:,} cycles")
-    if args.out and "cycles" in out:
-        s = write_outputs(Path(args.out), spec, out, wall, mode)
+    if s is not None:
         print(summary_text(spec, s))
     return 0
 
@@ -350,7 +366,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="only check whether the rig can run the test (force, valve flow, frequency, stroke, E647 size "
                         "criterion) and print the largest feasible ΔF and frequency; exit 1 if it cannot")
     p.add_argument("--mode", choices=["full", "jump"], help="full fidelity or cycle-jump (default: the spec's [run] mode)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--quiet", action="store_true", help="no progress line")
+    add_json_flag(p)
     add_store_args(p)
     p.add_argument("--no-store", action="store_true", help="do not record into the store (no journal, no resume, no recording)")
     p.set_defaults(func=cmd_run)
@@ -360,7 +377,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "(cycle count, crack length, controller, waveform), into the same store and recording.")
     r.add_argument("id")
     r.add_argument("--out", help="also write summary.json, cycles.parquet and the report here")
-    r.add_argument("--quiet", action="store_true", help="no progress bar")
+    r.add_argument("--quiet", action="store_true", help="no progress line")
+    add_json_flag(r)
     add_store_args(r)
     r.set_defaults(func=cmd_resume)
 

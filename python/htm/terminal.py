@@ -19,6 +19,8 @@ from typing import IO, Any
 SUFFIX_UNITS: dict[str, tuple[float, str]] = {
     "_pa_sqrt_m": (1e-6, "MPa·√m"),
     "_m_s_per_v": (1e3, "mm/s per V"),
+    "_n_per_s_v": (1e-3, "kN/s per V"),
+    "_n_s_m": (1.0, "N·s/m"),
     "_m_s": (1e3, "mm/s"),
     "_m": (1e3, "mm"),
     "_n": (1e-3, "kN"),
@@ -60,6 +62,8 @@ def si(key: str, value: Any, digits: int = 4) -> str:
     if isinstance(value, (int, float)):
         for suffix, (factor, unit) in sorted(SUFFIX_UNITS.items(), key=lambda kv: -len(kv[0])):
             if key.endswith(suffix):
+                if "_per_" in key and "per" not in suffix:
+                    break  # a compound unit this table does not know: the plain number, no wrong unit
                 return eng(value * factor, unit, digits)
         return eng(value, "", digits)
     if isinstance(value, dict):
@@ -98,6 +102,15 @@ def grid(headers: Sequence[str], rows: Sequence[Sequence[str]], right: Sequence[
     return "\n".join(out)
 
 
+def size(n_bytes: float | None) -> str:
+    """A file size: ``812 B``, ``3.4 kB``, ``10.1 MB``."""
+    n = float(n_bytes or 0)
+    for unit, f in (("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if n >= f:
+            return f"{n / f:.1f} {unit}"
+    return f"{n:.0f} B"
+
+
 def path(p: str | Path) -> str:
     """A path as a person wants it: relative to the working folder when inside it, no `..`."""
     q = Path(os.path.abspath(p))
@@ -129,7 +142,7 @@ def dumps(obj: Any) -> str:
             return [clean(v) for v in o]
         return o
 
-    return json.dumps(clean(json.loads(json.dumps(obj, default=_plain))), indent=2, allow_nan=False)
+    return json.dumps(clean(json.loads(json.dumps(obj, default=_plain))), indent=2, allow_nan=False, ensure_ascii=False)
 
 
 def emit_json(obj: Any) -> None:

@@ -288,13 +288,13 @@ def validate_record(rec: Record, *, max_nan_run_s: float = 0.5, max_nan_fraction
     cols = rec.columns
     for c in REQUIRED:
         if c not in cols:
-            raise RecordError(f"record `{name}`: required column `{c}` is missing (DATA_FORMAT.md)")
+            raise RecordError(f"record `{name}`: required column `{c}` is missing{missing(c, cols)} (DATA_FORMAT.md)")
     if machine_position(rec):
         if "y_ref" not in cols:
             raise RecordError(f"record `{name}` declares a machine that closes its own loop (controller type "
                               f"`{MACHINE_POSITION}`) but has no position reference column `y_ref` (DATA_FORMAT.md)")
     elif "u" not in cols:
-        raise RecordError(f"record `{name}`: required column `u` (the valve command) is missing; a record of a machine "
+        raise RecordError(f"record `{name}`: required column `u` (the valve command) is missing{missing('u', cols)}; a record of a machine "
                           f"that closes its own loop has no `u` but must declare \"controller\": {{\"type\": \"{MACHINE_POSITION}\"}} "
                           "and hold `y_ref` (DATA_FORMAT.md)")
     t = np.asarray(cols["t"], dtype=float)

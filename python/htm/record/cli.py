@@ -7,7 +7,7 @@ from typing import Any
 
 from htm.errors import RecordError
 from htm.record.store import Store
-from htm.terminal import add_json_flag, emit_json, eng, grid, label, path, si, table
+from htm.terminal import add_json_flag, emit_json, eng, grid, label, path, si, size, table
 
 
 def cmd_list(args: argparse.Namespace) -> int:
@@ -62,7 +62,7 @@ def cmd_show(args: argparse.Namespace) -> int:
         print(f"  … {len(t['events']) - args.events} more (--events N)")
     if t["files"]:
         print("files:")
-        print(grid(["role", "path", "size"], [[role, path(f["path"]), f"{(f['bytes'] or 0) / 1e6:.2f} MB"]
+        print(grid(["role", "path", "size"], [[role, path(f["path"]), size(f["bytes"])]
                                              for role, f in sorted(t["files"].items())], right=[False, False, True], indent="  "))
     if t["status"] != "finished":
         print(resume_hint(t))
