@@ -264,7 +264,16 @@ def load_config(path: str | Path) -> RigConfig:
         doc = tomllib.loads(read_text(p, "rig configuration", DeviceError))
     except tomllib.TOMLDecodeError as e:
         raise _err(f"{p}: not valid TOML: {e}") from None
-    return parse_config(doc, p.parent)
+    def sets(d: Any) -> bool:
+        return not isinstance(d, dict) or any(sets(v) for v in d.values())
+
+    if not sets(doc):
+        raise _err(f"{p} sets nothing (empty, or sections without keys): give at least [bus] and [transducer] "
+                   "(see examples/rig_virtual.toml)")
+    try:
+        return parse_config(doc, p.parent)
+    except DeviceError as e:  # the file named in the one line
+        raise DeviceError(str(e).replace("rig config: ", f"rig config {p}: ", 1)) from None
 
 
 def virtual_config(mode: str = "lockstep", rate_hz: float = 500.0, **sections: dict[str, Any]) -> RigConfig:
