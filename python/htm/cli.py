@@ -191,8 +191,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
     except (HtmError, OSError) as e:
-        print(f"htm {args.command}: error: {one_line(e)}", file=sys.stderr)
+        print(f"htm {command_name(args)}: error: {one_line(e)}", file=sys.stderr)
         return 2
+
+
+def command_name(args: argparse.Namespace) -> str:
+    """The command as typed: `crack predict`, `db show`, `run`."""
+    return " ".join(str(v) for k in ("command", "crack_command", "db_command", "fleet_command", "rig_command")
+                    if (v := getattr(args, k, None)))
 
 
 def one_line(e: BaseException) -> str:

@@ -10,7 +10,7 @@ from typing import Any
 
 from htm.campaign import cluster
 from htm.errors import HtmError, RecordError
-from htm.terminal import add_json_flag, emit_json
+from htm.terminal import add_json_flag, emit_json, si
 
 
 def diagnose_one(table: str, work_s: float) -> dict[str, Any]:
@@ -146,8 +146,8 @@ def cmd_fleet_trend(args: argparse.Namespace) -> int:
         if v["drift"] is None:
             state = f"{n} date(s): too little history to judge"
         else:
-            state = f"{v['z']:+.1f} σ from {v['mean']:.4g} (scatter {v['scatter']:.3g})" + ("  DRIFT" if v["drift"] else "")
-        print(f"{p:<{w}}  {v['latest']:.6g} on {v['date']}  {state}")
+            state = f"{v['z']:+.1f} σ from {si(p, v['mean'])} (scatter {si(p, v['scatter'], 2)})" + ("  DRIFT" if v["drift"] else "")
+        print(f"{p:<{w}}  {si(p, v['latest']):>14} on {v['date']}  {state}")
         if v["drift"]:
             flagged.append(p)
     if args.out:
