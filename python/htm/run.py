@@ -215,9 +215,13 @@ def _crack_fraction(spec: TestSpec, cycles: int, a_m: float) -> tuple[float, str
     return f, f"a {a_m * 1e3:.2f} mm, a/W {a_m / spec.width_m:.3f} of {a_end / spec.width_m:.3f}"
 
 
-def _cycle_fraction(spec: TestSpec, cycles: int) -> tuple[float, str]:
-    """Without the crack size (a run outside the store reports only cycles): the cycle limit's share."""
-    return cycles / spec.end["max_cycles"], f"of at most {spec.end['max_cycles']:,}"
+def _cycle_fraction(spec: TestSpec, cycles: int) -> tuple[float | None, str]:
+    """Without the crack size (a run outside the store reports only cycles): the cycle limit's
+    share, when the spec sets one (the default limit says nothing about when the test ends)."""
+    limit = spec.end["max_cycles"]
+    if limit >= core.TEST_DEFAULTS["max_cycles"]:
+        return None, f"until a/W {spec.phases[-1].end_a_m / spec.width_m:.3f}"
+    return cycles / limit, f"of at most {limit:,}"
 
 
 def summary(spec: TestSpec, out: dict[str, Any], wall: float, mode: str) -> dict[str, Any]:

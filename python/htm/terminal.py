@@ -219,7 +219,7 @@ class Progress:
             self.history.append((now, self.fraction))
             # the recent pace (the last fifth of the run, at least 3 s): a crack speeds up as it grows
             keep = max(3.0, 0.2 * (now - self.t0))
-            while len(self.history) > 2 and now - self.history[1][0] > keep:
+            while len(self.history) > 2 and now - self.history[0][0] > keep:
                 self.history.pop(0)
         if now - self.last >= self.interval_s:
             self.last = now
