@@ -19,7 +19,7 @@ def read_text(path: str | Path, what: str, error: type[HtmError] = HtmError) -> 
     try:
         data = p.read_bytes()
     except FileNotFoundError:
-        raise error(f"{p}: no such {what} file") from None
+        raise error(f"{p}: no such file (the {what})") from None
     except IsADirectoryError:
         raise error(f"{p}: is a folder, not a {what} file") from None
     except OSError as e:

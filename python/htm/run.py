@@ -45,8 +45,10 @@ def run_spec(spec: TestSpec, mode: str | None = None, progress: bool = False) ->
     if bar:
         out = box.get("out")
         if out:
-            bar.update(int(out["cycles"]), *_crack_fraction(spec, int(out["cycles"]), float(out["a_end_m"])))
-        bar.close(out["end_reason"] if out else "failed")
+            f, _ = _crack_fraction(spec, int(out["cycles"]), float(out["a_end_m"]))
+            bar.close(out["end_reason"], f, int(out["cycles"]))
+        else:
+            bar.close("failed")
     if "err" in box:
         raise box["err"]
     return box["out"], wall
@@ -119,7 +121,7 @@ def drive(sess: Any, writer: Any, spec: TestSpec | None, progress: bool) -> tupl
     wall = time.perf_counter() - t0
     outcome = sess.outcome()
     if bar:
-        bar.close(outcome["end_reason"] if outcome else None)
+        bar.close(outcome["end_reason"] if outcome else None, _crack_fraction(spec, sess.cycle, sess.a_m)[0], sess.cycle)
     return dict(outcome, engine_wall_s=engine_s), wall
 
 

@@ -225,11 +225,15 @@ class Progress:
             self.last = now
             self._write(self.line(now))
 
-    def close(self, detail: str | None = None, fraction: float | None = None) -> None:
-        """Draw the final state (with `detail`, e.g. the end reason) and end the line."""
+    def close(self, detail: str | None = None, fraction: float | None = None, done: float | None = None) -> None:
+        """Draw the final state once (`done` units, `fraction`, `detail` e.g. the end reason)
+        and end the line."""
         if self.closed:
             return
         self.closed = True
+        if done is not None:
+            self.done = float(done)
+            self.fraction = self.fraction_of(done, fraction)
         if fraction is not None:
             self.fraction = min(max(fraction, 0.0), 1.0)
         if detail is not None:
