@@ -474,8 +474,10 @@ def load(path: str | Path, *, check: bool = True) -> TestSpec:
                         "see examples/ct_constant_force.toml)")
     try:
         return parse(doc, p.stem, p.parent, check=check)
-    except SpecError as e:  # the same class (InfeasibleTest stays one), the file named in front
-        raise type(e)(f"{p}: {e}") from None
+    except InfeasibleTest:  # a verdict on the test, not on the file: its message says the limit
+        raise
+    except SpecError as e:  # a bad field: the file named in front
+        raise SpecError(f"{p}: {e}") from None
 
 
 def _toml_value(v: Any) -> str:
