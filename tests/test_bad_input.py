@@ -195,6 +195,8 @@ def commands(tmp: Path) -> list[tuple[str, str, str | dict, str | bytes, str, Ca
         ("campaign", "toml", campaign, spec, "c.toml", lambda d: ["campaign", str(d / "c.toml"), "--store", store, "--out", str(d / "o"), "--quiet"]),
         ("life-band", "csv", an, rec_csv, "an.csv", lambda d: ["life-band", str(EXAMPLES / "ct_constant_force.toml"), "--data", str(d / "an.csv"),
                                                                  "--store", store, "--out", str(d / "o"), "--quiet", "--samples", "8"]),
+        ("life-band spec", "toml", spec, campaign, "t.toml", lambda d: ["life-band", str(d / "t.toml"), "--data", str(d / "an.csv"),
+                                                                          "--store", store, "--out", str(d / "o"), "--quiet", "--samples", "8"]),
         ("e647", "csv", an, rec_csv, "an.csv", lambda d: ["e647", str(d / "an.csv"), *AN_ARGS, "--out", str(d / "o")]),
         ("crack fit", "csv", an, rec_csv, "an.csv", lambda d: ["crack", "fit", str(d / "an.csv"), *AN_ARGS, "--out", str(d / "o")]),
         ("crack predict", "json", crack_model(), json.dumps(rig_model()), "m.json",
@@ -220,6 +222,7 @@ def build_corpus(tmp: Path) -> list[Case]:
             # the files beside it stay valid: the record's other half, a model for `predict`
             table, meta = record_files(d, "r")
             write(d, "m.json", json.dumps(rig_model()))
+            write(d, "an.csv", a_n_text())
             write(d, "c.toml", (EXAMPLES / "campaign_ct.toml").read_text())
             shutil.copy(EXAMPLES / "ct_constant_force.toml", d / "ct_constant_force.toml")
             content, field = variant_content(fmt, valid, kind, other)
@@ -264,7 +267,7 @@ def test_the_valid_inputs_are_accepted(tmp_path, capsys):
 
 def test_every_command_refuses_every_bad_file_in_one_line(tmp_path, capsys):
     cases = build_corpus(tmp_path)
-    assert len(cases) == 16 * len(VARIANTS)
+    assert len(cases) == 17 * len(VARIANTS)
     failures = []
     for case in cases:
         argv = case.argv(case.bad.parent)
