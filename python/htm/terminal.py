@@ -173,7 +173,9 @@ class Progress:
 
     On a terminal it is one line redrawn in place, never wider than the terminal (so it never
     wraps) and drawn complete when the job ends. When the stream is not a terminal (a pipe, a
-    log, CI) it writes a plain line every `interval_s` seconds and one at the end, nothing else.
+    log, CI) it writes a plain line every `interval_s` seconds (default 10 s, or
+    ``$HTM_PROGRESS_S``) and one at the end, nothing else: no carriage returns, no escape codes.
+    The time left comes from the recent pace (the last fifth of the run), as a crack speeds up.
 
     Parameters
     ----------
@@ -202,9 +204,8 @@ class Progress:
         self.last = -math.inf
         self.closed = False
         self.history: list[tuple[float, float]] = []  # (time, fraction) of recent updates, for the time left
-        self.fraction_of(start, None)
 
-    def fraction_of(self, done: float, fraction: float | None) -> float | None:
+    def _fraction(self, done: float, fraction: float | None) -> float | None:
         if fraction is None and self.total:
             fraction = done / self.total
         return None if fraction is None else min(max(fraction, 0.0), 1.0)
@@ -213,7 +214,7 @@ class Progress:
         """`done` units so far (cumulative); `fraction` of the end condition when it is not
         done/total (e.g. a crack's progress toward its end size); `detail` what else to show."""
         self.done, self.detail = float(done), detail
-        self.fraction = self.fraction_of(done, fraction)
+        self.fraction = self._fraction(done, fraction)
         now = time.perf_counter()
         if self.fraction is not None:
             self.history.append((now, self.fraction))
@@ -233,7 +234,7 @@ class Progress:
         self.closed = True
         if done is not None:
             self.done = float(done)
-            self.fraction = self.fraction_of(done, fraction)
+            self.fraction = self._fraction(done, fraction)
         if fraction is not None:
             self.fraction = min(max(fraction, 0.0), 1.0)
         if detail is not None:
