@@ -127,7 +127,11 @@ def cmd_params(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="htm", description="Simulate, run, identify and review servo-hydraulic fatigue testing machines.")
+    ap = argparse.ArgumentParser(prog="htm", description="Simulate, run, identify and review servo-hydraulic fatigue testing machines.",
+                                 epilog="Results print in engineering units (mm, kN, MPa·√m, bar); every command that prints "
+                                        "results takes --json for scripts (SI values under their SI names). Long jobs draw "
+                                        "one progress line on stderr (plain lines when it is not a terminal). Bad input: "
+                                        "one line on stderr naming the file, row and field, exit 2.")
     sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     s = sub.add_parser("simulate", help="play a command profile on the simulated rig and write a record",
