@@ -28,17 +28,21 @@ def read_text(path: str | Path, what: str, error: type[HtmError] = HtmError) -> 
 
 
 def decode(data: bytes, p: str | Path, what: str, error: type[HtmError] = HtmError) -> str:
-    """`data` (the bytes of file `p`) as UTF-8 text, or `error` saying where it is not text."""
+    """`data` (the bytes of file `p`) as UTF-8 text, or `error` saying where it is not text (or
+    that there is none)."""
     nul = data.find(b"\0")
     if nul >= 0:
-        raise error(f"{p}: not a {what} file: binary data (a NUL byte at offset {nul:,})")
+        raise error(f"{p}: binary data, not text (a NUL byte at offset {nul:,}); expected the {what}")
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as e:
         line = data[: e.start].count(b"\n") + 1
         raise error(f"{p}: line {line}: not UTF-8 text (byte 0x{data[e.start]:02x} at offset {e.start:,}); "
-                    f"a {what} file must be UTF-8 text") from None
-    return text.removeprefix("\ufeff")
+                    f"expected the {what} in UTF-8") from None
+    text = text.removeprefix("\ufeff")
+    if not text.strip():
+        raise error(f"{p}: the file is empty; expected the {what}")
+    return text
 
 
 def close_match(name: str, present: Iterable[str]) -> str | None:
