@@ -91,3 +91,14 @@ def test_db_list_is_a_table_with_units(stored, capsys):
     assert all(re.search(r"\s30\.4\d\d\s", r) for r in rows), rows
     assert cli.main(["db", "list", "--store", str(store), "--json"]) == 0
     assert all(r["status"] == "finished" for r in json.loads(capsys.readouterr().out))
+
+
+def test_an_mt_tests_a_over_w_is_the_specs_2a_over_w(tmp_path, capsys):
+    """M(T): a is the half crack and the spec's a/W is 2a/W; the summary and the progress line say
+    the same a/W the spec ends at (it said half of it)."""
+    mt = SPEC.with_name("virkler_mt.toml")
+    assert cli.main(["run", str(mt), "--out", str(tmp_path / "mt"), "--no-store", "--json"]) == 0
+    cap = capsys.readouterr()
+    s = json.loads(cap.out)
+    assert s["final_a_over_w"] == pytest.approx(0.6535, abs=1e-3)
+    assert "until a/W 0.654" in cap.err or "of 0.654" in cap.err

@@ -16,7 +16,7 @@ import numpy as np
 from htm import core
 from htm.errors import HtmError
 from htm.spec import TestSpec, load, parse, stored_text
-from htm.terminal import add_json_flag, emit_json, path
+from htm.terminal import Progress, add_json_flag, emit_json, path
 
 
 def run_spec(spec: TestSpec, mode: str | None = None, progress: bool = False) -> tuple[dict[str, Any], float]:
@@ -34,7 +34,7 @@ def run_spec(spec: TestSpec, mode: str | None = None, progress: bool = False) ->
     t0 = time.perf_counter()
     th = threading.Thread(target=work, daemon=True)
     th.start()
-    bar = test_progress(spec, 0) if progress else None
+    bar = progress_line(spec, 0) if progress else None
     while True:
         th.join(0.2)
         if not th.is_alive():
@@ -96,7 +96,7 @@ def drive(sess: Any, writer: Any, spec: TestSpec | None, progress: bool) -> tupl
     cols = core.RAW_COLUMNS
     t0 = time.perf_counter()
     engine_s = 0.0
-    bar = test_progress(spec, sess.cycle) if progress and spec is not None else None
+    bar = progress_line(spec, sess.cycle) if progress and spec is not None else None
     try:
         while not sess.finished:
             te = time.perf_counter()
@@ -201,11 +201,14 @@ def resume_recorded(store: Any, test_id: str, progress: bool = False, *, recordi
     return tid, spec, mode, out, wall
 
 
-def test_progress(spec: TestSpec, start_cycle: int) -> Any:
+def progress_line(spec: TestSpec, start_cycle: int) -> Progress:
     """The progress line of a test: toward its end crack size (a/W) or its cycle limit."""
-    from htm.terminal import Progress
-
     return Progress(None, "cycles", spec.name, start=start_cycle)
+
+
+def _a_over_w(spec: TestSpec, a_m: float) -> float:
+    """a/W as the spec states it (M(T): a is the half crack, a/W of the half width)."""
+    return a_m * (1.0 if spec.geometry == "ct" else 2.0) / spec.width_m
 
 
 def _crack_fraction(spec: TestSpec, cycles: int, a_m: float) -> tuple[float, str]:
@@ -214,7 +217,7 @@ def _crack_fraction(spec: TestSpec, cycles: int, a_m: float) -> tuple[float, str
     a_end = spec.phases[-1].end_a_m
     fa = (a_m - spec.a0_m) / (a_end - spec.a0_m) if a_end > spec.a0_m else 0.0
     f = max(fa, cycles / spec.end["max_cycles"])
-    return f, f"a {a_m * 1e3:.2f} mm, a/W {a_m / spec.width_m:.3f} of {a_end / spec.width_m:.3f}"
+    return f, f"a {a_m * 1e3:.2f} mm, a/W {_a_over_w(spec, a_m):.3f} of {_a_over_w(spec, a_end):.3f}"
 
 
 def _cycle_fraction(spec: TestSpec, cycles: int) -> tuple[float | None, str]:
@@ -222,7 +225,7 @@ def _cycle_fraction(spec: TestSpec, cycles: int) -> tuple[float | None, str]:
     share, when the spec sets one (the default limit says nothing about when the test ends)."""
     limit = spec.end["max_cycles"]
     if limit >= core.TEST_DEFAULTS["max_cycles"]:
-        return None, f"until a/W {spec.phases[-1].end_a_m / spec.width_m:.3f}"
+        return None, f"until a/W {_a_over_w(spec, spec.phases[-1].end_a_m):.3f}"
     return cycles / limit, f"of at most {limit:,}"
 
 
@@ -231,7 +234,7 @@ def summary(spec: TestSpec, out: dict[str, Any], wall: float, mode: str) -> dict
 
     return {
         "spec": spec.name, "mode": mode, "cycles": int(out["cycles"]), "end_reason": out["end_reason"],
-        "final_a_m": float(out["a_end_m"]), "final_a_over_w": float(out["a_end_m"]) / spec.width_m,
+        "final_a_m": float(out["a_end_m"]), "final_a_over_w": _a_over_w(spec, float(out["a_end_m"])),
         "max_abs_df_err_pct": float(out["max_abs_df_err_pct"]), "max_abs_peak_err_pct": float(out["max_abs_peak_err_pct"]),
         "wall_time_s": wall, "cycles_simulated": int(out["cycles_simulated"]),
         "size_criterion_cycle": out["size_criterion_cycle"], "velocity_gain_m_s_per_v": out["velocity_gain_m_s_per_v"],
