@@ -304,4 +304,4 @@ def load(path: str | Path) -> Campaign:
     try:
         return parse(text, p)
     except SpecError as e:  # the file named in front, once
-        raise type(e)(str(e) if str(e).startswith(str(p)) else f"{p}: {e}") from None
+        raise type(e)(str(e) if str(p) in str(e) else f"{p}: {e}") from None
