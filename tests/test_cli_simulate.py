@@ -65,7 +65,7 @@ def test_force_control_record(tmp_path):
         (["--profile", "hold:value=1,duration=1", "--param", "stroke_m=-0.2"], "stroke_m"),
         (["--profile", "hold:value=1,duration=1", "--param", "warp_drive=1"], "unknown parameter"),
         (["--profile", "hold:value=1,duration=1", "--controller", "position_pff"], "--kp"),
-        (["--profile", "csv:path=/nonexistent.csv"], "no file"),
+        (["--profile", "csv:path=/nonexistent.csv"], "/nonexistent.csv: no such"),
         (["--profile", "hold:value=1,duration=1", "--rate", "0"], "rate"),
     ],
 )

@@ -52,10 +52,15 @@ def test_crack_fit_then_predict(tmp_path, an_csv, capsys):
     # the two specimens differ by ±0.03 in log10 C: that scatter is what remains
     assert model["fit"]["rms_log10_rate"] < 0.04 and model["fit"]["life_rms_rel"] < 0.1
     capsys.readouterr()
-    assert main(["crack", "predict", str(tmp_path / "f" / "model.json"), *G, "--a0-m", "0.009", "--af-m", "0.04"]) == 0
+    predict = ["crack", "predict", str(tmp_path / "f" / "model.json"), *G, "--a0-m", "0.009", "--af-m", "0.04"]
+    assert main([*predict, "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     want = true.life(MT, 0.009, 0.04)["cycles"]
     assert out["cycles"] == pytest.approx(want, rel=0.05)
+    # a person reads the same life, labelled, in engineering units
+    assert main(predict) == 0
+    text = capsys.readouterr().out
+    assert f"life   {out['cycles']:,.0f} cycles" in text and "9.000 → 40.000 mm" in text
 
 
 def test_crack_fit_other_laws_and_auto(tmp_path, an_csv):

@@ -64,3 +64,27 @@ def test_run_test_takes_a_spec_path_and_returns_the_table():
     assert out["end_reason"] and out["cycles"] > 0
     assert out["a_end_m"] > htm.load_spec(SPEC).a0_m
     assert len(out["table"]["a_m"]) > 0
+
+
+def test_dir_shows_the_public_names_only():
+    """`dir(htm)` is what a script may use: `__all__`, not the helpers the package imports."""
+    assert dir(htm) == sorted(htm.__all__)
+    for private in ("Any", "import_module", "TYPE_CHECKING", "annotations", "core", "errors", "params"):
+        assert private not in dir(htm), private
+
+
+# the methods a console or a script calls on the two handles, each documented with its units
+METHODS = {
+    "Session": ("hold", "resume", "stop", "detectors", "feed_since", "start", "open"),
+    "Store": ("get", "list_tests", "set_results", "test_dir", "cycles", "raw", "export"),
+}
+METHOD_UNITS = {"detectors": "[m]", "feed_since": "[m/s]", "get": "[m]", "list_tests": "[m]", "set_results": "[m]",
+                "resume": "cycles", "stop": "cycles", "hold": "cycle"}
+
+
+@pytest.mark.parametrize("cls,method", [(c, m) for c, ms in METHODS.items() for m in ms])
+def test_session_and_store_methods_have_docstrings(cls, method):
+    doc = getattr(getattr(htm, cls), method).__doc__ or ""
+    assert len(doc.split()) >= 8, f"{cls}.{method}: {doc!r}"
+    if method in METHOD_UNITS:
+        assert METHOD_UNITS[method] in doc, f"{cls}.{method}: no unit {METHOD_UNITS[method]}"

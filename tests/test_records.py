@@ -70,7 +70,7 @@ def test_a_three_sample_file_cannot_be_identified(tmp_path):
 def test_unreadable_inputs_give_record_errors(tmp_path):
     (tmp_path / "a.csv").write_text("t,u,y\n0,0,0.1\n0.002,x,0.1\n")
     (tmp_path / "a.json").write_text('{"format": "htm-record/1"}')
-    with pytest.raises(RecordError, match="non-numeric"):
+    with pytest.raises(RecordError, match=r"a.csv: line 3: column `u` = 'x' is not a number"):
         read_record(tmp_path / "a.csv")
     (tmp_path / "b.csv").write_text("t,u,y\n0,0,0.1\n")
     (tmp_path / "b.json").write_text("{not json")

@@ -12,8 +12,10 @@
 
 The names below the machine's are imported on first use, so `import htm` stays cheap.
 """
-from importlib import import_module
-from typing import Any
+from __future__ import annotations
+
+from importlib import import_module as _import_module
+from typing import TYPE_CHECKING
 
 from htm.core import Machine, Params, __version__
 from htm.errors import (
@@ -69,14 +71,19 @@ __all__ = [
 ]
 
 
+if TYPE_CHECKING:
+    from typing import Any
+
+
 def __getattr__(name: str) -> Any:
     if name not in _LAZY:
         raise AttributeError(f"module 'htm' has no attribute {name!r}")
     module, attr = _LAZY[name]
-    value = getattr(import_module(module), attr)
+    value = getattr(_import_module(module), attr)
     globals()[name] = value  # later look-ups skip this function
     return value
 
 
 def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_LAZY))
+    """The public names only (`__all__`): no helpers, no submodules imported on the way."""
+    return sorted(__all__)

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -14,6 +15,7 @@ from htm.core import Machine, Params
 from htm.errors import HtmError
 from htm.ident.records import Record, write_record
 from htm.params import parse_assignments, rig_metadata, with_overrides
+from htm.terminal import add_json_flag, emit_json, path
 
 LAWS = {
     "position_pff": "u[k] = clip(kp*(y_ref[k]-y[k]) + kff*(y_ref[k+1]-y_ref[k])/Ts, -u_max, u_max)",
@@ -72,8 +74,13 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         "source": "htm simulate (ideal sensors)",
     }
     table, meta_path = write_record(Record(columns, meta, Path(args.out).name), args.out, compress=args.gz)
+    if args.json:
+        emit_json({"samples": len(tr["t"]), "rate_hz": args.rate, "wall_s": wall,
+                   "ranges": {k: [float(np.nanmin(v)), float(np.nanmax(v))] for k, v in columns.items() if k != "t"},
+                   "solver": tr["stats"], "record": [str(table), str(meta_path)]})
+        return 0
     _print_summary(tr, dt, wall, controller, signal)
-    print(f"record: {table} + {meta_path}")
+    print(f"record: {path(table)} + {path(meta_path)}")
     return 0
 
 
@@ -106,6 +113,11 @@ def _print_summary(tr: dict, dt: float, wall: float, controller: dict | None, si
 
 def cmd_params(args: argparse.Namespace) -> int:
     p = Params(args.preset)
+    if args.json:
+        c, sv = p.valve_map
+        emit_json({"preset": args.preset, "params": [dict(f, value=p[f["name"]]) for f in Params.fields()],
+                   "valve_map": {"command_v": list(c), "spool_v": list(sv)}})
+        return 0
     for f in Params.fields():
         print(f"{f['name']:<36} {p[f['name']]:>12.6g} {f['unit']:<11} {f['doc']}")
     c, s = p.valve_map
@@ -115,7 +127,11 @@ def cmd_params(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="htm", description="Simulate, run, identify and review servo-hydraulic fatigue testing machines.")
+    ap = argparse.ArgumentParser(prog="htm", description="Simulate, run, identify and review servo-hydraulic fatigue testing machines.",
+                                 epilog="Results print in engineering units (mm, kN, MPa·√m, bar); every command that prints "
+                                        "results takes --json for scripts (SI values under their SI names). Long jobs draw "
+                                        "one progress line on stderr (plain lines when it is not a terminal). Bad input: "
+                                        "one line on stderr naming the file, row and field, exit 2.")
     sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     s = sub.add_parser("simulate", help="play a command profile on the simulated rig and write a record",
@@ -138,11 +154,13 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--param", action="append", metavar="NAME=VALUE", help="override a machine parameter (SI; see `htm params`)")
     s.add_argument("--preset", choices=["thesis", "base"], default="thesis", help="parameter preset (default thesis)")
     s.add_argument("--gz", action="store_true", help="write the table gzip-compressed (OUT.csv.gz)")
+    add_json_flag(s)
     s.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("params", help="list machine parameters with units, defaults and sources",
                        description="List every machine parameter of a preset with its unit and source.")
     p.add_argument("--preset", choices=["thesis", "base"], default="thesis")
+    add_json_flag(p)
     p.set_defaults(func=cmd_params)
 
     for register in _extensions():
@@ -166,16 +184,31 @@ def _extensions() -> list[Callable[[argparse._SubParsersAction], None]]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the `htm` command line with `argv` (default: sys.argv[1:]); returns the exit status:
+    0 done, 1 a negative verdict (e.g. `run --check` of a test the rig cannot run), 2 bad input
+    (one line on stderr naming the file, row and field; never a traceback)."""
     args = build_parser().parse_args(argv)
     func: Callable[[argparse.Namespace], int] = args.func
     try:
         return func(args)
-    except HtmError as e:
-        print(f"htm {args.command}: error: {e}", file=sys.stderr)
+    except BrokenPipeError:  # `htm ... | head`: the reader has gone; nothing more to say
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+    except (HtmError, OSError) as e:
+        print(f"htm {command_name(args)}: error: {one_line(e)}", file=sys.stderr)
         return 2
-    except OSError as e:
-        print(f"htm {args.command}: error: {e}", file=sys.stderr)
-        return 2
+
+
+def command_name(args: argparse.Namespace) -> str:
+    """The command as typed: `crack predict`, `db show`, `run`."""
+    return " ".join(str(v) for k in ("command", "crack_command", "db_command", "fleet_command", "rig_command")
+                    if (v := getattr(args, k, None)))
+
+
+def one_line(e: BaseException) -> str:
+    """An error's message on one line (a multi-line message joined with `; `)."""
+    text = str(e) if not isinstance(e, OSError) or not e.filename else f"{e.filename}: {e.strerror or e}"
+    return "; ".join(part.strip() for part in text.splitlines() if part.strip()) or type(e).__name__
 
 
 if __name__ == "__main__":

@@ -5,7 +5,8 @@ A profile is written as segments `KIND:key=value,...` joined by `;` (or given on
 - `hold:value=1.0,duration=0.5`           constant
 - `ramp:start=0,end=2,duration=1`         linear from start to end
 - `sine:amplitude=1,frequency=2,offset=0,duration=3[,phase=0]`
-- `csv:path=FILE[,column=u]`              samples taken as they are (one per period)
+- `csv:path=FILE[,column=u]`              samples taken as they are (one per period): the column
+                                          `column`, else `u`, else the file's only column
 
 Values are in the unit of the signal being profiled (V for a valve command, m for a position
 reference, N for a force reference).
@@ -13,11 +14,14 @@ reference, N for a force reference).
 from __future__ import annotations
 
 import csv
+import io
+import math
 from pathlib import Path
 
 import numpy as np
 
 from htm.errors import InputError
+from htm.inputs import missing, read_text
 
 # the longest profile [samples]: every sample becomes a row of ~10 float columns in memory and
 # in the record (10⁷ samples ≈ 5.6 h at 500 Hz, ≈ 1 GB)
@@ -66,24 +70,27 @@ def _num(args: dict[str, str], key: str, text: str, positive: bool = False) -> f
 
 def _read_csv(path: str, column: str | None, text: str) -> np.ndarray:
     p = Path(path)
-    if not p.is_file():
-        raise InputError(f"profile segment `{text}`: no file {p}")
-    with p.open(newline="") as fh:
-        rows = list(csv.reader(fh))
+    rows = list(csv.reader(io.StringIO(read_text(p, "profile CSV", InputError), newline="")))
     if len(rows) < 2:
         raise InputError(f"profile segment `{text}`: {p} has no data rows")
     header = [h.strip() for h in rows[0]]
-    col = column or ("u" if "u" in header else header[-1])
+    col = column or ("u" if "u" in header or len(header) > 1 or missing("u", header) else header[0])
     if col not in header:
-        raise InputError(f"profile segment `{text}`: {p} has no column `{col}` (columns: {', '.join(header)})")
+        raise InputError(f"{p}: no column `{col}`{missing(col, header)} (columns: {', '.join(header)}); "
+                         f"name the column with csv:path=FILE,column=NAME (profile segment `{text}`)")
     i = header.index(col)
-    try:
-        values = np.array([float(r[i]) for r in rows[1:] if r], dtype=float)
-    except (ValueError, IndexError):
-        raise InputError(f"profile segment `{text}`: column `{col}` of {p} is not numeric") from None
-    if not np.all(np.isfinite(values)):
-        raise InputError(f"profile segment `{text}`: column `{col}` of {p} holds NaN or inf")
-    return values
+    values = []
+    for row, r in enumerate(rows[1:], start=2):
+        if not r:
+            continue
+        try:
+            values.append(float(r[i]))
+        except (ValueError, IndexError):
+            raise InputError(f"{p}: row {row}: `{col}` = {r[i] if i < len(r) else ''!r} is not a number "
+                             f"(profile segment `{text}`)") from None
+        if not math.isfinite(values[-1]):
+            raise InputError(f"{p}: row {row}: `{col}` = {r[i]} is not a finite number (profile segment `{text}`)")
+    return np.array(values, dtype=float)
 
 
 def build(spec: str | list[str], rate_hz: float) -> np.ndarray:

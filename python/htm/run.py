@@ -17,6 +17,7 @@ from htm import core
 from htm.errors import HtmError
 from htm.record import web
 from htm.spec import TestSpec, load, parse, stored_text
+from htm.terminal import Progress, add_json_flag, emit_json, path
 
 
 def run_spec(spec: TestSpec, mode: str | None = None, progress: bool = False) -> tuple[dict[str, Any], float]:
@@ -34,16 +35,21 @@ def run_spec(spec: TestSpec, mode: str | None = None, progress: bool = False) ->
     t0 = time.perf_counter()
     th = threading.Thread(target=work, daemon=True)
     th.start()
-    limit = spec.end["max_cycles"]
+    bar = progress_line(spec, 0) if progress else None
     while True:
         th.join(0.2)
         if not th.is_alive():
             break
-        if progress:  # the final line is drawn once, below
-            _bar(prog.cycles, limit, time.perf_counter() - t0)
+        if bar:
+            bar.update(prog.cycles, *_cycle_fraction(spec, prog.cycles))
     wall = time.perf_counter() - t0
-    if progress:
-        _bar(prog.cycles, limit, wall, done=True)
+    if bar:
+        out = box.get("out")
+        if out:
+            f, _ = _crack_fraction(spec, int(out["cycles"]), float(out["a_end_m"]))
+            bar.close(out["end_reason"], f, int(out["cycles"]))
+        else:
+            bar.close("failed")
     if "err" in box:
         raise box["err"]
     return box["out"], wall
@@ -82,7 +88,7 @@ RAW_POLICY = core.RAW_POLICY
 CHUNK_S = 0.25
 
 
-def drive(sess: Any, writer: Any, limit: int, progress: bool) -> tuple[dict[str, Any], float]:
+def drive(sess: Any, writer: Any, spec: TestSpec | None, progress: bool) -> tuple[dict[str, Any], float]:
     """Advance `sess` (a `core.TestRun`) chunk by chunk into `writer` (a `TestWriter`) to the
     end; returns (the run's summary, wall seconds). A recording error stops the test safely
     (the journal keeps what was written, `htm resume` continues)."""
@@ -91,6 +97,7 @@ def drive(sess: Any, writer: Any, limit: int, progress: bool) -> tuple[dict[str,
     cols = core.RAW_COLUMNS
     t0 = time.perf_counter()
     engine_s = 0.0
+    bar = progress_line(spec, sess.cycle) if progress and spec is not None else None
     try:
         while not sess.finished:
             te = time.perf_counter()
@@ -99,19 +106,24 @@ def drive(sess: Any, writer: Any, limit: int, progress: bool) -> tuple[dict[str,
             raw = d["raw"]
             rawd = {k: raw[:, i] for i, k in enumerate(cols)} if len(raw) else None
             writer.cycles(d["table"], rawd, None if d["end_reason"] else bytes(sess.snapshot()))
-            if progress:
-                _bar(sess.cycle, limit, time.perf_counter() - t0)
+            if bar:
+                bar.update(sess.cycle, *_crack_fraction(spec, sess.cycle, sess.a_m))
     except RecordError as e:
+        if bar:
+            bar.close("recording failed")
         writer.interrupt("recording_failed", str(e))
         raise RecordError(f"{e} — test stopped safely at cycle {writer.last_cycle:,}; what was recorded is kept "
                           f"(`htm resume {writer.id}` continues once the cause is fixed)") from None
     except KeyboardInterrupt:
+        if bar:
+            bar.close("interrupted")
         writer.interrupt("interrupted", "by the operator")
         raise HtmError(f"interrupted at cycle {writer.last_cycle:,}; `htm resume {writer.id}` continues") from None
     wall = time.perf_counter() - t0
-    if progress:
-        _bar(sess.cycle, limit, wall, done=True)
-    return dict(sess.outcome(), engine_wall_s=engine_s), wall
+    outcome = sess.outcome()
+    if bar:
+        bar.close(outcome["end_reason"] if outcome else None, _crack_fraction(spec, sess.cycle, sess.a_m)[0], sess.cycle)
+    return dict(outcome, engine_wall_s=engine_s), wall
 
 
 def run_recorded(spec: TestSpec, spec_text: str, mode: str, store: Any, progress: bool = False, *,
@@ -134,7 +146,7 @@ def run_recorded(spec: TestSpec, spec_text: str, mode: str, store: Any, progress
 
 def _finish(writer: Any, sess: Any, spec: TestSpec, mode: str, progress: bool) -> tuple[str, dict[str, Any], float]:
     try:
-        out, wall = drive(sess, writer, spec.end["max_cycles"], progress)
+        out, wall = drive(sess, writer, spec, progress)
     except HtmError as e:
         if not writer.journal.closed:  # an engine error: the test failed, its rows stay
             writer.close("failed", "engine_error", {"error": str(e)})
@@ -190,14 +202,32 @@ def resume_recorded(store: Any, test_id: str, progress: bool = False, *, recordi
     return tid, spec, mode, out, wall
 
 
-def _bar(cycles: int, limit: int, wall: float, done: bool = False) -> None:
-    rate = cycles / wall if wall > 0 else 0.0
-    frac = min(cycles / limit, 1.0) if limit < 100_000_000 else None
-    bar = "#" * int(30 * frac) + "-" * (30 - int(30 * frac)) if frac is not None else "~" * (int(wall * 4) % 30 + 1)
-    sys.stderr.write(f"\r[{bar:<30}] {cycles:>10,} cycles  {rate:>10,.0f} cycles/s  {wall:6.1f} s")
-    if done:
-        sys.stderr.write("\n")
-    sys.stderr.flush()
+def progress_line(spec: TestSpec, start_cycle: int) -> Progress:
+    """The progress line of a test: toward its end crack size (a/W) or its cycle limit."""
+    return Progress(None, "cycles", spec.name, start=start_cycle)
+
+
+def _a_over_w(spec: TestSpec, a_m: float) -> float:
+    """a/W as the spec states it (M(T): a is the half crack, a/W of the half width)."""
+    return a_m * (1.0 if spec.geometry == "ct" else 2.0) / spec.width_m
+
+
+def _crack_fraction(spec: TestSpec, cycles: int, a_m: float) -> tuple[float, str]:
+    """(fraction of the way to the end condition, what to show): the crack's way from a0 to the
+    end size or the cycles' way to max_cycles, whichever is further."""
+    a_end = spec.phases[-1].end_a_m
+    fa = (a_m - spec.a0_m) / (a_end - spec.a0_m) if a_end > spec.a0_m else 0.0
+    f = max(fa, cycles / spec.end["max_cycles"])
+    return f, f"a {a_m * 1e3:.2f} mm, a/W {_a_over_w(spec, a_m):.3f} of {_a_over_w(spec, a_end):.3f}"
+
+
+def _cycle_fraction(spec: TestSpec, cycles: int) -> tuple[float | None, str]:
+    """Without the crack size (a run outside the store reports only cycles): the cycle limit's
+    share, when the spec sets one (the default limit says nothing about when the test ends)."""
+    limit = spec.end["max_cycles"]
+    if limit >= core.TEST_DEFAULTS["max_cycles"]:
+        return None, f"until a/W {_a_over_w(spec, spec.phases[-1].end_a_m):.3f}"
+    return cycles / limit, f"of at most {limit:,}"
 
 
 def summary(spec: TestSpec, out: dict[str, Any], wall: float, mode: str) -> dict[str, Any]:
@@ -205,7 +235,7 @@ def summary(spec: TestSpec, out: dict[str, Any], wall: float, mode: str) -> dict
 
     return {
         "spec": spec.name, "mode": mode, "cycles": int(out["cycles"]), "end_reason": out["end_reason"],
-        "final_a_m": float(out["a_end_m"]), "final_a_over_w": float(out["a_end_m"]) / spec.width_m,
+        "final_a_m": float(out["a_end_m"]), "final_a_over_w": _a_over_w(spec, float(out["a_end_m"])),
         "max_abs_df_err_pct": float(out["max_abs_df_err_pct"]), "max_abs_peak_err_pct": float(out["max_abs_peak_err_pct"]),
         "wall_time_s": wall, "cycles_simulated": int(out["cycles_simulated"]),
         "size_criterion_cycle": out["size_criterion_cycle"], "velocity_gain_m_s_per_v": out["velocity_gain_m_s_per_v"],
@@ -264,6 +294,12 @@ def cmd_check(args: argparse.Namespace) -> int:
     """`htm run --check SPEC`: every feasibility check; exit 1 when the rig cannot run it."""
     spec = load(args.spec, check=False)
     feas = spec.feasibility()
+    if args.json:
+        from dataclasses import asdict
+
+        emit_json({"spec": spec.name, "feasible": feas.feasible, "verdict": feas.verdict(),
+                   "override_limits": spec.override_limits, "checks": [asdict(c) for c in feas.checks]})
+        return 0 if feas.feasible else 1
     print(f"{spec.name}: can the rig run this test?")
     print(feas.table())
     if not feas.feasible and spec.override_limits:
@@ -295,15 +331,20 @@ def cmd_run(args: argparse.Namespace) -> int:
         with Store(args.store) as store:
             test_id, out, wall = run_recorded(spec, stored_text(args.spec, spec), mode, store, progress=not args.quiet,
                                               recording=not args.no_recording, spawn=args.spawn, connect=args.connect)
-            print(f"store: test {test_id} in {store.root}" + ("" if args.no_recording else f" (recording {store.test_dir(test_id) / 'recording.rrd'})"))
+            if not args.json:
+                print(f"store: test {test_id} in {path(store.root)}"
+                      + ("" if args.no_recording else f" (recording {path(store.test_dir(test_id) / 'recording.rrd')})"))
             s = write_outputs(out_dir, spec, out, wall, mode)
             # the outputs a person reads, referenced from the catalogue (Results, `htm db show`)
             store.add_file(test_id, "summary", out_dir / "summary.json")
             if s["report"] and not s["report"].startswith("not"):
                 store.add_file(test_id, "report", Path(s["report"]))
+    if args.json:
+        emit_json(dict(s, test_id=None if args.no_store else test_id, out=str(out_dir)))
+        return 0
     print(summary_text(spec, s))
     report = f", {Path(s['report']).name}" if s["report"] and not s["report"].startswith("not") else ""
-    print(f"outputs: {out_dir}/summary.json, cycles.parquet, summary.txt{report}")
+    print(f"outputs: {path(out_dir)}/summary.json, cycles.parquet, summary.txt{report}")
     return 0
 
 
@@ -314,9 +355,13 @@ def cmd_resume(args: argparse.Namespace) -> int:
         test_id, spec, mode, out, wall = resume_recorded(store, args.id, progress=not args.quiet, recording=not args.no_recording,
                                                          spawn=args.spawn, connect=args.connect)
         t = store.get(test_id)
+    s = write_outputs(Path(args.out), spec, out, wall, mode) if args.out and "cycles" in out else None
+    if args.json:
+        emit_json({"test_id": test_id, "status": t["status"], "end_reason": t["end_reason"], "cycles": t["cycles"],
+                   "summary": s})
+        return 0
     print(f"test {test_id}: {t['status']}, {t['end_reason']} after {t['cycles']:,} cycles")
-    if args.out and "cycles" in out:
-        s = write_outputs(Path(args.out), spec, out, wall, mode)
+    if s is not None:
         print(summary_text(spec, s))
     return 0
 
@@ -331,7 +376,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="only check whether the rig can run the test (force, valve flow, frequency, stroke, E647 size "
                         "criterion) and print the largest feasible ΔF and frequency; exit 1 if it cannot")
     p.add_argument("--mode", choices=["full", "jump"], help="full fidelity or cycle-jump (default: the spec's [run] mode)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--quiet", action="store_true", help="no progress line")
+    add_json_flag(p)
     add_store_args(p)
     p.add_argument("--no-store", action="store_true", help="do not record into the store (no journal, no resume, no recording)")
     p.set_defaults(func=web.serving(cmd_run))
@@ -341,7 +387,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "(cycle count, crack length, controller, waveform), into the same store and recording.")
     r.add_argument("id")
     r.add_argument("--out", help="also write summary.json, cycles.parquet and the report here")
-    r.add_argument("--quiet", action="store_true", help="no progress bar")
+    r.add_argument("--quiet", action="store_true", help="no progress line")
+    add_json_flag(r)
     add_store_args(r)
     r.set_defaults(func=web.serving(cmd_resume))
 

@@ -14,6 +14,7 @@ from typing import Any
 from htm import core
 from htm.errors import HtmError, InfeasibleTest, SpecError
 from htm.feasibility import Feasibility, assess
+from htm.inputs import close_match, missing, read_text
 from htm.params import thesis_rig, with_overrides
 
 MODES = ("constant_force", "constant_delta_k", "k_gradient")
@@ -154,15 +155,17 @@ def _table(d: dict, key: str, where: str, required: bool = True) -> dict:
 def _keys(d: dict, allowed: set[str], where: str) -> None:
     unknown = sorted(set(d) - allowed)
     if unknown:
-        raise SpecError(f"{where}: unknown key{'s' if len(unknown) > 1 else ''} {', '.join(unknown)}; "
-                        f"allowed: {', '.join(sorted(allowed))}")
+        meant = [(k, close_match(k, allowed - set(d))) for k in unknown]
+        hint = "; ".join(f"`{k}` is perhaps `{m}`" for k, m in meant if m)
+        raise SpecError(f"{where}: unknown key{'s' if len(unknown) > 1 else ''} {', '.join(unknown)}"
+                        + (f" ({hint})" if hint else f"; allowed: {', '.join(sorted(allowed))}"))
 
 
 def _num(d: dict, key: str, where: str, lo: float | None = None, hi: float | None = None, *, default: Any = ...,
          lo_open: bool = False, hi_open: bool = False, unit: str = "") -> float:
     if key not in d:
         if default is ...:
-            raise SpecError(f"{where}.{key} is missing")
+            raise SpecError(f"{where}.{key} is missing{missing(key, d)}")
         return default
     v = d[key]
     if isinstance(v, bool) or not isinstance(v, (int, float)):
@@ -189,7 +192,7 @@ def _int(d: dict, key: str, where: str, lo: int, default: int, hi: int = MAX_COU
 def _choice(d: dict, key: str, where: str, choices: tuple[str, ...], default: str | None = None) -> str:
     v = d.get(key, default)
     if v is None:
-        raise SpecError(f"{where}.{key} is missing: one of {', '.join(choices)}")
+        raise SpecError(f"{where}.{key} is missing{missing(key, d)}: one of {', '.join(choices)}")
     if v not in choices:
         raise SpecError(f"{where}.{key} = {v!r} is not allowed: one of {', '.join(choices)}")
     return v
@@ -220,12 +223,7 @@ def read_spectrum(path: Path) -> list[tuple[float, float]]:
     """A load spectrum file: forces [N], one reversal a line (peak, valley, peak, …) or one cycle a
     line as two columns `peak, valley` (comma or blanks); `#` starts a comment. Returns the
     (peak, valley) of every cycle; a malformed file raises SpecError naming the line."""
-    try:
-        lines = path.read_text().splitlines()
-    except FileNotFoundError:
-        raise SpecError(f"variable_amplitude.spectrum_file: {path} does not exist") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise SpecError(f"variable_amplitude.spectrum_file: {path} cannot be read ({e})") from None
+    lines = read_text(path, "spectrum (variable_amplitude.spectrum_file)", SpecError).splitlines()
     rows: list[tuple[int, list[float]]] = []
     for i, line in enumerate(lines, 1):
         text = line.split("#", 1)[0].replace(",", " ").split()
@@ -466,13 +464,20 @@ def load(path: str | Path, *, check: bool = True) -> TestSpec:
         The validated spec; a bad file or value raises SpecError naming the field and its range.
     """
     p = Path(path)
+    text = read_text(p, "spec", SpecError)
     try:
-        doc = tomllib.loads(p.read_text())
-    except FileNotFoundError:
-        raise SpecError(f"spec file {p} does not exist") from None
+        doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise SpecError(f"{p}: not valid TOML: {e}") from None
-    return parse(doc, p.stem, p.parent, check=check)
+    if not doc:
+        raise SpecError(f"{p}: the spec is empty (it needs [specimen], [material], [loading] and [end]; "
+                        "see examples/ct_constant_force.toml)")
+    try:
+        return parse(doc, p.stem, p.parent, check=check)
+    except InfeasibleTest:  # a verdict on the test, not on the file: its message says the limit
+        raise
+    except SpecError as e:  # a bad field: the file named in front
+        raise SpecError(f"{p}: {e}") from None
 
 
 def _toml_value(v: Any) -> str:

@@ -9,6 +9,7 @@ import numpy as np
 
 from htm.campaign import cluster
 from htm.errors import HtmError
+from htm.terminal import add_json_flag, emit_json, path
 
 
 def summary_lines(c: Any, rows: list[dict[str, Any]], s: dict[str, Any], where: str) -> list[str]:
@@ -46,8 +47,9 @@ def cmd_campaign(args: argparse.Namespace) -> int:
             runner, where = cluster.runner(client), f"Dask {args.cluster} ({len(client.scheduler_info()['workers'])} workers)"
         else:
             client, runner, where = None, engine.local_runner(args.threads), "this machine"
-        print(f"campaign {c.id}: {len(c):,} tests ({c.mode} mode, {c.chunk_tests} per chunk) on {where}; "
-              f"store {store.path}")
+        if not args.json:
+            print(f"campaign {c.id}: {len(c):,} tests ({c.mode} mode, {c.chunk_tests} per chunk) on {where}; "
+                  f"store {path(store.path) if '://' not in str(store.path) else store.path}")
         try:
             s = engine.run(c, store, runner, progress=not args.quiet)
         except KeyboardInterrupt:
@@ -60,9 +62,15 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     write_table(out / "campaign.parquet", rows)
     png = plot.life_plot(out / "life.png", rows, c.swept + c.scattered, f"{c.name}: life vs campaign fields")
+    if args.json:
+        life = [r["life_cycles"] for r in rows if r["valid"]]
+        emit_json(dict(s, where=where, valid=sum(r["valid"] for r in rows), engine_errors=sum(r["error"] is not None for r in rows),
+                       life_cycles_p5_p50_p95=[float(x) for x in np.percentile(life, [5, 50, 95])] if life else None,
+                       outputs=[str(out / "campaign.parquet"), str(png)]))
+        return 0
     for line in summary_lines(c, rows, s, where):
         print(line)
-    print(f"outputs: {out / 'campaign.parquet'}, {png}")
+    print(f"outputs: {path(out / 'campaign.parquet')}, {path(png)}")
     return 0
 
 
@@ -80,5 +88,6 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "or ~/.pgpass); default $HTM_STORE or ~/.local/share/htm/store")
     p.add_argument("--out", help="folder for campaign.parquet and life.png (default out/campaign-ID)")
     p.add_argument("--threads", type=int, default=0, help="local threads (default all cores)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--quiet", action="store_true", help="no progress line")
+    add_json_flag(p)
     p.set_defaults(func=cmd_campaign)

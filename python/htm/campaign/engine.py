@@ -11,7 +11,6 @@ from __future__ import annotations
 import json
 import os
 import socket
-import sys
 import time
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor, as_completed
@@ -19,6 +18,7 @@ from typing import Any
 
 from htm.campaign.spec import Campaign
 from htm.errors import HtmError, RecordError
+from htm.terminal import Progress
 
 # ISO 12108 / E647 force band used across htm (`htm run`'s summary): ±2 % of the force range
 FORCE_BAND_PCT = 2.0
@@ -152,41 +152,17 @@ def run(c: Campaign, store: Any, runner: Callable[[list[Chunk], str], Iterable[l
     chunks = [[(i, c.docs[i]) for i in ch] for ch in c.chunks(todo)]
     t0 = time.perf_counter()
     added = 0
-    bar = _Bar(len(c), len(have)) if progress else None
+    bar = Progress(len(c), "tests", f"campaign {c.id}", start=len(have)) if progress else None
+    if bar:
+        bar.update(len(have))
     try:
         for rows in runner(chunks, c.mode):
             added += write(store, c, rows)
             if bar:
-                bar.update(len(rows))
+                bar.update(len(have) + added)
     finally:
         if bar:
             bar.close()
     wall = time.perf_counter() - t0
     return {"campaign": c.id, "tests": len(c), "skipped": len(have), "ran": added, "wall_s": wall,
             "tests_per_s": added / wall if wall > 0 and added else 0.0}
-
-
-class _Bar:
-    """A one-line progress bar on stderr: tests done, rate and time left."""
-
-    def __init__(self, total: int, start: int):
-        self.total, self.done, self.start = total, start, start
-        self.t0 = time.perf_counter()
-        self.draw()
-
-    def update(self, n: int) -> None:
-        self.done += n
-        self.draw()
-
-    def draw(self) -> None:
-        frac = self.done / self.total if self.total else 1.0
-        el = time.perf_counter() - self.t0
-        rate = (self.done - self.start) / el if el > 0 else 0.0
-        left = f"{(self.total - self.done) / rate:6.0f} s left" if rate > 0 else "          "
-        fill = int(30 * frac)
-        sys.stderr.write(f"\r[{'#' * fill}{'-' * (30 - fill)}] {self.done:>7,}/{self.total:,} tests  {rate:7.2f} tests/s  {left}")
-        sys.stderr.flush()
-
-    def close(self) -> None:
-        sys.stderr.write("\n")
-        sys.stderr.flush()

@@ -11,7 +11,6 @@ to run.
 from __future__ import annotations
 
 import copy
-import tempfile
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,7 +21,7 @@ from scipy.optimize import least_squares
 
 from htm import core
 from htm import spec as test_spec
-from htm.errors import RecordError, SpecError
+from htm.errors import SpecError
 from htm.fatigue.data import CrackData, Setup
 from htm.fatigue.laws import Model, fit_life
 
@@ -178,22 +177,7 @@ def read_data(path: str | Path, a_mm_column: str | None = None) -> list[CrackDat
     not named a_mm (e.g. Virkler's a_half_crack_mm). A missing or unreadable file is a RecordError."""
     from htm.fatigue.data import read_a_n
 
-    if not a_mm_column:
-        return read_a_n(path)
-    try:
-        text = Path(path).read_text()
-    except FileNotFoundError:
-        raise RecordError(f"{path}: no such file") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise RecordError(f"{path}: cannot read it ({e})") from None
-    head, _, rest = text.partition("\n")
-    cols = [c.strip() for c in head.split(",")]
-    if a_mm_column not in cols:
-        return read_a_n(path)  # this file names its columns as usual (a_m / a_mm), or the reader says what is missing
-    with tempfile.TemporaryDirectory() as tmp:
-        p = Path(tmp) / Path(path).name
-        p.write_text(",".join("a_mm" if c == a_mm_column else c for c in cols) + "\n" + rest)
-        return read_a_n(p)
+    return read_a_n(path, a_mm_column)
 
 
 def build(spec_path: Path, datas: list, hold_out: set[str], samples: int, seed: int, store: Any, runner: Any,

@@ -9,6 +9,8 @@ from typing import Any
 
 import numpy as np
 
+from htm.terminal import add_json_flag, emit_json, path
+
 
 def cmd_life_band(args: argparse.Namespace) -> int:
     from htm.campaign import engine, lifeband
@@ -33,6 +35,7 @@ def cmd_life_band(args: argparse.Namespace) -> int:
         finally:
             if client is not None:
                 client.close()
+    say = (lambda *a, **k: None) if args.json else print
     j = res["joint"]
     lo, med, hi = res["band"]
     summary: dict[str, Any] = {
@@ -42,9 +45,9 @@ def cmd_life_band(args: argparse.Namespace) -> int:
         "draws_not_reaching_af": res["tests_not_reaching_af"],
         "life_median": med, "life_p5": lo, "life_p95": hi, "campaign": res["campaign"],
     }
-    print(f"{j.n_specimens} specimens fitted (Paris by life): log10 C = {j.mean[0]:.3f} ± {np.sqrt(j.cov[0, 0]):.3f} (SI), "
+    say(f"{j.n_specimens} specimens fitted (Paris by life): log10 C = {j.mean[0]:.3f} ± {np.sqrt(j.cov[0, 0]):.3f} (SI), "
           f"m = {j.mean[1]:.3f} ± {np.sqrt(j.cov[1, 1]):.3f}, correlation {j.corr:+.3f}")
-    print(f"life a0 {res['a0_m'] * 1e3:.2f} → {res['af_m'] * 1e3:.2f} mm over {len(res['life'])} simulated tests: "
+    say(f"life a0 {res['a0_m'] * 1e3:.2f} → {res['af_m'] * 1e3:.2f} mm over {len(res['life'])} simulated tests: "
           f"median {med:,.0f} cycles, 5–95 % {lo:,.0f} .. {hi:,.0f}")
     held = [d for d in datas if d.specimen in hold]
     if held:
@@ -52,8 +55,8 @@ def cmd_life_band(args: argparse.Namespace) -> int:
         cov = float(np.mean([e["in_band"] for e in ev]))
         e0 = np.array([e["err_no_update"] for e in ev])
         e1 = np.array([e["err_update"] for e in ev])
-        print(f"held-out specimens: {sum(e['in_band'] for e in ev)}/{len(ev)} inside the 5–95 % band ({100 * cov:.0f} %)")
-        print(f"median life error, held-out: no update mean |e| {100 * np.mean(np.abs(e0)):.2f} % (max {100 * np.max(np.abs(e0)):.2f} %); "
+        say(f"held-out specimens: {sum(e['in_band'] for e in ev)}/{len(ev)} inside the 5–95 % band ({100 * cov:.0f} %)")
+        say(f"median life error, held-out: no update mean |e| {100 * np.mean(np.abs(e0)):.2f} % (max {100 * np.max(np.abs(e0)):.2f} %); "
               f"updated from points up to {100 * args.early_fraction:.0f} % of the median life: mean |e| "
               f"{100 * np.mean(np.abs(e1)):.2f} % (max {100 * np.max(np.abs(e1)):.2f} %), "
               f"{sum(e['in_updated_band'] for e in ev)}/{len(ev)} inside their updated band")
@@ -65,12 +68,15 @@ def cmd_life_band(args: argparse.Namespace) -> int:
                         "band_width_rel": float((hi - lo) / med), "specimens": ev})
     if early is not None:
         u = lifeband.update(res, early)
-        print(f"updated from {args.early}'s {u['points']} points (to a = {early.a_m[-1] * 1e3:.2f} mm at "
+        say(f"updated from {args.early}'s {u['points']} points (to a = {early.a_m[-1] * 1e3:.2f} mm at "
               f"{early.cycles[-1]:,.0f} cycles): median {u['median']:,.0f} cycles, 5–95 % {u['p5']:,.0f} .. {u['p95']:,.0f} "
               f"({u['effective_draws']:.0f} effective draws)")
         summary["early_update"] = {k: u[k] for k in ("median", "p5", "p95", "points")}
     (out / "life_band.json").write_text(json.dumps(summary, indent=2, default=float))
-    print(f"outputs: {out / 'life_band.json'}, {out / 'campaign.toml'}")
+    if args.json:
+        emit_json(dict(summary, outputs=[str(out / "life_band.json"), str(out / "campaign.toml")]))
+        return 0
+    say(f"outputs: {path(out / 'life_band.json')}, {path(out / 'campaign.toml')}")
     return 0
 
 
@@ -93,5 +99,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cluster", metavar="tcp://HOST:PORT", help="run the campaign on this Dask scheduler's workers")
     p.add_argument("--store", help="test store (folder or postgresql://...), as for `htm campaign`")
     p.add_argument("--out", default="out/life-band", help="folder for campaign.toml and life_band.json (default out/life-band)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--quiet", action="store_true", help="no progress line")
+    add_json_flag(p)
     p.set_defaults(func=cmd_life_band)

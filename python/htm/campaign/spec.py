@@ -33,6 +33,7 @@ import numpy as np
 
 from htm import spec as test_spec
 from htm.errors import SpecError
+from htm.inputs import read_text
 
 DEFAULT_CHUNK_TESTS = 8
 MAX_TESTS = 1_000_000  # a plan larger than this is a typo, not a campaign
@@ -216,10 +217,7 @@ def parse(text: str, path: Path) -> Campaign:
     if not isinstance(head.get("base"), str):
         raise SpecError("campaign: [campaign] base is missing (the test spec TOML it varies)")
     base_path = (path.parent / head["base"]).resolve()
-    try:
-        base_text = base_path.read_text()
-    except OSError as e:
-        raise SpecError(f"campaign: base spec {base_path}: {e.strerror or e}") from None
+    base_text = read_text(base_path, "base spec ([campaign] base)", SpecError)
     try:
         base = tomllib.loads(base_text)
     except tomllib.TOMLDecodeError as e:
@@ -302,8 +300,8 @@ def _slug(name: str) -> str:
 def load(path: str | Path) -> Campaign:
     """Read and expand a campaign file (raises SpecError naming the problem)."""
     p = Path(path)
+    text = read_text(p, "campaign", SpecError)
     try:
-        text = p.read_text()
-    except OSError as e:
-        raise SpecError(f"campaign file {p}: {e.strerror or e}") from None
-    return parse(text, p)
+        return parse(text, p)
+    except SpecError as e:  # the file named in front, once
+        raise type(e)(str(e) if str(p) in str(e) else f"{p}: {e}") from None

@@ -353,9 +353,15 @@ class Session:
             self.recorder = LiveRecorder(self, store, spec, test_no, first_event, recording=recording)
 
     def hold(self) -> None:
+        """Hold the running test: the amplitude ramps to zero over one cycle and the actuator
+        stays at the mean force (or position); cycles stop counting. `resume` continues.
+        Raises HtmError when no test is running."""
         self._do(self.loop.ctrl.hold, "hold")
 
     def resume(self) -> None:
+        """Continue a held test: the amplitude ramps back in over the spec's start cycles
+        (``[start] amplitude_cycles``). Raises HtmError when the test is not held, and
+        InterlockTripped while an interlock is latched."""
         def f() -> None:
             self._motion_allowed()
             self.loop.ctrl.command_limit_v = math.inf
@@ -363,6 +369,9 @@ class Session:
         self._do(f, "resume")
 
     def stop(self) -> None:
+        """End the test gently: the amplitude ramps to zero at the mean over the spec's
+        ``[start] stop_cycles``, then the valve goes to null and the amplifier off (in position
+        control: valve null now). Unlike `estop`, nothing latches."""
         self._do(self.loop.ctrl.stop, "stop")
 
     def estop(self) -> None:
@@ -390,6 +399,16 @@ class Session:
 
     # -- live state ---------------------------------------------------------------------------------
     def detectors(self) -> list[dict[str, Any]]:
+        """Every safety detector, as the loop sees it now.
+
+        Returns
+        -------
+        list of dict
+            ``name``, ``channel`` (the signal watched: position [m], force [N], pressures [Pa],
+            ...), the band ``lo``/``hi`` in that channel's SI unit, ``action`` (what a trip does:
+            indicate, hold, stop, power_off), ``state`` (ok, active, tripped), ``latched``, ``enabled``, the
+            present ``value`` and the ``trip_value`` that latched it (SI, None if none).
+        """
         return self.loop.safety.describe()
 
     def snapshot(self) -> dict[str, Any]:
@@ -411,6 +430,17 @@ class Session:
         }
 
     def feed_since(self, period: int = 0) -> list[dict[str, Any]]:
+        """The decimated live samples (about 20 Hz; a bounded queue, the oldest drop) after loop
+        period `period`.
+
+        Returns
+        -------
+        list of dict
+            Per sample: ``period`` (the loop period's number; pass the last one back to get only
+            newer samples), time ``t_s`` [s], the controller ``state``, position ``y`` [m],
+            velocity ``v`` [m/s], force ``f`` [N], pressures ``p_a``, ``p_b``, ``p_s`` [Pa] and
+            the valve command ``u`` [V].
+        """
         return [s for s in list(self.loop.feed) if s["period"] > period]
 
     def cycles_since(self, cycle: int = 0) -> list[dict[str, Any]]:

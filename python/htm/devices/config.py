@@ -15,6 +15,7 @@ import canopen
 
 from htm.devices.calibration import Channel, load_calibration
 from htm.errors import DeviceError
+from htm.inputs import read_text
 
 BUILTIN_EDS = Path(__file__).with_name("btl5_h1.eds")
 # objects the master needs from the transducer's EDS (index, subindex or None)
@@ -260,12 +261,19 @@ def load_config(path: str | Path) -> RigConfig:
     """Read and validate a rig configuration file."""
     p = Path(path)
     try:
-        doc = tomllib.loads(p.read_text())
-    except FileNotFoundError:
-        raise _err(f"{p} does not exist") from None
+        doc = tomllib.loads(read_text(p, "rig configuration", DeviceError))
     except tomllib.TOMLDecodeError as e:
         raise _err(f"{p}: not valid TOML: {e}") from None
-    return parse_config(doc, p.parent)
+    def sets(d: Any) -> bool:
+        return not isinstance(d, dict) or any(sets(v) for v in d.values())
+
+    if not sets(doc):
+        raise _err(f"{p} sets nothing (empty, or sections without keys): give at least [bus] and [transducer] "
+                   "(see examples/rig_virtual.toml)")
+    try:
+        return parse_config(doc, p.parent)
+    except DeviceError as e:  # the file named in the one line
+        raise DeviceError(str(e).replace("rig config: ", f"rig config {p}: ", 1)) from None
 
 
 def virtual_config(mode: str = "lockstep", rate_hz: float = 500.0, **sections: dict[str, Any]) -> RigConfig:

@@ -11,9 +11,10 @@ import numpy as np
 from htm.errors import SpecError
 from htm.fatigue.data import Setup, check_a_n, read_a_n
 from htm.fatigue.e647 import reduce
-from htm.fatigue.laws import Model, Points, fit_life, fit_rate, life_errors
+from htm.fatigue.laws import Model, Points, fit_life, fit_rate, life_errors, load_model
 from htm.fatigue.report import e647_report, plot_a_n, plot_dadn_dk, write_reduced_csv
 from htm.report import md_table
+from htm.terminal import add_json_flag, emit_json, grid, path, table
 
 
 def _geometry_args(p: argparse.ArgumentParser, loads_required: bool = True) -> None:
@@ -60,8 +61,13 @@ def cmd_e647(args: argparse.Namespace) -> int:
     write_reduced_csv(out / "reduced.csv", reds, multi)
     rep = e647_report(out, datas, setup, reds, args.n)
     nvalid = sum(int(r.valid.sum()) for r in reds)
-    print(f"reduced {sum(len(r) for r in reds)} points ({nvalid} valid) from {len(datas)} specimen(s)")
-    print(f"wrote {out / 'reduced.csv'}, {rep}")
+    npts = sum(len(r) for r in reds)
+    if args.json:
+        emit_json({"points": npts, "valid_points": nvalid, "specimens": [d.specimen for d in datas],
+                   "outputs": [str(out / "reduced.csv"), str(rep)]})
+        return 0
+    print(f"reduced {npts:,} points ({nvalid:,} valid) from {len(datas)} specimen(s)")
+    print(f"wrote {path(out / 'reduced.csv')}, {path(rep)}")
     return 0
 
 
@@ -124,29 +130,47 @@ def cmd_crack_fit(args: argparse.Namespace) -> int:
              f"integrated from the first point): {100 * model['fit']['life_rms_rel']:.3f} %.", "",
              f"![a-N]({a_n.name})", "", f"![da/dN-dK]({dadn.name})", ""]
     (out / "report.md").write_text("\n".join(lines))
-    print(f"{chosen.law}: " + ", ".join(f"{k} = {v:.5g}" for k, v in chosen.params.items()))
-    print(f"wrote {out / 'model.json'}, {out / 'report.md'}")
+    if args.json:
+        emit_json(dict(model, outputs=[str(out / "model.json"), str(out / "report.md")]))
+        return 0
+    print(f"{chosen.law} law fitted by {args.fit_by} to {len(datas)} specimen(s), {len(pts):,} da/dN points:")
+    print(grid(["parameter", "value", "± std. error", "unit", ""],
+               [[k, f"{v['value']:.5g}", "" if v["stderr"] is None else f"± {v['stderr']:.2g}", v["unit"],
+                 "" if v["fitted"] else "(fixed)"] for k, v in model["parameters"].items()],
+               right=[False, True, True, False, False], indent="  "))
+    print(table([("RMS log10 da/dN error", f"{model['fit']['rms_log10_rate']:.4f}"),
+                 ("RMS life error", f"{100 * model['fit']['life_rms_rel']:.3f} % (of each specimen's span)")]))
+    print(f"wrote {path(out / 'model.json')}, {path(out / 'report.md')}")
     return 0
 
 
 def cmd_crack_predict(args: argparse.Namespace) -> int:
-    try:
-        d = json.loads(Path(args.model).read_text())
-    except FileNotFoundError:
-        raise SpecError(f"{args.model}: no such model file") from None
-    except json.JSONDecodeError as e:
-        raise SpecError(f"{args.model} is not valid JSON: {e}") from None
-    model = Model.from_dict(d)
+    model = load_model(args.model)
     setup = _setup(args)
+    amax = setup.a_geometry_max_m
+    where = "W" if setup.geometry == "ct" else "W/2"
     for name, v in (("--a0-m", args.a0_m), ("--af-m", args.af_m)):
-        if v > setup.a_geometry_max_m and v * 1e-3 < setup.a_geometry_max_m:
-            raise SpecError(f"{name} = {v} looks like millimetres; give metres (e.g. {v * 1e-3:g})")
+        if not (math.isfinite(v) and v > 0):
+            raise SpecError(f"{name} = {v}: a crack size must be a positive number of metres")
+        if v >= amax:
+            hint = f"; if you meant {v:g} mm, give {v * 1e-3:g}" if v > 2.0 and v * 1e-3 < amax else ""
+            raise SpecError(f"{name} = {v:g} m ({v * 1e3:g} mm) is not inside the {setup.geometry.upper()} specimen: "
+                            f"a crack must be shorter than {where} = {amax * 1e3:g} mm{hint}")
+    if args.af_m <= args.a0_m:
+        raise SpecError(f"--af-m = {args.af_m:g} m must exceed --a0-m = {args.a0_m:g} m (the crack grows from a0 to af)")
     life = model.life(setup, args.a0_m, args.af_m)
     res = {"law": model.law, "cycles": life["cycles"], "a0_m": args.a0_m, "af_m": args.af_m,
            "a_end_m": life["a_end_m"], "fractured": life["fractured"]}
     if not math.isfinite(res["cycles"]):
         raise SpecError("the predicted life is not finite")
-    print(json.dumps(res))
+    if args.json:
+        emit_json(res)
+        return 0
+    print(f"{model.law} law of {path(args.model)}, {setup.geometry.upper()} W = {setup.width_m * 1e3:g} mm, "
+          f"B = {setup.thickness_m * 1e3:g} mm, ΔP = {setup.delta_p_n / 1e3:.4g} kN, R = {setup.r_ratio:g}:")
+    print(table([("life", f"{res['cycles']:,.0f} cycles"),
+                 ("crack", f"{args.a0_m * 1e3:.3f} → {res['a_end_m'] * 1e3:.3f} mm"
+                           + (" (fractured before af)" if res["fractured"] else ""))], indent="  "))
     return 0
 
 
@@ -162,6 +186,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     e.add_argument("--cycles-resolution", type=float, help="quantisation step of recorded N (enables the errors-in-variables fit)")
     e.add_argument("--a-resolution-m", type=float, help="quantisation step of recorded a [m]")
     e.add_argument("--out", required=True, help="output directory")
+    add_json_flag(e)
     e.set_defaults(func=cmd_e647)
 
     c = sub.add_parser("crack", help="fit crack-growth laws to a–N data; predict life",
@@ -178,12 +203,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     f.add_argument("--fit-by", choices=["rate", "life"], default="rate", help="parameters in model.json from the log-rate or the life fit (default rate)")
     f.add_argument("--n", type=int, default=3, help="incremental polynomial half-width (default 3)")
     f.add_argument("--out", required=True, help="output directory")
+    add_json_flag(f)
     f.set_defaults(func=cmd_crack_fit)
 
     p = csub.add_parser("predict", help="cycles to grow a crack from a0 to af with a fitted model",
-                        description="Integrate MODEL.json's law from a0 to af under constant amplitude; print JSON with `cycles`.")
+                        description="Integrate MODEL.json's law from a0 to af under constant amplitude; print the life "
+                                    "(with --json: JSON with `cycles`, SI).")
     p.add_argument("model", metavar="MODEL.json")
     _geometry_args(p)
     p.add_argument("--a0-m", type=float, required=True, help="initial crack size [m]")
     p.add_argument("--af-m", type=float, required=True, help="final crack size [m]")
+    add_json_flag(p)
     p.set_defaults(func=cmd_crack_predict)

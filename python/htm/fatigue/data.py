@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import csv
+import io
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -9,6 +10,7 @@ import numpy as np
 
 from htm import core
 from htm.errors import RecordError, SpecError
+from htm.inputs import missing, read_text
 
 GEOMETRIES = ("ct", "mt")
 R_LO, R_HI = core.LOAD_R_RATIO_RANGE  # a load's stress ratios (the core's: E647 data, life prediction)
@@ -120,7 +122,7 @@ class CrackData:
     a_m: np.ndarray
 
 
-def read_a_n(path: str | Path) -> list[CrackData]:
+def read_a_n(path: str | Path, a_mm_column: str | None = None) -> list[CrackData]:
     """Read an a–N CSV file.
 
     Parameters
@@ -128,43 +130,55 @@ def read_a_n(path: str | Path) -> list[CrackData]:
     path : str or Path
         CSV with columns ``cycles`` and ``a_m`` [m] (or ``a_mm``, millimetres, converted to m),
         optionally ``specimen``.
+    a_mm_column : str, optional
+        The column holding a in millimetres when it is not named ``a_mm`` (e.g. Virkler's
+        ``a_half_crack_mm``).
 
     Returns
     -------
     list of CrackData
-        One per specimen, in file order (crack size in m). Raises RecordError naming the problem.
+        One per specimen, in file order (crack size in m). Raises RecordError naming the file,
+        the line and the column of what is wrong (not text, no rows, a missing or misspelt
+        column, a value that is not a finite number).
     """
     path = Path(path)
-    try:
-        with open(path, newline="") as fh:
-            rows = list(csv.DictReader(fh))
-    except FileNotFoundError:
-        raise RecordError(f"{path}: no such file") from None
-    if not rows:
-        raise RecordError(f"{path}: no data rows")
-    cols = [c.strip() for c in rows[0].keys() if c is not None]
-    rows = [{(k or "").strip(): v for k, v in r.items()} for r in rows]
+    text = read_text(path, "a–N table (CSV)", RecordError)
+    table = list(csv.reader(io.StringIO(text, newline="")))
+    if not table or not any(table):
+        raise RecordError(f"{path}: the a–N table is empty (a header `cycles,a_m[,specimen]`, then a row per reading)")
+    cols = [c.strip() for c in table[0]]
+    body = [(i, r) for i, r in enumerate(table[1:], start=2) if r and any(x.strip() for x in r)]
+    if not body:
+        raise RecordError(f"{path}: a header ({', '.join(cols)}) but no data rows")
+    if a_mm_column and a_mm_column in cols:
+        cols = ["a_mm" if c == a_mm_column else c for c in cols]
     if "cycles" not in cols:
-        raise RecordError(f"{path}: required column `cycles` is missing (found: {', '.join(cols)})")
+        raise RecordError(f"{path}: required column `cycles` is missing{missing('cycles', cols)} (found: {', '.join(cols)})")
     if "a_m" in cols:
         acol, scale = "a_m", 1.0
     elif "a_mm" in cols:
         acol, scale = "a_mm", 1e-3
     else:
-        raise RecordError(f"{path}: required column `a_m` (or `a_mm`) is missing (found: {', '.join(cols)})")
+        hint = missing("a_m", cols) or missing("a_mm", cols)
+        raise RecordError(f"{path}: required column `a_m` (or `a_mm`) is missing{hint} (found: {', '.join(cols)})")
+    idx = {c: i for i, c in enumerate(cols)}
 
-    def num(r: dict, c: str, i: int) -> float:
+    def num(r: list[str], c: str, line: int) -> float:
+        x = r[idx[c]].strip() if idx[c] < len(r) else ""
         try:
-            return float(r[c])
-        except (TypeError, ValueError):
-            raise RecordError(f"{path}: row {i + 2}: `{c}` = {r.get(c)!r} is not a number") from None
+            v = float(x)
+        except ValueError:
+            raise RecordError(f"{path}: line {line}: `{c}` = {x!r} is not a number") from None
+        if not np.isfinite(v):
+            raise RecordError(f"{path}: line {line}: `{c}` = {x} is not a finite number")
+        return v
 
     groups: dict[str, tuple[list[float], list[float]]] = {}
-    for i, r in enumerate(rows):
-        key = (r.get("specimen") or "").strip() if "specimen" in cols else "1"
+    for line, r in body:
+        key = (r[idx["specimen"]] if idx["specimen"] < len(r) else "").strip() if "specimen" in idx else "1"
         g = groups.setdefault(key, ([], []))
-        g[0].append(num(r, "cycles", i))
-        g[1].append(num(r, acol, i) * scale)
+        g[0].append(num(r, "cycles", line))
+        g[1].append(num(r, acol, line) * scale)
     out = [CrackData(k, np.array(n), np.array(a)) for k, (n, a) in groups.items()]
     if acol == "a_m":
         amax = max(float(d.a_m.max()) for d in out)

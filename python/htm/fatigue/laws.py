@@ -7,7 +7,9 @@ SI dictionary the Rust core evaluates (every rate and life in this module comes 
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -16,6 +18,7 @@ from htm import core
 from htm.errors import SpecError
 from htm.fatigue.data import CrackData, Setup
 from htm.fatigue.e647 import Reduced, fit_paris_points
+from htm.inputs import missing, read_text
 
 LAWS = ("paris", "forman", "nasgro")
 PARAMS = {
@@ -111,12 +114,41 @@ class Model:
                 "fit": self.fit}
 
     @classmethod
-    def from_dict(cls, d: dict) -> Model:
+    def from_dict(cls, d: dict, source: str = "model JSON") -> Model:
+        """The model of `htm crack fit`'s model.json (`source` names it in errors)."""
+        if not isinstance(d, dict):
+            raise SpecError(f"{source}: a JSON object with `law` and `parameters` is expected")
+        if "family" in d and "params" in d:
+            raise SpecError(f"{source} is an identified rig model (`htm diagnose`'s model.json, for `htm predict`), "
+                            "not a crack-growth model (`htm crack fit`'s)")
+        for key in ("law", "parameters"):
+            if key not in d:
+                raise SpecError(f"{source}: `{key}` is missing{missing(key, d)}; a crack-growth model.json "
+                                "(`htm crack fit`) has `law` and `parameters`")
+        if not isinstance(d["parameters"], dict):
+            raise SpecError(f"{source}: `parameters` must be an object of parameter values")
+        params = {}
+        for k, v in d["parameters"].items():
+            x = v.get("value") if isinstance(v, dict) else v
+            if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
+                raise SpecError(f"{source}: parameter `{k}` = {x!r} is not a finite number")
+            params[k] = x
         try:
-            params = {k: (v["value"] if isinstance(v, dict) else v) for k, v in d["parameters"].items()}
             return cls(d["law"], params)
-        except (KeyError, TypeError) as e:
-            raise SpecError(f"model JSON lacks {e}: needs `law` and `parameters`") from None
+        except SpecError as e:
+            raise SpecError(f"{source}: {e}") from None
+
+
+def load_model(path: str | Path) -> Model:
+    """Read `htm crack fit`'s model.json (SpecError naming the file and what is wrong)."""
+    import json
+
+    text = read_text(path, "crack-growth model (JSON)", SpecError)
+    try:
+        d = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise SpecError(f"{path} is not valid JSON: {e}") from None
+    return Model.from_dict(d, str(path))
 
 
 def _c_unit(law: str) -> str:

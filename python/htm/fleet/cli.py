@@ -10,6 +10,7 @@ from typing import Any
 
 from htm.campaign import cluster
 from htm.errors import HtmError, RecordError
+from htm.terminal import add_json_flag, emit_json, si
 
 
 def diagnose_one(table: str, work_s: float) -> dict[str, Any]:
@@ -66,10 +67,15 @@ def cmd_fleet_add(args: argparse.Namespace) -> int:
     catalogue.check_date(args.date)
     recs = [read_record(r) for r in args.records]  # every record read before any is added
     with open_store(args.store, must_exist=False) as store:
+        added = []
         for rec in recs:
             row = catalogue.put_record(store, rec, args.machine, args.date, args.name)
-            print(f"fleet: added {row['machine']} {row['date']} {row['record']} ({row['samples']} samples: {row['columns']}) "
-                  f"as {row['path']}")
+            added.append(row)
+            if not args.json:
+                print(f"fleet: added {row['machine']} {row['date']} {row['record']} ({row['samples']:,} samples: {row['columns']}) "
+                      f"as {row['path']}")
+    if args.json:
+        emit_json(added)
     return 0
 
 
@@ -92,8 +98,10 @@ def cmd_fleet_diagnose(args: argparse.Namespace) -> int:
         client = None
         if args.cluster:
             client = cluster.connect(args.cluster)
-        print(f"fleet: {len(jobs)} records in {source}, {len(jobs) - len(todo)} already diagnosed in the store, diagnosing {len(todo)}")
+        say = (lambda *a, **k: None) if args.json else print
+        say(f"fleet: {len(jobs)} records in {source}, {len(jobs) - len(todo)} already diagnosed in the store, diagnosing {len(todo)}")
         failed = 0
+        done_now: list[dict[str, Any]] = []
         try:
             results = _dask(client, todo, args.work_s) if client else _local(todo, args.work_s)
             for (machine, date, table), rep in results:
@@ -104,10 +112,14 @@ def cmd_fleet_diagnose(args: argparse.Namespace) -> int:
                     continue
                 n = catalogue.add(store, machine, date, name, rep)
                 found = ", ".join(f["effect"] for f in rep["findings"]) or "none"
-                print(f"  {machine} {date} {name}: {n} parameters kept; findings: {found}")
+                done_now.append({"machine": machine, "date": date, "record": name, "parameters": n,
+                                 "findings": [f["effect"] for f in rep["findings"]], "unexplained": rep["unexplained"]})
+                say(f"  {machine} {date} {name}: {n} parameters kept; findings: {found}")
         finally:
             if client is not None:
                 client.close()
+    if args.json:
+        emit_json({"records": len(jobs), "already_diagnosed": len(jobs) - len(todo), "diagnosed": done_now, "failed": failed})
     return 1 if failed else 0
 
 
@@ -121,6 +133,12 @@ def cmd_fleet_trend(args: argparse.Namespace) -> int:
     if args.param and len(params) < len(args.param):
         raise HtmError(f"machine {args.machine} has no parameter {', '.join(set(args.param) - set(hist))} (it has: {', '.join(sorted(hist))})")
     w = max(len(p) for p in params)
+    flagged = [p for p in params if verdicts[p]["drift"]]
+    if args.json:
+        if args.out:
+            _plot(Path(args.out), args.machine, {p: hist[p] for p in params}, verdicts)
+        emit_json({"machine": args.machine, "params": {p: dict(verdicts[p], history=hist[p]) for p in params}, "drift": flagged})
+        return 0
     flagged = []
     for p in params:
         v = verdicts[p]
@@ -128,8 +146,8 @@ def cmd_fleet_trend(args: argparse.Namespace) -> int:
         if v["drift"] is None:
             state = f"{n} date(s): too little history to judge"
         else:
-            state = f"{v['z']:+.1f} σ from {v['mean']:.4g} (scatter {v['scatter']:.3g})" + ("  DRIFT" if v["drift"] else "")
-        print(f"{p:<{w}}  {v['latest']:.6g} on {v['date']}  {state}")
+            state = f"{v['z']:+.1f} σ from {si(p, v['mean'])} (scatter {si(p, v['scatter'], 2)})" + ("  DRIFT" if v["drift"] else "")
+        print(f"{p:<{w}}  {si(p, v['latest']):>14} on {v['date']}  {state}")
         if v["drift"]:
             flagged.append(p)
     if args.out:
@@ -178,6 +196,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     a.add_argument("--date", required=True, help="the date it was recorded, YYYY-MM-DD")
     a.add_argument("--name", help="the record's name in the store (default: its file name; one RECORD only)")
     a.add_argument("--store", help="test store: a folder or postgresql://USER@HOST:PORT/DB (its files on $HTM_STORE_FILES)")
+    add_json_flag(a)
     a.set_defaults(func=cmd_fleet_add)
     d = fs.add_parser("diagnose", help="run `htm diagnose` on every record of FOLDER/MACHINE/DATE/ or of the store, keep the parameters",
                       description="Diagnose every record laid out as FOLDER/MACHINE/DATE/NAME.csv (NAME.json beside it), "
@@ -191,6 +210,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "default $HTM_CLUSTER)")
     d.add_argument("--store", help="test store: a folder or postgresql://USER@HOST:PORT/DB")
     d.add_argument("--work-s", type=float, default=20.0, help="search effort per record (diagnose's work_s, default 20)")
+    add_json_flag(d)
     d.set_defaults(func=cmd_fleet_diagnose)
     t = fs.add_parser("trend", help="a machine's identified parameters by date, flagging drift beyond their own scatter",
                       description="Print (and plot with --out) every identified parameter of MACHINE by date; the latest "
@@ -201,4 +221,5 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--param", action="append", help="only this parameter (repeatable)")
     t.add_argument("--k-sigma", type=float, default=3.0, help="drift threshold in units of the earlier scatter (default 3)")
     t.add_argument("--out", help="PNG of the history")
+    add_json_flag(t)
     t.set_defaults(func=cmd_fleet_trend)

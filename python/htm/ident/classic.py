@@ -216,6 +216,10 @@ def identify(rec: Record) -> dict:
     """Run the thesis's chapter-3 identification on `rec`; returns a JSON-ready dict."""
     rec, warnings = clean_record(rec)
     warnings += validate_record(rec)
+    if "u" not in rec.columns:
+        raise RecordError(f"record `{rec.name}` is of a machine that closes its own loop (no valve command `u`): the "
+                          "chapter-3 identification fits the valve's velocity gain and needs `u`; `htm diagnose` "
+                          "identifies such a record")
     segs = segments(rec)
     out: dict = {"record": rec.name, "warnings": warnings, "segments": len(segs)}
     out["velocity_gain"] = fit_velocity_gain(segs)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -12,6 +13,7 @@ import numpy as np
 
 from htm.ident.classic import identify, stribeck_basis, SMOOTHING_M_S
 from htm.ident.records import read_record
+from htm.terminal import add_json_flag, emit_json, label, path, si, table
 
 
 def cmd_identify(args: argparse.Namespace) -> int:
@@ -36,8 +38,32 @@ def cmd_identify(args: argparse.Namespace) -> int:
                       f"{result['mass']['samples']} samples).", "", "![friction](friction.png)"]
         _plot(result, out / "friction.png")
     (out / "report.md").write_text("\n".join(lines) + "\n")
-    print(f"identified {rec.name}: {result['segments']} segments; wrote {out / 'identification.json'}, {out / 'report.md'}")
+    notes = list(result["warnings"])
+    if "friction" not in result:
+        have = [c for c in ("p_a", "p_b") if c in rec.columns]
+        notes.append("friction, offset and moving mass not identified: " +
+                     (f"the record has no pressure column ({', '.join(c for c in ('p_a', 'p_b') if c not in have)} missing)"
+                      if len(have) < 2 else "no constant-velocity segment with finite pressures"))
+    warn("identify", notes)
+    if args.json:
+        emit_json({k: v for k, v in result.items() if k != "points"} | {"outputs": [str(out / "identification.json"), str(out / "report.md")]})
+        return 0
+    print(f"identified {rec.name}: {result['segments']} constant-velocity segments")
+    rows = [("velocity gain", f"{vg['gain_m_s_per_v'] * 1e3:.2f} mm/s per V, null at {vg['null_command_v']:+.3f} V (R² {vg['r2']:.4f})")]
+    if "friction" in result:
+        fit = result["friction"]["stribeck_sig"]
+        rows += [("friction (Stribeck)", ", ".join(f"{label(k)} {si(k, v)}" for k, v in fit["params"].items()) + f" (R² {fit['r2']:.4f})"),
+                 ("offset", f"{result['offset']['offset_n'] / 1e3:.3f} kN = {result['offset']['as_chamber_a_pressure_pa'] / 1e5:.2f} bar on chamber A"),
+                 ("moving mass", f"{result['mass']['moving_mass_kg']:.2f} kg (R² {result['mass']['r2']:.3f})")]
+    print(table(rows, indent="  "))
+    print(f"wrote {path(out / 'identification.json')}, {path(out / 'report.md')}")
     return 0
+
+
+def warn(command: str, notes: list[str]) -> None:
+    """What a record made htm drop or leave out, on stderr (not only in the report)."""
+    for n in notes:
+        print(f"htm {command}: warning: {n}", file=sys.stderr)
 
 
 def _plot(result: dict, path: Path) -> None:
@@ -66,6 +92,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("record", help="record table (NAME.csv, NAME.csv.gz or NAME.parquet)")
     p.add_argument("--meta", help="metadata JSON (default: NAME.json beside the table)")
     p.add_argument("--out", required=True, help="output directory")
+    add_json_flag(p)
     p.set_defaults(func=cmd_identify)
     _register_diagnose(sub)
     _register_predict(sub)
@@ -77,9 +104,21 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     rec = read_record(args.record, args.meta)
     run: dict[str, Any] = {}
     report = diagnose(rec, out_dir=args.out, verbose=args.verbose, stats=run)
-    found = ", ".join(f["effect"] + (f"({f['channel']})" if f["channel"] else "") for f in report["findings"]) or "none"
-    print(f"diagnosed {rec.name}: findings: {found}; unexplained: {str(report['unexplained']).lower()}; "
-          f"{run['simulations']} simulations in {run['seconds']:.1f} s; wrote {Path(args.out) / 'report.json'}")
+    notes = list(report.get("warnings", []))
+    absent = [c for c in ("p_a", "p_b") if c not in rec.columns]
+    if absent:
+        notes.append(f"no pressure column {', '.join(absent)}: the model is fitted to {', '.join(c for c in ('y', 'v', 'p_a', 'p_b', 'f') if c in rec.columns)} only")
+    warn("diagnose", notes)
+    if args.json:
+        emit_json({"record": rec.name, "findings": report["findings"], "unexplained": report["unexplained"],
+                   "warnings": notes, "simulations": run["simulations"], "seconds": run["seconds"],
+                   "outputs": [str(Path(args.out) / "report.json")]})
+        return 0
+    found = ", ".join(f["effect"] + (f" ({f['channel']})" if f["channel"] else "") for f in report["findings"]) or "none"
+    print(f"diagnosed {rec.name}")
+    print(table([("findings", found), ("unexplained", "yes" if report["unexplained"] else "no"),
+                 ("search", f"{run['simulations']:,} simulations in {run['seconds']:.1f} s")], indent="  "))
+    print(f"wrote {path(Path(args.out) / 'report.json')}")
     return 0
 
 
@@ -92,6 +131,7 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--meta", help="metadata JSON (default: NAME.json beside the table)")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--verbose", action="store_true", help="print the search as it goes")
+    add_json_flag(p)
     p.set_defaults(func=cmd_diagnose)
 
 
@@ -102,10 +142,20 @@ def cmd_predict(args: argparse.Namespace) -> int:
     rec = read_record(args.record, args.meta)
     result = predict(model, rec, tare_s=args.tare)  # refused records raise before anything is written
     report = write_prediction(Path(args.out), model, result, args.tare)
-    errs = ", ".join(f"{c} {v:.4g}" for c, v in report["rmse"].items())
-    print(f"predicted {rec.name} with the {model.family} model of `{model.meta.get('record')}`: RMS error {errs} (SI); "
-          f"wrote {Path(args.out) / 'report.json'}")
+    warn("predict", list(result["warnings"]))
+    if args.json:
+        emit_json({"record": rec.name, "model": str(args.model), "family": model.family, "rmse": report["rmse"],
+                   "outputs": [str(Path(args.out) / "report.json")]})
+        return 0
+    print(f"predicted {rec.name} with the {model.family} model of `{model.meta.get('record')}`; RMS error per channel:")
+    print(table([(c, RMSE_UNITS.get(c, lambda v: f"{v:.4g}")(v)) for c, v in report["rmse"].items()], indent="  "))
+    print(f"wrote {path(Path(args.out) / 'report.json')}")
     return 0
+
+
+# a channel's RMS error (SI) in the unit a person reads
+RMSE_UNITS = {"y": lambda v: f"{v * 1e3:.4g} mm", "v": lambda v: f"{v * 1e3:.4g} mm/s", "p_a": lambda v: f"{v / 1e5:.4g} bar",
+              "p_b": lambda v: f"{v / 1e5:.4g} bar", "p_s": lambda v: f"{v / 1e5:.4g} bar", "f": lambda v: f"{v / 1e3:.4g} kN"}
 
 
 def _register_predict(sub: argparse._SubParsersAction) -> None:
@@ -119,4 +169,5 @@ def _register_predict(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--tare", type=float, metavar="S",
                    help="take each sensor's zero from the record's first S seconds, which must be at rest")
     p.add_argument("--out", required=True, help="output directory")
+    add_json_flag(p)
     p.set_defaults(func=cmd_predict)

@@ -15,6 +15,7 @@ from htm.errors import RecordError
 from htm.ident import features as ft
 from htm.ident.records import Record, clean_record, machine_position, validate_record
 from htm.ident.search import Result
+from htm.inputs import missing, read_text
 
 FORMAT = "htm-model/1"
 PREDICTION_FORMAT = "htm-prediction/1"
@@ -77,17 +78,25 @@ def write_model(path: Path, rec: Record, res: Result, family: str) -> None:
 def read_model(path: str | Path) -> Model:
     """Read and check a model.json; ModelError names what is wrong."""
     path = Path(path)
+    text = read_text(path, "rig model (JSON)", ModelError)
     try:
-        d = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise ModelError(f"no model file {path}") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        d = json.loads(text)
+    except json.JSONDecodeError as e:
         raise ModelError(f"model {path} is not valid JSON: {e}") from None
-    if not isinstance(d, dict) or d.get("format") != FORMAT:
-        raise ModelError(f"model {path}: format is {d.get('format') if isinstance(d, dict) else None!r}, expected {FORMAT!r}")
+    if not isinstance(d, dict):
+        raise ModelError(f"model {path}: a JSON object is expected (`htm diagnose`'s model.json)")
+    if d.get("format") != FORMAT:
+        if "law" in d and "parameters" in d:
+            raise ModelError(f"model {path} is a crack-growth model (`htm crack fit`, for `htm crack predict`), "
+                             f"not an identified rig model (`htm diagnose`'s model.json)")
+        if d.get("format") == "htm-record/1":
+            raise ModelError(f"model {path} is a record's metadata, not an identified rig model (`htm diagnose`'s model.json)")
+        what = f"has no `format` key{missing('format', d)}" if "format" not in d else f"format is {d['format']!r}"
+        raise ModelError(f"model {path}: {what}, expected {FORMAT!r} (`htm diagnose`'s model.json)")
     family = d.get("family")
     if family not in FAMILIES:
-        raise ModelError(f"model {path}: `family` is {family!r}; use one of {', '.join(FAMILIES)}")
+        what = f"`family` is missing{missing('family', d)}" if "family" not in d else f"`family` is {family!r}"
+        raise ModelError(f"model {path}: {what}; use one of {', '.join(FAMILIES)}")
     raw = d.get("params")
     if not isinstance(raw, dict) or not raw:
         raise ModelError(f"model {path}: `params` must be an object of parameter values")
@@ -100,7 +109,10 @@ def read_model(path: str | Path) -> Model:
         p[k] = float(v)
     if family == "valve":
         knots = d.get("valve_map")
-        p.valve_map = ([], []) if knots is None else (list(map(float, knots[0])), list(map(float, knots[1])))
+        try:
+            p.valve_map = ([], []) if knots is None else (list(map(float, knots[0])), list(map(float, knots[1])))
+        except (TypeError, ValueError, IndexError, KeyError):
+            raise ModelError(f"model {path}: `valve_map` must be two lists of numbers (command V, spool V)") from None
     try:
         p.validate()
     except Exception as e:

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from htm.errors import RecordError
+from htm.inputs import decode, missing, read_text
 
 FORMAT = "htm-record/1"
 REQUIRED = ("t", "y")  # and `u`, unless the machine closes its own loop (`machine_position`)
@@ -103,34 +104,101 @@ def read_record(path: str | Path, meta: str | Path | None = None) -> Record:
     meta_path = Path(meta) if meta else base.with_name(name + ".json")
     if not meta_path.exists():
         raise RecordError(f"no metadata file {meta_path} for record {table}")
-    try:
-        md = json.loads(meta_path.read_text())
-    except json.JSONDecodeError as e:
-        raise RecordError(f"metadata {meta_path} is not valid JSON: {e}") from None
-    if md.get("format") != FORMAT:
-        raise RecordError(f"metadata {meta_path}: format is {md.get('format')!r}, expected {FORMAT!r}")
+    md = read_meta(meta_path)
     if table.name.endswith(".parquet"):
         _, pq = _pyarrow()
         try:
             t = pq.read_table(table)
         except Exception as e:  # pyarrow raises several types for a damaged file
             raise RecordError(f"table {table} is not a readable Parquet file: {e}") from None
-        columns = {c: np.asarray(t.column(c).to_numpy(zero_copy_only=False), dtype=float) for c in t.column_names}
-    else:
-        opener = gzip.open if table.name.endswith(".gz") else open
-        with opener(table, "rt", newline="") as fh:  # type: ignore[operator]
-            rows = list(csv.reader(fh))
-        if len(rows) < 2:
-            raise RecordError(f"table {table} has no data rows")
-        header = [h.strip() for h in rows[0]]
         try:
-            data = np.array([[float(x) if x.strip() else np.nan for x in r] for r in rows[1:] if r], dtype=float)
-        except ValueError as e:
-            raise RecordError(f"table {table}: non-numeric value ({e})") from None
-        if data.ndim != 2 or data.shape[1] != len(header):
-            raise RecordError(f"table {table}: rows do not match the {len(header)} header columns")
-        columns = {h: np.ascontiguousarray(data[:, i]) for i, h in enumerate(header)}
+            columns = {c: np.asarray(t.column(c).to_numpy(zero_copy_only=False), dtype=float) for c in t.column_names}
+        except (TypeError, ValueError) as e:
+            raise RecordError(f"table {table}: a column is not numeric ({e})") from None
+        if not columns or not len(next(iter(columns.values()))):
+            raise RecordError(f"table {table} has no data rows")
+        for c, x in columns.items():
+            bad = np.isinf(x)
+            if bad.any():
+                raise RecordError(f"table {table}: row {int(np.argmax(bad))}: column `{c}` = {x[bad][0]} is not a finite number")
+    else:
+        columns = _read_csv_table(table)
+    for col in REQUIRED:
+        if col not in columns:
+            raise RecordError(f"table {table}: required column `{col}` is missing{missing(col, columns)} "
+                              f"(columns: {', '.join(columns)}; DATA_FORMAT.md)")
     return Record(columns=columns, meta=md, name=name)
+
+
+def read_meta(meta_path: Path) -> dict[str, Any]:
+    """A record's metadata JSON, checked to be a DATA_FORMAT.md record's (not a model or a spec)."""
+    text = read_text(meta_path, "record metadata (JSON)", RecordError)
+    try:
+        md = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise RecordError(f"metadata {meta_path} is not valid JSON: {e}") from None
+    if not isinstance(md, dict):
+        raise RecordError(f"metadata {meta_path}: a JSON object is expected, found {type(md).__name__}")
+    if md.get("format") != FORMAT:
+        kind = _kind_of(md)
+        if "format" not in md:
+            what = f"has no `format` key{missing('format', md)}"
+        else:
+            what = f"format is {md.get('format')!r}"
+        raise RecordError(f"metadata {meta_path}: {what}, expected {FORMAT!r}" + (f"; this looks like {kind}" if kind else ""))
+    rate = md.get("sample_rate_hz")
+    if isinstance(rate, float) and not np.isfinite(rate):
+        raise RecordError(f"metadata {meta_path}: sample_rate_hz = {rate} is not a finite number")
+    return md
+
+
+def _kind_of(d: dict[str, Any]) -> str | None:
+    """What a JSON file handed in as a record's metadata is instead (for the error)."""
+    if "law" in d and "parameters" in d:
+        return "a crack-growth model (`htm crack fit`'s model.json)"
+    if "family" in d and "params" in d:
+        return "an identified rig model (`htm diagnose`'s model.json)"
+    if "findings" in d:
+        return "a diagnosis report (`htm diagnose`'s report.json)"
+    return None
+
+
+def _read_csv_table(table: Path) -> dict[str, np.ndarray]:
+    """A CSV (or CSV.GZ) record table: header of column names, then numbers (empty or `nan` is a
+    dropped sample); errors name the file, the line and the column."""
+    try:
+        raw = table.read_bytes()
+        if table.name.endswith(".gz"):
+            raw = gzip.decompress(raw)
+    except (OSError, EOFError, gzip.BadGzipFile) as e:
+        raise RecordError(f"table {table} cannot be read ({getattr(e, 'strerror', None) or e})") from None
+    rows = list(csv.reader(io.StringIO(decode(raw, table, "record table (CSV)", RecordError), newline="")))
+    if not rows:
+        raise RecordError(f"table {table} is empty (DATA_FORMAT.md: a header of column names, then a row per sample)")
+    header = [h.strip() for h in rows[0]]
+    if len(rows) < 2 or not any(rows[1:]):
+        raise RecordError(f"table {table} has a header ({', '.join(header)}) but no data rows")
+    data = np.empty((len(rows) - 1, len(header)))
+    n = 0
+    for line, r in enumerate(rows[1:], start=2):
+        if not r:
+            continue
+        if len(r) != len(header):
+            raise RecordError(f"table {table}: line {line} has {len(r)} fields, the header {len(header)}")
+        for j, x in enumerate(r):
+            try:
+                v = float(x) if x.strip() else np.nan
+            except ValueError:
+                raise RecordError(f"table {table}: line {line}: column `{header[j]}` = {x.strip()!r} is not a number") from None
+            if np.isnan(v) and header[j] == "t":
+                raise RecordError(f"table {table}: line {line}: column `t` = {x.strip()!r}: every sample needs its time "
+                                  "(only a channel's sample can be dropped)")
+            if np.isinf(v):
+                raise RecordError(f"table {table}: line {line}: column `{header[j]}` = {x.strip()} is not a finite number "
+                                  "(a dropped sample is written empty or nan)")
+            data[n, j] = v
+        n += 1
+    return {h: np.ascontiguousarray(data[:n, i]) for i, h in enumerate(header)}
 
 
 # Plausible magnitudes of each SI channel, to catch a column written in mm, bar, mm/s or kN.
@@ -220,13 +288,13 @@ def validate_record(rec: Record, *, max_nan_run_s: float = 0.5, max_nan_fraction
     cols = rec.columns
     for c in REQUIRED:
         if c not in cols:
-            raise RecordError(f"record `{name}`: required column `{c}` is missing (DATA_FORMAT.md)")
+            raise RecordError(f"record `{name}`: required column `{c}` is missing{missing(c, cols)} (DATA_FORMAT.md)")
     if machine_position(rec):
         if "y_ref" not in cols:
             raise RecordError(f"record `{name}` declares a machine that closes its own loop (controller type "
                               f"`{MACHINE_POSITION}`) but has no position reference column `y_ref` (DATA_FORMAT.md)")
     elif "u" not in cols:
-        raise RecordError(f"record `{name}`: required column `u` (the valve command) is missing; a record of a machine "
+        raise RecordError(f"record `{name}`: required column `u` (the valve command) is missing{missing('u', cols)}; a record of a machine "
                           f"that closes its own loop has no `u` but must declare \"controller\": {{\"type\": \"{MACHINE_POSITION}\"}} "
                           "and hold `y_ref` (DATA_FORMAT.md)")
     t = np.asarray(cols["t"], dtype=float)

@@ -3,22 +3,26 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 from htm.errors import RecordError
 from htm.record.store import Store
+from htm.terminal import add_json_flag, emit_json, eng, grid, label, path, si, size, table
 
 
 def cmd_list(args: argparse.Namespace) -> int:
     with Store(args.store) as store:
         rows = store.list_tests()
-        if not rows:
-            print(f"no tests in {store.root}")
+        if args.json:
+            emit_json(rows)
             return 0
-        print(f"{'id':<22} {'status':<9} {'kind':<10} {'mode':<5} {'cycles':>11} {'a_end mm':>9}  {'end reason':<24} name")
-        for r in rows:
-            a = f"{r['a_end_m'] * 1e3:9.3f}" if r["a_end_m"] is not None else " " * 9
-            cyc = f"{r['cycles']:>11,}" if r["cycles"] is not None else " " * 11
-            print(f"{r['id']:<22} {r['status']:<9} {r['kind']:<10} {r['mode'] or '':<5} {cyc} {a}  {r['end_reason'] or '':<24} {r['name']}")
+        if not rows:
+            print(f"no tests in {path(store.root)}")
+            return 0
+        print(grid(["id", "status", "kind", "mode", "cycles", "a end [mm]", "end reason", "name"],
+                   [[r["id"], r["status"], r["kind"], r["mode"] or "", "" if r["cycles"] is None else f"{r['cycles']:,}",
+                     "" if r["a_end_m"] is None else f"{r['a_end_m'] * 1e3:.3f}", r["end_reason"] or "", r["name"]] for r in rows],
+                   right=[False, False, False, False, True, True, False, False]))
     return 0
 
 
@@ -34,25 +38,51 @@ def cmd_last(args: argparse.Namespace) -> int:
 def cmd_show(args: argparse.Namespace) -> int:
     with Store(args.store) as store:
         t = store.get(args.id)
-        print(f"test {t['id']}: {t['name']} ({t['kind']}, mode {t['mode']}) — {t['status']}"
-              + (f", {t['end_reason']}" if t["end_reason"] else ""))
-        print(f"created {t['created_utc']}, updated {t['updated_utc']}, host {t.get('host') or '?'}")
-        if t["cycles"] is not None:
-            print(f"cycles {t['cycles']:,}" + (f", final a = {t['a_end_m'] * 1e3:.3f} mm" if t["a_end_m"] is not None else ""))
-        for k, v in sorted(t["results"].items()):
-            print(f"  {k} = {v}")
-        print(f"events ({len(t['events'])}):")
-        for e in t["events"][: args.events]:
-            c = f"cycle {e['cycle']:,}" if e["cycle"] is not None else ""
-            print(f"  {c:<16} {e['kind']:<20} {e['detail'] or ''}")
-        if len(t["events"]) > args.events:
-            print(f"  … {len(t['events']) - args.events} more (--events N)")
+    if args.json:
+        emit_json(t)
+        return 0
+    print(f"test {t['id']}: {t['name']} ({t['kind']}, mode {t['mode']}) — {t['status']}"
+          + (f", {t['end_reason']}" if t["end_reason"] else ""))
+    rows = [("created", f"{t['created_utc']}, updated {t['updated_utc']}, host {t.get('host') or '?'}")]
+    if t["cycles"] is not None:
+        rows.append(("cycles", f"{t['cycles']:,}"))
+    if t["a_end_m"] is not None:
+        rows.append(("final a", eng(t["a_end_m"] * 1e3, "mm")))
+    print(table(rows))
+    if t["results"]:
+        print("results:")
+        print(table(result_rows(t["results"]), indent="  "))
+    print(f"events ({len(t['events'])}):")
+    ev = t["events"][: args.events]
+    if ev:
+        print(grid(["cycle", "event", "detail"],
+                   [["" if e["cycle"] is None else f"{e['cycle']:,}", e["kind"], e["detail"] or ""] for e in ev],
+                   right=[True, False, False], indent="  "))
+    if len(t["events"]) > args.events:
+        print(f"  … {len(t['events']) - args.events} more (--events N)")
+    if t["files"]:
         print("files:")
-        for role, f in sorted(t["files"].items()):
-            print(f"  {role:<10} {f['path']} ({(f['bytes'] or 0) / 1e6:.2f} MB)")
-        if t["status"] != "finished":
-            print(resume_hint(t))
+        print(grid(["role", "path", "size"], [[role, path(f["path"]), size(f["bytes"])]
+                                             for role, f in sorted(t["files"].items())], right=[False, False, True], indent="  "))
+    if t["status"] != "finished":
+        print(resume_hint(t))
     return 0
+
+
+def result_rows(results: dict[str, Any]) -> list[tuple[str, str]]:
+    """A test's results (SI, as the store keeps them) as labelled rows in engineering units; a
+    list of records (e.g. the convergence events) one row each."""
+    rows: list[tuple[str, str]] = []
+    for k, v in results.items():
+        if isinstance(v, list) and v and all(isinstance(x, dict) for x in v):
+            for i, x in enumerate(v):
+                rows.append((f"{label(k)} {i + 1}" if len(v) > 1 else label(k),
+                             ", ".join(f"{label(kk)} {si(kk, vv)}" for kk, vv in x.items())))
+        elif isinstance(v, dict):
+            rows.append((label(k), ", ".join(f"{label(kk)} {si(kk, vv)}" for kk, vv in v.items()) or "–"))
+        else:
+            rows.append((label(k), si(k, v)))
+    return rows
 
 
 def resume_hint(t: dict) -> str:
@@ -68,7 +98,10 @@ def resume_hint(t: dict) -> str:
 def cmd_export(args: argparse.Namespace) -> int:
     with Store(args.store) as store:
         written = store.export(args.id, Path(args.out), args.format)
-    print("exported: " + ", ".join(str(p) for p in written))
+    if args.json:
+        emit_json({"exported": [str(p) for p in written]})
+        return 0
+    print("exported: " + ", ".join(path(p) for p in written))
     return 0
 
 
@@ -87,17 +120,20 @@ def register(sub: argparse._SubParsersAction) -> None:
                         description="Query the test store (SQLite catalogue + Parquet tables + rerun recordings).")
     dsub = db.add_subparsers(dest="db_command", required=True, metavar="ACTION")
     p = dsub.add_parser("list", help="every test: id, status, cycles, end reason")
+    add_json_flag(p)
     p.set_defaults(func=cmd_list)
     p = dsub.add_parser("last", help="the newest test's id (for scripts: ID=$(htm db last))")
     p.set_defaults(func=cmd_last)
     p = dsub.add_parser("show", help="one test: status, results, events, files")
     p.add_argument("id")
     p.add_argument("--events", type=int, default=30, help="events to print (default 30)")
+    add_json_flag(p)
     p.set_defaults(func=cmd_show)
     p = dsub.add_parser("export", help="a test's tables (cycles, raw), metadata and spec into a folder")
     p.add_argument("id")
     p.add_argument("--out", required=True, help="folder to write (must be empty or missing)")
     p.add_argument("--format", choices=["parquet", "csv"], default="parquet")
+    add_json_flag(p)
     p.set_defaults(func=cmd_export)
     p = dsub.add_parser("delete", help="remove a test and its files")
     p.add_argument("id")

@@ -221,6 +221,17 @@ class Store:
             self.db.executemany("INSERT INTO events VALUES (?, ?, ?, ?, ?, ?)", [(test_id, *r, source) for r in rows])
 
     def set_results(self, test_id: str, results: dict[str, Any]) -> None:
+        """Keep (or replace) a test's results.
+
+        Parameters
+        ----------
+        test_id : str
+            The test.
+        results : dict
+            Result name → value, SI and named with their unit (``final_a_m`` [m],
+            ``max_abs_df_err_pct`` [%], ``wall_time_s`` [s]); numbers are kept as numbers, anything
+            else (lists, tables) as JSON. `get` returns them under ``"results"``.
+        """
         with self._tx():
             for k, v in results.items():
                 num = float(v) if isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) else None
@@ -244,14 +255,36 @@ class Store:
 
     # ---- reading ---------------------------------------------------------------------------
     def test_dir(self, test_id: str) -> Path:
+        """The folder of a test's own files (journal, ``cycles.parquet``, ``raw.parquet``,
+        ``recording.rrd``) under the store's root; it need not exist yet."""
         return self.root / "tests" / test_id
 
     def list_tests(self) -> list[dict[str, Any]]:
+        """Every test in the store, oldest first.
+
+        Returns
+        -------
+        list of dict
+            One catalogue row per test: ``id``, ``name``, ``kind`` (simulated, virtual, rig),
+            ``mode``, ``status`` (running, finished, failed, interrupted), ``created_utc``,
+            ``updated_utc``, ``end_reason``, ``cycles``, final crack size ``a_end_m`` [m],
+            ``frequency_hz`` [Hz] and ``host``.
+        """
         cur = self.db.execute("SELECT * FROM tests ORDER BY created_utc, rowid")
         names = [d[0] for d in cur.description]
         return [dict(zip(names, r)) for r in cur.fetchall()]
 
     def get(self, test_id: str) -> dict[str, Any]:
+        """One test with everything the catalogue holds about it (RecordError if there is none).
+
+        Returns
+        -------
+        dict
+            The catalogue row (as `list_tests`, a_end_m [m], frequency_hz [Hz]), plus ``spec``
+            (its text) and ``spec_format``, ``events`` (``cycle``, ``time_s`` [s], ``kind``,
+            ``detail``, ``source``, in cycle order), ``results`` (name → SI value, see
+            `set_results`) and ``files`` (role → ``path``, ``bytes``).
+        """
         cur = self.db.execute("SELECT * FROM tests WHERE id = ?", (test_id,))
         row = cur.fetchone()
         if row is None:
@@ -265,7 +298,7 @@ class Store:
             (test_id,))]
         d["results"] = {k: (v if t is None else json.loads(t)) for k, v, t in self.db.execute(
             "SELECT key, value, text FROM results WHERE test_id = ?", (test_id,))}
-        d["files"] = {r: {"path": str(self.root / p), "bytes": b} for r, p, b in self.db.execute(
+        d["files"] = {r: {"path": os.path.normpath(self.root / p), "bytes": b} for r, p, b in self.db.execute(
             "SELECT role, path, bytes FROM files WHERE test_id = ?", (test_id,))}
         return d
 
