@@ -397,23 +397,22 @@ pub fn segment_offsets(f: &[f64], v: &[f64], fmin: f64, fmax: f64, c_open: f64, 
     out
 }
 
-/// E647 X2 opening force from segment offsets: the mean force of the highest segment, going down
-/// from the top, before which every segment stays below criterion `k`... i.e. the force where the
-/// offset first reaches `k` coming down from the maximum, interpolated between segment forces;
-/// `fmin` when no segment reaches it.
+/// E647 X2 opening force from segment offsets: going up from the lowest segment, the force where
+/// the offset first falls below criterion `k`, interpolated between the two segments' mean
+/// forces; `fmin` when the lowest segment is already below it (no closure seen).
 pub fn segment_opening_force(segments: &[(f64, f64)], k: f64, fmin: f64) -> f64 {
-    for i in (0..segments.len()).rev() {
+    for i in 0..segments.len() {
         let (fi, oi) = segments[i];
-        if oi >= k {
-            if i + 1 < segments.len() {
-                let (fj, oj) = segments[i + 1];
-                let t = (oi - k) / (oi - oj).max(1e-12);
-                return fi + t * (fj - fi);
+        if oi < k {
+            if i == 0 {
+                return fmin;
             }
-            return fi;
+            let (fp, op) = segments[i - 1];
+            let t = (op - k) / (op - oi).max(1e-12);
+            return fp + t * (fi - fp);
         }
     }
-    fmin
+    segments.last().map(|s| s.0).unwrap_or(fmin)
 }
 
 /// Contiguous bursts of a record: index ranges where the cycle count steps by at most one.
@@ -433,9 +432,12 @@ pub fn bursts(cycle: &[f64]) -> Vec<(usize, usize)> {
 }
 
 /// Intervals for reduction: each burst, cut further into groups of `cycles_per_interval` cycles
-/// (a continuous record is one long burst).
+/// (0: the whole burst; a continuous record is one long burst).
 pub fn intervals(cycle: &[f64], cycles_per_interval: usize) -> Vec<(usize, usize)> {
-    let n = cycles_per_interval.max(1) as f64;
+    if cycles_per_interval == 0 {
+        return bursts(cycle);
+    }
+    let n = cycles_per_interval as f64;
     let mut out = Vec::new();
     for (s, e) in bursts(cycle) {
         let c0 = cycle[s];
@@ -609,7 +611,16 @@ pub fn reduce_record(spec: &Specimen, method: &Method, cycle: &[f64], f: Option<
         return Err(Error::Input("columns differ in length".into()));
     }
     let mut out = Vec::new();
+    let mut method = method.clone();
     for (s, e) in intervals(cycle, cycles_per_interval) {
+        // a potential-drop reference not given: the first interval's mean potential at the reference crack
+        if let Method::Johnson { v_ref, .. } | Method::Calibration { v_ref, .. } = &mut method {
+            if !v_ref.is_finite() {
+                let vals: Vec<f64> = signal[s..e].iter().copied().filter(|x| x.is_finite()).collect();
+                *v_ref = vals.iter().sum::<f64>() / vals.len().max(1) as f64;
+            }
+        }
+        let method = &method;
         let r = if method.is_compliance() {
             let f = f.ok_or_else(|| Error::Input("compliance needs the force column `f`".into()))?;
             reduce_compliance_interval(spec, method, &f[s..e], &signal[s..e], &cycle[s..e])
