@@ -322,9 +322,11 @@ pub fn fit_closure(f: &[f64], v: &[f64], fmin: f64, fmax: f64) -> Result<Closure
         }).sum();
         (sse, sol)
     };
+    // the transition stays in the lower 60 % of the range and its width under 15 %: the upper
+    // part of the loading curve is the open crack (E647 X2 takes the open compliance there)
     let mut best = (f64::INFINITY, 0.0, 0.02, [0.0; 3]);
-    let widths: Vec<f64> = (0..12).map(|i| 0.003 * (0.2f64 / 0.003).powf(i as f64 / 11.0)).collect();
-    for i in 0..=100 {
+    let widths: Vec<f64> = (0..12).map(|i| 0.003 * (0.15f64 / 0.003).powf(i as f64 / 11.0)).collect();
+    for i in 0..=65 {
         let t = -0.05 + 0.01 * i as f64;
         for &w in &widths {
             let (sse, s) = fit(t, w);
@@ -336,9 +338,9 @@ pub fn fit_closure(f: &[f64], v: &[f64], fmin: f64, fmax: f64) -> Result<Closure
     // refine around the best: transition in steps of 0.001, width in steps of 5 %
     let (t0, w0) = (best.1, best.2);
     for i in -12..=12 {
-        let t = t0 + 0.001 * i as f64;
+        let t = (t0 + 0.001 * i as f64).min(0.6);
         for j in -6..=6 {
-            let w = w0 * 1.05f64.powi(j);
+            let w = (w0 * 1.05f64.powi(j)).min(0.15);
             let (sse, s) = fit(t, w);
             if sse < best.0 {
                 best = (sse, t, w, s);
@@ -517,7 +519,7 @@ fn loading_samples(f: &[f64], cycle: &[f64]) -> Vec<usize> {
 }
 
 /// Reduce one interval of a load–opening record: fully open compliance (least squares over the
-/// loading branches above the opening, at least the upper quarter of the range), crack size, the
+/// samples above the opening, at least the upper quarter of the range), crack size, the
 /// opening forces and ΔK, ΔK_eff.
 pub fn reduce_compliance_interval(spec: &Specimen, method: &Method, f: &[f64], cod: &[f64], cycle: &[f64]) -> Result<Interval> {
     if !method.is_compliance() {
@@ -536,7 +538,8 @@ pub fn reduce_compliance_interval(spec: &Specimen, method: &Method, f: &[f64], c
     // never less than the upper quarter
     let f_open = closure.opening_force(0.0025, fmin, fmax) + 0.05 * range;
     let lower = f_open.clamp(fmin + 0.1 * range, fmin + 0.75 * range);
-    let (xs, ys): (Vec<f64>, Vec<f64>) = lf.iter().zip(&lv).filter(|(&x, _)| x >= lower).map(|(&x, &y)| (x, y)).unzip();
+    // both branches above the opening: the crack is open on loading and unloading alike there
+    let (xs, ys): (Vec<f64>, Vec<f64>) = f.iter().zip(cod).filter(|(&x, &y)| x >= lower && x <= fmax && y.is_finite()).map(|(&x, &y)| (x, y)).unzip();
     let (c_open, _, c_se) = ls_line(&xs, &ys).ok_or_else(|| Error::Input(format!("cycle {}: too few samples above the opening force", cycle[0])))?;
     if !(c_open > 0.0) {
         return Err(Error::Input(format!("cycle {}: the opening falls as the force rises (gauge sign or channel wrong?)", cycle[0])));
