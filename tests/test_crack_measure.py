@@ -4,10 +4,10 @@ records from benchmarks/crack_measure.py's generator (numpy only, independent of
 import csv
 import json
 
+import crack_measure as gen
 import numpy as np
 import pytest
 
-import crack_measure as gen
 from htm import core
 from htm.cli import main
 from htm.fatigue.measure import measure
