@@ -107,3 +107,47 @@ def test_cli_bad_records_exit_2_with_one_line(tmp_path, capsys):
     cols = {k: v for k, v in case["columns"].items() if k != "cod"}
     with pytest.raises(Exception, match="no `cod` or `dcpd_v`"):
         measure(cols, case["meta"])
+
+
+def test_db_correct_on_a_real_sqlite_store(tmp_path, capsys):
+    import sqlite3
+    from pathlib import Path
+
+    from htm.record.store import Store
+
+    example = Path(__file__).resolve().parents[1] / "examples" / "ct_constant_force.toml"
+    store = tmp_path / "store"
+    assert main(["run", str(example), "--out", str(tmp_path / "o"), "--quiet", "--store", str(store), "--no-recording"]) == 0
+    with Store(store) as s:
+        tid = s.list_tests()[-1]["id"]
+        before = s.cycles(tid)
+    capsys.readouterr()
+    a0, af = before["a_m"][0], before["a_m"][-1]
+    assert main(["db", "correct", tid, "--a0-visual", f"{(a0 - 4e-4) * 1e3}", "--af-visual", f"{(af + 6e-4) * 1e3}",
+                 "--store", str(store)]) == 0
+    assert "both kept" in capsys.readouterr().out
+    with Store(store) as s:
+        t = s.get(tid)
+        after = s.cycles(tid)
+    # the per-cycle table (measured sizes) is untouched; the corrected a–N meets both visual sizes
+    assert np.array_equal(before["a_m"], after["a_m"])
+    rows = list(csv.DictReader(open(t["files"]["a_n_corrected"]["path"])))
+    ac = np.array([float(r["a_m"]) for r in rows])
+    am = np.array([float(r["a_measured_m"]) for r in rows])
+    assert ac[0] == pytest.approx(a0 - 4e-4, abs=1e-12) and ac[-1] == pytest.approx(af + 6e-4, abs=1e-12)
+    assert np.array_equal(am, before["a_m"][np.isfinite(before["a_m"])])
+    assert np.all(np.diff(ac - am) >= -1e-15)  # the offset grows from −0.4 to +0.6 mm with the extension
+    assert t["results"]["a0_visual_m"] == pytest.approx(a0 - 4e-4)
+    for role in ("e647_measured", "e647_corrected"):
+        assert Path(t["files"][role]["path"]).exists()
+    red_m = list(csv.DictReader(open(Path(t["files"]["e647_measured"]["path"]).parent / "reduced.csv")))
+    red_c = list(csv.DictReader(open(Path(t["files"]["e647_corrected"]["path"]).parent / "reduced.csv")))
+    i = next(k for k, r in enumerate(red_c) if r["dadn_m_per_cycle"])
+    assert float(red_c[i]["dadn_m_per_cycle"]) > float(red_m[i]["dadn_m_per_cycle"])  # more extension over the same cycles
+    # the catalogue is a real SQLite file holding the results
+    with sqlite3.connect(store / "catalogue.sqlite") as db:
+        keys = {k for (k,) in db.execute("SELECT key FROM results WHERE test_id = ?", (tid,))}
+    assert {"a0_visual_m", "af_visual_m", "visual_correction"} <= keys
+    # af below a0 is refused with one line
+    assert main(["db", "correct", tid, "--a0-visual", "20", "--af-visual", "10", "--store", str(store)]) == 2
+    assert "need 0 < a0 < af" in capsys.readouterr().err
