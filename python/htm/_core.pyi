@@ -292,7 +292,7 @@ class _CrackReduction(TypedDict):
 
 def crack_reduce(geometry: str, width_m: float, thickness_m: float, method: str, cycle: npt.NDArray[np.float64],
                  signal: npt.NDArray[np.float64], f: npt.NDArray[np.float64] | None = None, *, modulus_pa: float | None = None,
-                 cod_x_over_w: float = -0.25, cod_y_m: float | None = None, poisson_ratio: float = 0.3,
+                 cod_x_over_w: float = ..., cod_y_m: float | None = None, poisson_ratio: float = 0.3,
                  dcpd_probe_y_m: float | None = None, dcpd_a_ref_m: float | None = None, dcpd_v_ref: float | None = None,
                  calibration: tuple[list[float], list[float]] | None = None,
                  cycles_per_interval: int = 0) -> tuple[str, _CrackReduction]: ...

@@ -302,11 +302,7 @@ pub fn fit_closure(f: &[f64], v: &[f64], fmin: f64, fmax: f64) -> Result<Closure
                 }
             }
         }
-        for a in 0..3 {
-            for b in 0..a {
-                m[a][b] = m[b][a];
-            }
-        }
+        (m[1][0], m[2][0], m[2][1]) = (m[0][1], m[0][2], m[1][2]);
         let sol = solve3(m, r).filter(|s| s[2] >= 0.0);
         let sol = match sol {
             Some(s) => s,
