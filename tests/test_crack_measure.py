@@ -151,3 +151,19 @@ def test_db_correct_on_a_real_sqlite_store(tmp_path, capsys):
     # af below a0 is refused with one line
     assert main(["db", "correct", tid, "--a0-visual", "20", "--af-visual", "10", "--store", str(store)]) == 2
     assert "need 0 < a0 < af" in capsys.readouterr().err
+
+
+def test_displacement_input_records_read_and_validate(tmp_path):
+    from htm.errors import RecordError
+    from htm.ident.records import Record, read_record, validate_record
+
+    case = _case(8, "ct_cod")
+    gen.write_case(case, tmp_path / "rec")
+    rec = read_record(tmp_path / "rec.csv")
+    assert set(rec.columns) >= {"t", "cycle", "f", "cod"} and "y" not in rec.columns
+    assert validate_record(rec) == []  # bursts: t uniform within a burst, jumps between bursts
+    cols = {k: v for k, v in rec.columns.items() if k != "cod"}
+    with pytest.raises(RecordError, match="`y` or `cod`"):
+        Record(cols, rec.meta, "no_displacement")
+    with pytest.raises(RecordError, match="`u`"):  # a valve-driven record still needs its command
+        validate_record(Record({"t": rec.columns["t"], "y": rec.columns["cod"]}, {"controller": {"type": "position_pff"}}, "x"))
