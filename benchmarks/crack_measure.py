@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -193,6 +192,8 @@ def score(cols: dict, truth: list[dict], w: float, fmax: float) -> dict:
     if np.isfinite(to).all():
         e = float(np.max(np.abs(op - to)) / fmax * 100)
         out.update(max_opening_error_pct_fmax=e, opening_ok=e <= 5.0)
+        seg = np.asarray(cols.get("opening_force_segments_n", np.full(len(a), np.nan)))
+        out["max_opening_error_pct_fmax_x2_segments"] = float(np.max(np.abs(seg - to)) / fmax * 100)
     return out
 
 
@@ -232,6 +233,16 @@ def main() -> int:
         "a_within_tolerance": sum(r["a_ok"] for r in results),
         "max_opening_error_pct_fmax": max(r["max_opening_error_pct_fmax"] for r in comp) if comp else None,
         "opening_within_5pct": sum(r["opening_ok"] for r in comp),
+        # the peer: E647 X2's own 10 % segments (5 % steps) on the same loading branches
+        "x2_segments_max_opening_error_pct_fmax": max(r["max_opening_error_pct_fmax_x2_segments"] for r in comp) if comp else None,
+        "x2_segments_opening_within_5pct": sum(r["max_opening_error_pct_fmax_x2_segments"] <= 5 for r in comp),
+        "by_kind": {k: {"cases": sum(r["kind"] == k for r in results),
+                        "max_a_error_mm": max((r["max_a_error_mm"] for r in results if r["kind"] == k), default=None),
+                        "max_a_error_over_w": max((r["max_a_error_over_w"] for r in results if r["kind"] == k), default=None)}
+                    for k in ("ct_cod", "mt_cod", "ct_pd", "mt_pd")},
+        "by_closure": {k: {"cases": sum(r["closure"] == k for r in comp),
+                           "max_opening_error_pct_fmax": max((r["max_opening_error_pct_fmax"] for r in comp if r["closure"] == k), default=None)}
+                       for k in ("none", "kink", "ramp", "contact")},
         "failures": [r for r in results if not r["a_ok"] or not r.get("opening_ok", True)],
         "seconds": round(elapsed, 2),
     }
@@ -242,8 +253,6 @@ def main() -> int:
         m = measure(cols, meta, name="ct_cod_example")
         shared = score(m.columns, tr["points"], tr["W"], tr["fmax_n"])
         shared["expression"] = m.expression
-    with tempfile.TemporaryDirectory():
-        pass
     print(json.dumps({"benchmark": "crack_measure", "seed": args.seed, "own_generator": own, "shared_record": shared}, indent=1))
     return 0
 

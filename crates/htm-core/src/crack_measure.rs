@@ -288,8 +288,15 @@ pub fn fit_closure(f: &[f64], v: &[f64], fmin: f64, fmax: f64) -> Result<Closure
     let x: Vec<f64> = f.iter().map(|&fi| (fi - fmin) / span).collect();
     let vs = v.iter().map(|&a| a.abs()).fold(0.0, f64::max).max(1e-300);
     let y: Vec<f64> = v.iter().map(|&a| a / vs).collect();
+    // the straight line (no closure), and Σy² for the residual of each least-squares solution
+    let yy: f64 = y.iter().map(|v| v * v).sum();
+    let line = {
+        let (c1, c0, _) = ls_line(&x, &y).unwrap_or((0.0, 0.0, 0.0));
+        let sse: f64 = x.iter().zip(&y).map(|(&xi, &yi)| (yi - c0 - c1 * xi).powi(2)).sum();
+        (sse, [c0, c1, 0.0])
+    };
     let fit = |t: f64, w: f64| -> (f64, [f64; 3]) {
-        // normal equations for columns [1, x, g]
+        // normal equations for columns [1, x, g]; SSE = Σy² − solᵀ·(Xᵀy) at the solution
         let mut m = [[0.0; 3]; 3];
         let mut r = [0.0; 3];
         for (&xi, &yi) in x.iter().zip(&y) {
@@ -303,23 +310,11 @@ pub fn fit_closure(f: &[f64], v: &[f64], fmin: f64, fmax: f64) -> Result<Closure
             }
         }
         (m[1][0], m[2][0], m[2][1]) = (m[0][1], m[0][2], m[1][2]);
-        let sol = solve3(m, r).filter(|s| s[2] >= 0.0);
-        let sol = match sol {
-            Some(s) => s,
-            None => {
-                // no closure: the straight line
-                let (c1, c0, _) = ls_line(&x, &y).unwrap_or((0.0, 0.0, 0.0));
-                [c0, c1, 0.0]
-            }
-        };
-        let sse: f64 = x.iter().zip(&y).map(|(&xi, &yi)| {
-            let e = yi - sol[0] - sol[1] * xi - sol[2] * w * softplus((t - xi) / w);
-            e * e
-        }).sum();
-        (sse, sol)
+        match solve3(m, r).filter(|s| s[2] >= 0.0) {
+            Some(s) => ((yy - s[0] * r[0] - s[1] * r[1] - s[2] * r[2]).max(0.0), s),
+            None => line,
+        }
     };
-    // the transition stays in the lower 60 % of the range and its width under 15 %: the upper
-    // part of the loading curve is the open crack (E647 X2 takes the open compliance there)
     let mut best = (f64::INFINITY, 0.0, 0.02, [0.0; 3]);
     let widths: Vec<f64> = (0..12).map(|i| 0.003 * (0.15f64 / 0.003).powf(i as f64 / 11.0)).collect();
     for i in 0..=65 {
