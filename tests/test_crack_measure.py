@@ -167,3 +167,20 @@ def test_displacement_input_records_read_and_validate(tmp_path):
         Record(cols, rec.meta, "no_displacement")
     with pytest.raises(RecordError, match="`u`"):  # a valve-driven record still needs its command
         validate_record(Record({"t": rec.columns["t"], "y": rec.columns["cod"]}, {"controller": {"type": "position_pff"}}, "x"))
+
+
+def test_intervals_cut_bursts_and_a_continuous_record(tmp_path):
+    case = _case(9, "ct_cod")
+    cyc = case["columns"]["cycle"]
+    per_burst = [len(np.unique(cyc[(cyc >= p["cycle"]) & (cyc < p["cycle"] + 1000)])) for p in case["truth"]]
+    m = measure(case["columns"], case["meta"], cycles_per_interval=2)
+    assert len(m) == sum((n + 1) // 2 for n in per_burst)
+    # renumbered without gaps the record is one continuous burst: 10 cycles per row by default
+    cont = dict(case["columns"])
+    _, inv = np.unique(cyc, return_inverse=True)
+    cont["cycle"] = inv.astype(float)
+    n = int(inv.max()) + 1
+    if n > 50:
+        assert len(measure(cont, case["meta"])) == -(-n // 10)
+    else:
+        assert len(measure(cont, case["meta"])) == 1
