@@ -690,6 +690,18 @@ mod tests {
     }
 
     #[test]
+    fn mt_far_field_opening_matches_the_energy_release_of_the_same_stress_function() {
+        // Castigliano: far from the crack (Y/W = 2) the crack's share of E·B·V/P is
+        // 2·∫ tan(πt/2) dt over 2a/W, the energy release of Irwin's periodic-crack K
+        // (K² = σ²·W·tan(πa/W)); the closed form must give the same
+        for &alpha in &[0.2, 0.4, 0.6, 0.8] {
+            let d = mt_compliance_dimensionless(alpha, 2.0, 0.3) - mt_compliance_dimensionless(0.0, 2.0, 0.3);
+            let e = -4.0 / PI * (PI * alpha / 2.0).cos().ln();
+            assert!((d - e).abs() < 2e-4 * e.max(0.1), "2a/W {alpha}: {d} vs {e}");
+        }
+    }
+
+    #[test]
     fn johnson_round_trip_and_reference_point() {
         let (w, y, ar) = (0.1, 0.005, 0.01);
         assert!((johnson_a(1.0, w, y, ar).unwrap() - ar).abs() < 1e-12);
