@@ -80,8 +80,8 @@ def truth_opening(c_open, shape, f_k, depth, width, fmin, fmax) -> float:
     return float(grid[above[-1]]) if above.size else fmin
 
 
-def make_case(rng: np.random.Generator, kind: str | None = None) -> dict:
-    """One record (columns, metadata) with its truth per burst."""
+def make_case(rng: np.random.Generator, kind: str | None = None, noise_scale: float = 1.0) -> dict:
+    """One record (columns, metadata) with its truth per burst; `noise_scale` multiplies every noise."""
     kind = kind or rng.choice(["ct_cod", "ct_cod", "ct_cod", "mt_cod", "mt_cod", "mt_pd", "ct_pd"])
     geometry = "ct" if kind.startswith("ct") else "mt"
     e = float(rng.choice([70e9, 110e9, 205e9]) * rng.uniform(0.97, 1.03))
@@ -131,14 +131,14 @@ def make_case(rng: np.random.Generator, kind: str | None = None) -> dict:
             meta_spec["dcpd_calibration"] = {"v_over_vref": [float(v_of_a(a)) for a in table_a], "a_m": table_a.tolist()}
         v_ref = float(rng.uniform(0.5e-3, 3e-3))
         meta_spec["dcpd_v_ref"] = v_ref
-        v_noise = v_ref * rng.uniform(0.0005, 0.003)
+        v_noise = v_ref * rng.uniform(0.0005, 0.003) * noise_scale
     else:
         cols["cod"] = []
         if geometry == "ct":
             meta_spec["cod_at"] = _AT[x_over_w]
         else:
             meta_spec["cod_y_m"] = y_over_w * w
-    f_noise = fmax * rng.uniform(0.0002, 0.001)
+    f_noise = fmax * rng.uniform(0.0002, 0.001) * noise_scale
     f_res = float(rng.choice([0.0, 0.5, 2.0]))
     t0 = 0.0
     for i, a in enumerate(a_true):
@@ -160,7 +160,7 @@ def make_case(rng: np.random.Generator, kind: str | None = None) -> dict:
             cum = np.concatenate([[0], np.cumsum(0.5 * np.diff(grid) * (local_compliance(grid[1:], c_open, shape, fk, depth, width)
                                                                       + local_compliance(grid[:-1], c_open, shape, fk, depth, width)))])
             v = np.interp(f_true, grid, cum)
-            cod_noise = rng.uniform(0.0005, 0.003) * c_open * (fmax - fmin)
+            cod_noise = rng.uniform(0.0005, 0.003) * c_open * (fmax - fmin) * noise_scale
             drift = rng.normal(0, 0.002) * c_open * (fmax - fmin) / tt[-1]  # drift over the burst
             cod_res = float(rng.choice([0.0, 1e-8, 2e-8]))
             cod = v + 5e-5 + drift * tt + rng.normal(0, cod_noise, tt.size)
@@ -211,6 +211,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", type=int, default=60)
     ap.add_argument("--seed", type=int, default=20261126)
+    ap.add_argument("--noise-scale", type=float, default=1.0, help="multiply every noise level (stress test)")
     args = ap.parse_args()
     from htm.fatigue.measure import measure, read_table
 
@@ -218,7 +219,7 @@ def main() -> int:
     t0 = time.perf_counter()
     results = []
     for i in range(args.cases):
-        case = make_case(rng)
+        case = make_case(rng, noise_scale=args.noise_scale)
         m = measure(case["columns"], case["meta"], name=f"case{i}")
         s = score(m.columns, case["truth"], case["width_m"], case["fmax_n"])
         s.update(case=i, kind=case["kind"], closure=case["closure"], closure_frac=round(case["closure_frac"], 3), r=round(case["r"], 3))
@@ -253,7 +254,7 @@ def main() -> int:
         m = measure(cols, meta, name="ct_cod_example")
         shared = score(m.columns, tr["points"], tr["W"], tr["fmax_n"])
         shared["expression"] = m.expression
-    print(json.dumps({"benchmark": "crack_measure", "seed": args.seed, "own_generator": own, "shared_record": shared}, indent=1))
+    print(json.dumps({"benchmark": "crack_measure", "seed": args.seed, "noise_scale": args.noise_scale, "own_generator": own, "shared_record": shared}, indent=1))
     return 0
 
 

@@ -277,6 +277,9 @@ fn softplus(z: f64) -> f64 {
     z.max(0.0) + (-z.abs()).exp().ln_1p()
 }
 
+/// The F statistic a fitted closure needs over the straight loading line to be kept.
+pub const CLOSURE_F_MIN: f64 = 25.0;
+
 /// Fit the closure curve to loading-branch samples (force, opening) over [fmin, fmax]: for each
 /// transition force and width on a grid (then a finer one around the best), the opening is linear
 /// in (offset, C_open, C_open·d): least squares with d ≥ 0.
@@ -338,7 +341,15 @@ pub fn fit_closure(f: &[f64], v: &[f64], fmin: f64, fmax: f64) -> Result<Closure
             }
         }
     }
-    let (_, t, w, s) = best;
+    let (sse, t, w, mut s) = best;
+    // a closure must explain the curve beyond what the noise allows a searched step to: an F test
+    // of its three terms against the straight line (searching t and w inflates F under no closure,
+    // hence a high bar); below it the crack is taken as open over the whole range
+    let n = x.len() as f64;
+    let f_stat = (line.0 - sse) / 3.0 / (sse / (n - 5.0)).max(1e-300);
+    if s[2] > 0.0 && f_stat < CLOSURE_F_MIN {
+        s = line.1;
+    }
     let c_open = s[1] * vs / span;
     if !(c_open.is_finite() && c_open > 0.0) {
         return Err(Error::Input("the opening does not rise with the force on the loading branches (gauge or force channel wrong?)".into()));
