@@ -254,7 +254,8 @@ def main() -> int:
         m = measure(cols, meta, name="ct_cod_example")
         shared = score(m.columns, tr["points"], tr["W"], tr["fmax_n"])
         shared["expression"] = m.expression
-    print(json.dumps({"benchmark": "crack_measure", "seed": args.seed, "noise_scale": args.noise_scale, "own_generator": own, "shared_record": shared}, indent=1))
+    print(json.dumps({"benchmark": "crack_measure", "seed": args.seed, "noise_scale": args.noise_scale,
+                      "own_generator": own, "shared_record": shared}, indent=1))
     return 0
 
 
