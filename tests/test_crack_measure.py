@@ -184,3 +184,15 @@ def test_intervals_cut_bursts_and_a_continuous_record(tmp_path):
         assert len(measure(cont, case["meta"])) == -(-n // 10)
     else:
         assert len(measure(cont, case["meta"])) == 1
+
+
+def test_cli_potential_drop_record_says_its_expression(tmp_path, capsys):
+    case = _case(12, "mt_pd")
+    rec = gen.write_case(case, tmp_path / "pd")
+    assert main(["crack", "measure", str(rec), "--out", str(tmp_path / "o")]) == 0
+    assert "Johnson" in capsys.readouterr().out
+    rows = list(csv.DictReader(open(tmp_path / "o" / "a_n.csv")))
+    assert all(r["opening_force_n"] == "" for r in rows)  # no closure from a potential drop
+    a = np.array([float(r["a_m"]) for r in rows])
+    assert np.max(np.abs(a - [p["a_m"] for p in case["truth"]])) <= core.crack_resolution_m(case["width_m"])
+    assert json.loads((tmp_path / "o" / "measure.json").read_text())["method"] == "potential_drop"
