@@ -269,3 +269,34 @@ def replay(params: list[Params], dt: float, u: npt.NDArray[np.float64], measured
 def friction_force(params: Params, v: npt.NDArray[np.float64], p_sum: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """Friction force [N] of the Stribeck model at velocities `v` [m/s] and chamber pressure sums `p_sum` [Pa]."""
 
+
+# crack size and closure measured on the specimen (python/measure.rs, crack_measure.rs)
+__all__ += ["crack_reduce", "ct_alpha_from_compliance", "ct_gauge_x_over_w", "correct_to_visual", "crack_resolution_m"]
+
+# columns of crack_reduce: one value per burst or interval (SI; NaN where not measured)
+class _CrackReduction(TypedDict):
+    cycles: npt.NDArray[np.float64]
+    n_cycles: npt.NDArray[np.float64]
+    a_m: npt.NDArray[np.float64]
+    a_std_m: npt.NDArray[np.float64]
+    fmin_n: npt.NDArray[np.float64]
+    fmax_n: npt.NDArray[np.float64]
+    value: npt.NDArray[np.float64]
+    opening_force_1pct_n: npt.NDArray[np.float64]
+    opening_force_n: npt.NDArray[np.float64]
+    opening_force_4pct_n: npt.NDArray[np.float64]
+    opening_force_segments_n: npt.NDArray[np.float64]
+    dk_pa_sqrt_m: npt.NDArray[np.float64]
+    dk_eff_pa_sqrt_m: npt.NDArray[np.float64]
+    resolution_m: npt.NDArray[np.float64]
+
+def crack_reduce(geometry: str, width_m: float, thickness_m: float, method: str, cycle: npt.NDArray[np.float64],
+                 signal: npt.NDArray[np.float64], f: npt.NDArray[np.float64] | None = None, *, modulus_pa: float | None = None,
+                 cod_x_over_w: float = ..., cod_y_m: float | None = None, poisson_ratio: float = 0.3,
+                 dcpd_probe_y_m: float | None = None, dcpd_a_ref_m: float | None = None, dcpd_v_ref: float | None = None,
+                 calibration: tuple[list[float], list[float]] | None = None,
+                 cycles_per_interval: int = 0) -> tuple[str, _CrackReduction]: ...
+def ct_alpha_from_compliance(ebc: npt.NDArray[np.float64], x_over_w: float) -> npt.NDArray[np.float64]: ...
+def ct_gauge_x_over_w(name: str) -> float: ...
+def correct_to_visual(a_m: npt.NDArray[np.float64], a0_visual_m: float, af_visual_m: float) -> npt.NDArray[np.float64]: ...
+def crack_resolution_m(width_m: float) -> float: ...

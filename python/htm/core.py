@@ -84,3 +84,8 @@ __all__ = [
     "growth_rate", "h_ct", "life", "life_curve", "loop_simulate", "newman_f", "pmax_from_delta_p", "rainflow", "replay",
     "run_batch", "run_test", "size_criterion", "start_amplitude_cycles", "stiffness_ct", "stress_intensity", "validate_test",
 ]
+
+# crack size and closure measured on the specimen (crack_measure.rs)
+from htm._core import correct_to_visual, crack_reduce, crack_resolution_m, ct_alpha_from_compliance, ct_gauge_x_over_w  # noqa: E402
+
+__all__ += ["correct_to_visual", "crack_reduce", "crack_resolution_m", "ct_alpha_from_compliance", "ct_gauge_x_over_w"]

@@ -3,6 +3,7 @@
 pub mod batch;
 pub mod control;
 pub mod crack;
+pub mod crack_measure;
 pub mod cyclic;
 pub mod engine;
 pub mod error;

@@ -215,3 +215,44 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--af-m", type=float, required=True, help="final crack size [m]")
     add_json_flag(p)
     p.set_defaults(func=cmd_crack_predict)
+    register_measure(csub)
+
+
+# ---- `htm crack measure`: crack size and closure from a raw record (htm.fatigue.measure) -------
+def cmd_crack_measure(args: argparse.Namespace) -> int:
+    from htm.fatigue.measure import measure, read_table, write_a_n
+
+    if args.cycles_per_interval is not None and args.cycles_per_interval < 1:
+        raise SpecError(f"--cycles-per-interval = {args.cycles_per_interval}: give at least 1 cycle")
+    columns, meta = read_table(args.record, args.meta)
+    m = measure(columns, meta, method=args.method, cycles_per_interval=args.cycles_per_interval, name=Path(args.record).name)
+    path = write_a_n(m, Path(args.out))
+    c = m.columns
+    a = c["a_m"]
+    print(f"crack size from {m.method.replace('_', ' ')}: {m.expression}")
+    print(f"{len(m)} rows, cycles {int(c['cycles'][0]):,}..{int(c['cycles'][-1]):,}, a {a[0] * 1e3:.3f} → {a[-1] * 1e3:.3f} mm "
+          f"(resolution {m.resolution_m * 1e3:.3f} mm)")
+    op = c["opening_force_n"]
+    if np.isfinite(op).any():
+        print(f"opening force (2 % compliance offset, E647 X2): {np.nanmin(op):.0f}..{np.nanmax(op):.0f} N "
+              f"= {100 * np.nanmin(op / c['fmax_n']):.1f}..{100 * np.nanmax(op / c['fmax_n']):.1f} % of Fmax")
+    print(f"wrote {path}, {path.parent / 'measure.json'}")
+    return 0
+
+
+def register_measure(csub: argparse._SubParsersAction) -> None:
+    m = csub.add_parser("measure", help="crack size and opening force from a load–opening or potential-drop record",
+                        description="Reduce a raw record (DATA_FORMAT.md: `cycle` with `cod` + `f` from a clip gauge, or "
+                                    "`dcpd_v`) to DIR/a_n.csv (`cycles`, `a_m`, `opening_force_n`, one row per burst or "
+                                    "interval) and DIR/measure.json naming the expression used. The specimen entry of the "
+                                    "metadata gives the constants (geometry, width_m, thickness_m; youngs_modulus_pa and "
+                                    "cod_at / cod_y_m for compliance; dcpd_probe_y_m, dcpd_a_ref_m, dcpd_v_ref or "
+                                    "dcpd_calibration for potential drop). `htm e647 DIR/a_n.csv` reduces the result.")
+    m.add_argument("record", metavar="RECORD")
+    m.add_argument("--meta", help="metadata JSON (default RECORD's .json beside it)")
+    m.add_argument("--method", choices=["auto", "compliance", "potential_drop"], default="auto",
+                   help="auto: compliance when the record has `cod`, else potential drop")
+    m.add_argument("--cycles-per-interval", type=int,
+                   help="cycles pooled per row (default: one row per burst; 10 for a continuous record)")
+    m.add_argument("--out", required=True, help="output directory")
+    m.set_defaults(func=cmd_crack_measure)

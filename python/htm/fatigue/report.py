@@ -109,7 +109,7 @@ def e647_report(out: Path, datas: list[CrackData], setup: Setup, reds: list[Redu
     except Exception:  # noqa: BLE001 — too few valid points for a fit: the report says so
         pass
     models = {}
-    if pf is not None:
+    if pf is not None and pf.m > 0:  # a falling rate (m ≤ 0) is no Paris law: no line is drawn
         models["Paris (region II, valid points)"] = Model("paris", {"log10_c": np.log10(pf.c_mpa), "m": pf.m})
     dadn = plot_dadn_dk(out / "dadn_dk.png", reds, models, setup.r_ratio)
     lines = ["# ASTM E647 reduction", "", "## Specimen and loading", "",

@@ -17,6 +17,8 @@ from htm.inputs import decode, missing, read_text
 FORMAT = "htm-record/1"
 REQUIRED = ("t", "y")  # and `u`, unless the machine closes its own loop (`machine_position`)
 MACHINE_POSITION = "machine_position"
+# a specimen or load-train record: `t`, `f` and the displacement `y` or a clip gauge's `cod`
+DISPLACEMENT_INPUT = "displacement_input"
 KNOWN = ("t", "u", "y", "v", "p_a", "p_b", "p_s", "f", "y_ref", "f_ref")
 
 
@@ -32,9 +34,26 @@ class Record:
         lengths = {k: len(v) for k, v in self.columns.items()}
         if len(set(lengths.values())) > 1:
             raise RecordError(f"record `{self.name}`: columns differ in length {lengths}")
-        for col in REQUIRED:
-            if col not in self.columns:
-                raise RecordError(f"record `{self.name}`: required column `{col}` is missing")
+        absent = _missing_column(self.columns, self.meta)
+        if absent:
+            raise RecordError(f"record `{self.name}`: required column {absent} is missing{_close(absent, self.columns)}")
+
+
+def _missing_column(columns: dict[str, np.ndarray], meta: dict[str, Any]) -> str | None:
+    """The first required column (DATA_FORMAT.md) a record lacks, quoted, or None."""
+    ctrl = meta.get("controller")
+    if isinstance(ctrl, dict) and ctrl.get("type") == DISPLACEMENT_INPUT:
+        for col in ("t", "f"):
+            if col not in columns:
+                return f"`{col}`"
+        return None if ("y" in columns or "cod" in columns) else "`y` or `cod` (the displacement of a displacement_input record)"
+    return next((f"`{c}`" for c in REQUIRED if c not in columns), None)
+
+
+def _close(absent: str, columns: dict[str, np.ndarray]) -> str:
+    """The close match present for a missing column named by `_missing_column` (its first quoted name)."""
+    name = absent.split("`")[1] if absent.startswith("`") else absent
+    return missing(name, columns)
 
 
 def _table_path(base: Path) -> Path:
@@ -123,10 +142,10 @@ def read_record(path: str | Path, meta: str | Path | None = None) -> Record:
                 raise RecordError(f"table {table}: row {int(np.argmax(bad))}: column `{c}` = {x[bad][0]} is not a finite number")
     else:
         columns = _read_csv_table(table)
-    for col in REQUIRED:
-        if col not in columns:
-            raise RecordError(f"table {table}: required column `{col}` is missing{missing(col, columns)} "
-                              f"(columns: {', '.join(columns)}; DATA_FORMAT.md)")
+    absent = _missing_column(columns, md)
+    if absent:
+        raise RecordError(f"table {table}: required column {absent} is missing{_close(absent, columns)} "
+                          f"(columns: {', '.join(columns)}; DATA_FORMAT.md)")
     return Record(columns=columns, meta=md, name=name)
 
 
@@ -286,10 +305,12 @@ def validate_record(rec: Record, *, max_nan_run_s: float = 0.5, max_nan_fraction
     """
     name = rec.name
     cols = rec.columns
-    for c in REQUIRED:
-        if c not in cols:
-            raise RecordError(f"record `{name}`: required column `{c}` is missing{missing(c, cols)} (DATA_FORMAT.md)")
-    if machine_position(rec):
+    absent = _missing_column(cols, rec.meta)
+    if absent:
+        raise RecordError(f"record `{name}`: required column {absent} is missing{_close(absent, cols)} (DATA_FORMAT.md)")
+    if displacement_input(rec):
+        pass  # the displacement drives the model: no valve command, no reference
+    elif machine_position(rec):
         if "y_ref" not in cols:
             raise RecordError(f"record `{name}` declares a machine that closes its own loop (controller type "
                               f"`{MACHINE_POSITION}`) but has no position reference column `y_ref` (DATA_FORMAT.md)")
@@ -306,6 +327,11 @@ def validate_record(rec: Record, *, max_nan_run_s: float = 0.5, max_nan_fraction
     if np.any(dt <= 0):
         k = int(np.argmax(dt <= 0))
         raise RecordError(f"record `{name}`: time does not increase at row {k + 1} (t = {t[k]} then {t[k + 1]} s)")
+    if "cycle" in cols:  # bursts of cycles: `t` is uniform within a burst and jumps between bursts
+        cyc = np.asarray(cols["cycle"], dtype=float)
+        dt = dt[np.abs(np.diff(cyc)) <= 1]
+        if dt.size == 0:
+            raise RecordError(f"record `{name}`: no two consecutive samples within a burst of cycles")
     dt0 = float(np.median(dt))
     worst = float(np.max(np.abs(dt - dt0)))
     if worst > 0.01 * dt0:
@@ -348,6 +374,12 @@ def validate_record(rec: Record, *, max_nan_run_s: float = 0.5, max_nan_fraction
             raise RecordError(f"record `{name}`: pressure `{c}` peaks at {peak:g} Pa against a {supply:g} Pa supply: "
                               f"the column looks like {other}; convert it to {si}")
     return warnings
+
+
+def displacement_input(rec: Record) -> bool:
+    """Does the record declare a specimen or load-train record (displacement in, force out)?"""
+    ctrl = rec.meta.get("controller")
+    return isinstance(ctrl, dict) and ctrl.get("type") == DISPLACEMENT_INPUT
 
 
 def machine_position(rec: Record) -> bool:

@@ -17,6 +17,7 @@ mod engine;
 mod fatigue;
 mod feasibility;
 mod ident;
+mod measure;
 mod outer_loop;
 mod replay;
 
@@ -27,6 +28,7 @@ pub(crate) fn register_extensions(m: &Bound<'_, PyModule>) -> PyResult<()> {
     control::register(m)?;
     engine::register(m)?;
     ident::register(m)?;
+    measure::register(m)?;
     outer_loop::register(m)?;
     replay::register(m)?;
     Ok(())
