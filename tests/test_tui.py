@@ -1,5 +1,6 @@
 """The operator console driven by Textual's pilot, one test per workflow, on the virtual rig."""
 import asyncio
+import re
 import time
 from pathlib import Path
 
@@ -90,7 +91,6 @@ def test_install_jog_is_force_limited_by_specimen_protect(store):
             await until(pilot, lambda: app.session is not None)
             await pilot.press("f3")
             await pilot.press("o")
-            await until(pilot, lambda: app.session.snapshot()["state"] == "position")
             await pilot.press("plus", "plus", "plus")  # 10 mm/s: into the specimen
             await pilot.press("up")
             await until(pilot, lambda: app.session.snapshot()["protecting"], timeout=30)
@@ -102,6 +102,35 @@ def test_install_jog_is_force_limited_by_specimen_protect(store):
             await pilot.press("space")
             await pilot.press("t")
             await until(pilot, lambda: abs(app.session.snapshot()["f"]) < 200.0)
+            # after a test's stop the supply is unloaded: position control waits for it, and says so
+            await pilot.press("f4", "s")
+            await until(pilot, lambda: app.session.snapshot()["state"] == "running", timeout=30)
+            await pilot.press("x")
+            await until(pilot, lambda: not app.session.snapshot()["amplifier"] and app.session.snapshot()["p_s"] < 50e5, timeout=30)
+            await pilot.press("f3", "o")
+            await pilot.pause(0.15)  # a poll after the key
+            while app.session.snapshot()["state"] != "position":  # while the supply comes up: said so, never a bare "idle"
+                shown = text(app, "#install-numbers")
+                assert "switching to position control: loading the supply" in shown or "state[/] position" in shown, shown
+                await pilot.pause(0.05)
+            await until(pilot, lambda: "→" not in text(app, "#install-numbers") and "state[/] position" in text(app, "#install-numbers"))
+    run(go())
+
+
+def test_a_tab_entered_shows_the_state_of_now(store):
+    """With the poller off, only entering the tab can bring its numbers up to date: the Run tab
+    seen idle, position control switched on in Install, then F4 shows position at once."""
+    async def go():
+        app = HtmApp(poll=False)
+        async with app.run_test(size=(160, 50)) as pilot:
+            await until(pilot, lambda: app.session is not None)
+            await pilot.press("f4")
+            assert "state[/] idle" in text(app, "#run-numbers") and "amplifier[/] off" in text(app, "#run-numbers")
+            await pilot.press("f3", "o")
+            await until(pilot, lambda: app.session.snapshot()["state"] == "position" and not app.pending)
+            await pilot.press("f4")
+            shown = text(app, "#run-numbers")
+            assert "state[/] position" in shown and "amplifier[/] ON" in shown, shown
     run(go())
 
 
@@ -147,6 +176,25 @@ def test_run_start_cycles_advance_trip_latches_reset_and_stop(store):
     run(go())
 
 
+def test_the_rerun_viewer_is_found_beside_python_off_path(monkeypatch):
+    import sys
+
+    from htm.tui.results import rerun_viewer
+
+    monkeypatch.setenv("PATH", "/nonexistent")
+    exe = rerun_viewer()
+    assert exe == str(Path(sys.executable).with_name("rerun")) and Path(exe).is_file(), exe
+
+
+def test_plot_axis_labels_differ_on_a_narrow_range():
+    from htm.tui.plot import axis_labels
+
+    assert axis_labels(15.2001, 15.2049) == ["15.2001", "15.2049"]  # was "15.2" twice
+    assert axis_labels(15.2001, 15.2049, 3) == ["15.2001", "15.2025", "15.2049"]
+    assert axis_labels(1, 95_399) == ["1", "95,399"]
+    assert axis_labels(-4.45, 4.45, 3) == ["−4.5", "0.0", "4.5"]
+
+
 def test_help_screen_lists_the_handset_keys(store):
     async def go():
         app = HtmApp(session_factory=lambda: None)
@@ -163,9 +211,13 @@ def test_help_screen_lists_the_handset_keys(store):
 
 
 def test_results_lists_tests_opens_the_report_and_exports(store, tmp_path):
+    """↑/↓ move in the list as soon as the tab is entered; the selection survives leaving and
+    coming back; the summary is in engineering units."""
     from htm.cli import main as htm_main
+    from htm.tui.results import ResultsPane
 
-    assert htm_main(["run", "examples/ct_constant_force.toml", "--out", str(tmp_path / "run"), "--quiet", "--no-recording"]) == 0
+    for i in (1, 2):
+        assert htm_main(["run", "examples/ct_constant_force.toml", "--out", str(tmp_path / f"run{i}"), "--quiet", "--no-recording"]) == 0
 
     async def go():
         app = HtmApp(session_factory=lambda: None, store=store)
@@ -173,9 +225,20 @@ def test_results_lists_tests_opens_the_report_and_exports(store, tmp_path):
             await pilot.press("f5")
             await pilot.pause()
             table = app.query_one("#results-table", DataTable)
-            assert table.row_count == 1
-            await pilot.press("down", "up")
+            pane = app.query_one(ResultsPane)
+            assert table.row_count == 2 and app.focused is table
+            assert [str(c.label) for c in table.columns.values()][5] == "a end [mm]"
+            older = str(table.get_row_at(1)[0])
+            await pilot.press("down")  # no Tab first
+            await until(pilot, lambda: pane.selected == older)
+            await pilot.press("f2", "f5")
+            await pilot.pause(0.3)
+            assert table.cursor_row == 1 and pane.selected == older, "the selection stays where it was"
+            await pilot.press("up", "down")
             await until(pilot, lambda: "target_crack_length" in text(app, "#results-summary"))
+            summary = text(app, "#results-summary")
+            assert re.search(r"final a +30\.\d{4} mm", summary) and "final_a_m" not in summary, summary
+            assert re.search(r"velocity gain +-?\d+\.\d{4} mm/s per V", summary) and re.search(r"final a/W +0\.6000\n", summary), summary
             report = app.query_one("#results-report")
             assert "Simulated test" in report.source
             app.query_one("#export-dir", Input).value = str(tmp_path / "export")

@@ -51,7 +51,8 @@ Like a controller handset: the keys act on the tab you are in; E-stop works ever
 |---|---|---|
 | **F12** or **ctrl+e** | anywhere | **E-STOP**: valve null, amplifier off, supply unloaded; latched until reset |
 | F1 or ? | anywhere | this help |
-| F2 … F6 | anywhere | Setup, Install, Run, Results, Diagnose |
+| F2 … F6 | anywhere | Setup, Install, Run, Results, Diagnose (the keys then act on that tab at once) |
+| Tab / shift+Tab | anywhere | next / previous field or button; enter presses a button |
 | ctrl+s | anywhere | simulate the Setup spec on the fast engine (predicted life, force errors) |
 | ↑ / ↓ | Install | jog up / down at the jog rate (position control, specimen protect on) |
 | space | Install | stop jogging |
@@ -64,9 +65,11 @@ Like a controller handset: the keys act on the tab you are in; E-stop works ever
 | h / r | Run | hold (freeze at mean) / resume |
 | x | Run | stop (ramp to mean, then null) |
 | ctrl+r | Run | reset interlocks whose condition has gone |
+| ↑ / ↓ | Results | select a test in the list (its summary, report and life band below) |
 | ctrl+l | Results | refresh the list of tests |
 | v | Results | open the selected test's rerun recording |
-| b | Results | the selected test's life band, updated from its own first points |
+| b | Results | the selected test's life band, updated from its own first points (blank set: Virkler 2024-T3) |
+| (fields) | Diagnose | record table and output folder, then Diagnose (enter) |
 | q | anywhere | quit (the loop stops safely: valve null, amplifier off) |
 
 Escape closes this screen.
@@ -200,11 +203,13 @@ class HtmApp(App[None]):
         run.add_feed(feed)
         run.add_cycles(rows)
         snap["pending"] = self.pending_text(snap)
-        active = self.query_one("#tabs", TabbedContent).active
-        if active == "run":
+        # numbers on both handset tabs every poll (a few lines of text); plots and the limits panel
+        # only where they are seen
+        if self.query_one("#tabs", TabbedContent).active == "run":
             run.update_live(snap, s.detectors())
-        elif active == "install":
-            self.query_one(InstallPane).update_live(snap)
+        else:
+            run.update_numbers(snap)
+        self.query_one(InstallPane).update_live(snap)
 
     def command(self, name: str, *args: Any) -> None:
         """Send session command `name` (a `Session` method) from a worker thread."""
@@ -270,6 +275,7 @@ class HtmApp(App[None]):
             self.set_focus(None)
             tabs.active = tab
             self.focus_tab(tab)
+            self.poll()  # the tab's first picture is of now, not of when it was last seen
 
     def focus_tab(self, tab: str) -> None:
         """Keys act at once on the tab just entered: the handset panes take them, Results its list

@@ -101,6 +101,12 @@ class RunPane(Vertical):
             c["dk"].append(r["delta_k_pa_sqrt_m"] / 1e6)
 
     def update_live(self, snap: dict[str, Any], detectors: list[dict[str, Any]]) -> None:
+        self.update_numbers(snap)
+        self._plots()
+        self._detectors(detectors)
+
+    def update_numbers(self, snap: dict[str, Any]) -> None:
+        """The live numbers (kept current behind other tabs too: a tab entered never shows an old state)."""
         tm = snap.get("timing") or {}
         self.query_one("#run-numbers", Static).update(
             f"[b]state[/] {snap['state']}   [b]cycles[/] {snap['cycles']:,}   [b]f[/] {num(snap['frequency_hz'], '.2f')} Hz   "
@@ -112,8 +118,6 @@ class RunPane(Vertical):
             f"[b]loop[/] p99 {num(tm.get('p99_ms', math.nan), '.3f')} ms, overruns {tm.get('overruns', 0)}"
             + (f"   [b]end[/] {snap['end_reason']}" if snap.get("end_reason") else "")
             + (f"\n[b yellow]→ {snap['pending']}[/]" if snap.get("pending") else ""))
-        self._plots()
-        self._detectors(detectors)
 
     def _plots(self) -> None:
         def draw(pid: str, series: list[tuple[list[float], list[float], str]]) -> None:

@@ -70,17 +70,17 @@ def plain(text: str) -> Text:
 
 
 # a stored result's SI suffix -> (unit shown, scale): the longest suffix that matches wins
-SUFFIXES = (("_pa_sqrt_m", "MPa·√m", 1e-6), ("_m_per_cycle", "mm/cycle", 1e3), ("_n_m", "kN/mm", 1e-6), ("_pa", "MPa", 1e-6),
+SUFFIXES = (("_m_s_per_v", "mm/s per V", 1e3), ("_pa_sqrt_m", "MPa·√m", 1e-6), ("_m_per_cycle", "mm/cycle", 1e3), ("_n_m", "kN/mm", 1e-6), ("_pa", "MPa", 1e-6),
             ("_n", "kN", 1e-3), ("_m", "mm", 1e3), ("_pct", "%", 1.0), ("_s", "s", 1.0), ("_hz", "Hz", 1.0), ("_v", "V", 1.0))
 
 
 def eng(key: str, v: float, pressures_in_bar: bool = False) -> tuple[str, str, str]:
     """(name, value, unit) of an SI value named with its unit suffix (`final_a_m` → final a,
     30.4803, mm); pressures in bar where a hydraulic pressure is meant, else MPa (a stress)."""
-    unit, scale, name = "", 1.0, key
+    unit, scale, name = "", 1.0, key.replace("a_over_w", "a/W")
     for suffix, u, sc in SUFFIXES:
         if key.endswith(suffix):
-            unit, scale, name = u, sc, key[: -len(suffix)]
+            unit, scale, name = u, sc, name[: -len(suffix)]
             break
     if unit == "MPa" and pressures_in_bar:
         unit, scale = "bar", 1e-5
