@@ -102,7 +102,7 @@ class HtmApp(App[None]):
     CSS = """
     #tabs { height: 1fr; }
     TabPane { height: 1fr; padding: 0; }
-    #events-heading { height: 1; border-top: solid $accent; color: $text-muted; }
+    #events-heading { height: 2; border-top: solid $accent; color: $text-muted; }
     #events { height: 5; }
     """
 
