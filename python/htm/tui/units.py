@@ -7,6 +7,7 @@ in its own column.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 
 from rich.text import Text
@@ -93,6 +94,7 @@ def eng(key: str, v: float, pressures_in_bar: bool = False) -> tuple[str, str, s
         text = f"{x:.3e}"
     else:
         text = f"{x:,.4f}" if abs(x) < 1e4 else f"{x:,.0f}"
+    name = re.sub(r"(\d+)pct$", r"\1 %", re.sub(r"(\d+)p(\d+)pct$", r"\1.\2 %", name))  # cycles_to_0p5pct: cycles to 0.5 %
     return name.replace("_", " "), text, unit
 
 
