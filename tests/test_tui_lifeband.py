@@ -139,3 +139,16 @@ def test_life_band_bad_input_is_a_message(virkler_test, tmp_path):
             await pilot.pause()
             assert "is not a number" in text(app, "#lifeband-result")
     asyncio.run(go())
+
+
+def test_a_spec_of_the_same_specimen_with_another_crack_is_a_warning():
+    from htm import spec as specmod
+    from htm.tui.results import spec_mismatch
+
+    spec = specmod.load(ROOT / "examples" / "ct_constant_force.toml", check=False)
+    same = {"geometry": "ct", "width_m": spec.width_m, "thickness_m": spec.thickness_m, "a0_m": spec.a0_m}
+    assert spec_mismatch(same, spec) == ([], [])
+    refuse, warn = spec_mismatch({**same, "a0_m": 0.012}, spec)
+    assert refuse == [] and warn == ["initial crack a0 15.20 mm in the spec, 12.00 mm in the test"]
+    refuse, _ = spec_mismatch({**same, "width_m": 0.1016}, spec)
+    assert refuse == ["the spec is for a C(T) W 50.8 mm specimen, the test ran a C(T) W 101.6 mm: enter this test's spec"]
