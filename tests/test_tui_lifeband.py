@@ -58,6 +58,7 @@ def test_life_band_of_a_stored_test_narrows_with_its_early_points(virkler_test):
             lo, med, hi = res["band"]
             u = res["update"]
             assert len(res["life"]) == 40 and res["joint"].n_specimens == 40 and res["data"] == str(VIRKLER)
+            assert not res["warnings"]  # the test's own spec: nothing to warn of
             assert lo < med < hi and u["p5"] <= u["median"] <= u["p95"]
             assert u["p95"] - u["p5"] < hi - lo  # the test's own points narrow the band
             assert res["early"].cycles[-1] <= 80_000 and u["points"] >= 2
@@ -68,6 +69,50 @@ def test_life_band_of_a_stored_test_narrows_with_its_early_points(virkler_test):
             # the test ran to af: its life sits near the updated median, closer than the prior one
             life = res["test"]["cycles"]
             assert abs(u["median"] - life) < abs(med - life)
+    asyncio.run(go())
+
+
+def test_the_virkler_set_ships_inside_the_package_unchanged():
+    """A blank specimen-set field means the Virkler set in an installed htm too: it is package
+    data (maturin puts every file under python/htm into the wheel), a copy of data/'s."""
+    import htm
+
+    assert VIRKLER.is_relative_to(Path(htm.__file__).parent), VIRKLER
+    assert VIRKLER.read_bytes() == (ROOT / "data" / "virkler_2024t3" / VIRKLER.name).read_bytes()
+    assert "GPL" in (VIRKLER.parent / "README.md").read_text(), "its source and licence go with it"
+
+
+def test_a_spec_of_another_specimen_is_refused_and_a_band_stays_with_its_test(virkler_test, tmp_path):
+    """A C(T) test and the Virkler M(T) spec typed in: refused, naming both specimens. The message
+    belongs to that test: selecting the other test clears the pane, coming back shows it again."""
+    from htm.cli import main as htm_main
+
+    assert htm_main(["run", str(ROOT / "examples" / "ct_constant_force.toml"), "--out", str(tmp_path / "ct"), "--quiet",
+                     "--no-recording", "--store", str(virkler_test)]) == 0
+
+    async def go():
+        app = HtmApp(session_factory=lambda: None, store=virkler_test)
+        async with app.run_test(size=(160, 50)) as pilot:
+            await pilot.press("f5")
+            await pilot.pause()
+            table = app.query_one("#results-table", DataTable)
+            pane = app.query_one(ResultsPane)
+            assert table.row_count == 2 and str(table.get_row_at(0)[1]) == "ct_constant_force"  # newest first
+            await until(pilot, lambda: pane.selected == str(table.get_row_at(0)[0]))
+            ct = pane.selected
+            app.query_one("#lb-spec", Input).value = str(ROOT / "examples" / "virkler_mt.toml")
+            await pilot.click("#lifeband")
+            await until(pilot, lambda: "[red]" in text(app, "#lifeband-result"), timeout=LONG)
+            said = text(app, "#lifeband-result")
+            assert "does not match test" in said and "M(T) W 152.4 mm" in said and "C(T) W 50.8 mm" in said, said
+            assert pane.life_band is None
+            table.focus()
+            await pilot.press("down")
+            await until(pilot, lambda: pane.selected != ct)
+            assert text(app, "#lifeband-result") == "", "no other test's band above this test"
+            await pilot.press("up")
+            await until(pilot, lambda: pane.selected == ct)
+            assert text(app, "#lifeband-result") == said
     asyncio.run(go())
 
 
@@ -94,3 +139,16 @@ def test_life_band_bad_input_is_a_message(virkler_test, tmp_path):
             await pilot.pause()
             assert "is not a number" in text(app, "#lifeband-result")
     asyncio.run(go())
+
+
+def test_a_spec_of_the_same_specimen_with_another_crack_is_a_warning():
+    from htm import spec as specmod
+    from htm.tui.results import spec_mismatch
+
+    spec = specmod.load(ROOT / "examples" / "ct_constant_force.toml", check=False)
+    same = {"geometry": "ct", "width_m": spec.width_m, "thickness_m": spec.thickness_m, "a0_m": spec.a0_m}
+    assert spec_mismatch(same, spec) == ([], [])
+    refuse, warn = spec_mismatch({**same, "a0_m": 0.012}, spec)
+    assert refuse == [] and warn == ["initial crack a0 15.20 mm in the spec, 12.00 mm in the test"]
+    refuse, _ = spec_mismatch({**same, "width_m": 0.1016}, spec)
+    assert refuse == ["the spec is for a C(T) W 50.8 mm specimen, the test ran a C(T) W 101.6 mm: enter this test's spec"]

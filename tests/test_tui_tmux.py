@@ -45,7 +45,7 @@ class Tmux:
 def test_console_in_tmux_runs_two_tests_by_keys_and_records_both(tmp_path):
     store = tmp_path / "store"
     t = Tmux(f"htm-test-{os.getpid()}")
-    cmd = f"env HTM_STORE={store} {HTM_TUI} --store {store}"
+    cmd = f"env -u COLUMNS -u LINES HTM_STORE={store} {HTM_TUI} --store {store}"  # pytest's COLUMNS would size the app
     t("new-session", "-d", "-s", "tui", "-x", "170", "-y", "50", cmd)
     try:
         t.wait_for("connected to the virtual rig")
@@ -62,9 +62,9 @@ def test_console_in_tmux_runs_two_tests_by_keys_and_records_both(tmp_path):
         t.keys("s")  # a second test in the same session, its supply unloaded by the stop
         t.wait_for("state running")
         t.keys("F12")
-        screen = t.wait_for("estop: E-STOP", timeout=10)
+        screen = t.wait_for("estop      E-STOP", timeout=10)  # the event log: time [s], event, detail
         screen = t.wait_for("amplifier off", timeout=5)
-        assert "interlock power_off" in screen and "error:" not in screen, screen
+        assert "interlock power_off" in screen and not any(ln.split()[1:2] == ["error"] for ln in screen.splitlines()), screen
         t.keys("q")
         t0 = time.monotonic()
         while _alive(t):
@@ -83,3 +83,90 @@ def test_console_in_tmux_runs_two_tests_by_keys_and_records_both(tmp_path):
 
 def _alive(t: Tmux) -> bool:
     return subprocess.run(t.base + ["has-session", "-t", "tui"], capture_output=True).returncode == 0
+
+
+def test_every_tab_by_keyboard_alone_in_tmux(tmp_path):
+    """Every tab driven by keys alone in a real terminal, and what the screen shows: Setup
+    (simulate), Install (position control), Run (the limits panel in engineering units, start,
+    stop), Results (↑/↓ in the list at once, the selection kept across tabs), Diagnose (its
+    record and output fields typed into, Tab between them, Enter on the button), help."""
+    from htm.cli import main as htm_main
+    from htm.ident.proving import make_record
+    from htm.ident.records import write_record
+
+    store = tmp_path / "store"
+    for i in (1, 2):
+        assert htm_main(["run", "examples/ct_constant_force.toml", "--out", str(tmp_path / f"run{i}"), "--quiet",
+                         "--no-recording", "--store", str(store)]) == 0
+    with Store(store) as s:
+        older, newer = [x["id"] for x in s.list_tests()]
+    rec, _ = make_record({"sensor_offset": {"channel": "p_a", "offset_pa": 4e5}}, seed=3, duration_s=10.0)
+    record, _ = write_record(rec, tmp_path / "rec")
+    t = Tmux(f"htm-keys-{os.getpid()}")
+    t("new-session", "-d", "-s", "tui", "-x", "170", "-y", "50", f"env -u COLUMNS -u LINES HTM_STORE={store} {HTM_TUI} --store {store}")
+    try:
+        t.wait_for("connected to the virtual rig")
+        assert max(map(len, t.screen().splitlines())) > 150, "the console fills the 170-column terminal"
+        # Setup: simulate the spec on the fast engine
+        t.keys("C-s")
+        t.wait_for("predicted life", timeout=60)
+        # Install: position control on; the numbers in mm and kN
+        t.keys("F3")
+        t.wait_for("jog rate")
+        t.keys("o")
+        screen = t.wait_for("state position")
+        assert "position" in screen and " mm" in screen and " kN" in screen, screen
+        # Run: the limits panel in engineering units, each with its unit; start and stop
+        t.keys("F4")
+        screen = t.wait_for("low limit")
+        row = next(ln for ln in screen.splitlines() if ln.split()[:1] == ["supply_pressure"])
+        assert row.split()[1:6] == ["supply", "pressure", "120.0", "250.0"] or "120.0" in row and "bar" in row, row
+        band = next(ln for ln in screen.splitlines() if ln.split()[:1] == ["force_band"])
+        assert "none" in band and "25.0" in band and "% of ΔF" in band, band
+        assert "e+0" not in screen, "no e-notation on the Run tab"
+        t.keys("s")
+        t.wait_for("state running")
+        t.keys("x")
+        t.wait_for("state idle")
+        # Results: ↑/↓ act at once (no Tab first), the selection stays across tabs
+        t.keys("F5")
+        screen = t.wait_for("a end [mm]")
+        t.keys("Down")
+        t.wait_for(f"{older} ct_constant_force")  # the summary's first line names the test selected
+        t.keys("F2")
+        t.wait_for("can the rig run it?")
+        t.keys("F5")
+        time.sleep(1.0)
+        screen = t.wait_for(f"{older} ct_constant_force")
+        assert f"{newer} ct_constant_force (" not in screen, "the selection stayed on the test chosen"
+        assert "final a/W" in screen and "mm" in screen, screen
+        # Diagnose: both fields and the button by keyboard
+        t.keys("F6")
+        t.wait_for("record table (.csv")
+        # (at a person's pace: a burst of characters arrives as one paste, and a Tab inside a
+        # paste is text, not a key)
+        t("send-keys", "-t", "tui", "-l", str(record))
+        time.sleep(0.5)
+        t.keys("Tab")
+        time.sleep(0.5)
+        t("send-keys", "-t", "tui", "-l", str(tmp_path / "diag"))
+        time.sleep(0.5)
+        t.keys("Tab")
+        time.sleep(0.5)
+        t.keys("Enter")
+        screen = t.wait_for("report:", timeout=300)
+        assert "sensor_offset" in screen and "bar" in screen, screen
+        assert (tmp_path / "diag" / "report.md").exists()
+        # help, then quit
+        t.keys("F1")
+        t.wait_for("htm-tui keys")
+        t.keys("Escape")
+        time.sleep(0.5)  # ESC then q at once would read as alt+q
+        assert "htm-tui keys" not in t.screen()
+        t.keys("q")
+        t0 = time.monotonic()
+        while _alive(t):
+            assert time.monotonic() - t0 < 15, "the console did not quit on q"
+            time.sleep(0.2)
+    finally:
+        subprocess.run(t.base + ["kill-server"], capture_output=True)

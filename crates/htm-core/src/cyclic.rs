@@ -364,6 +364,14 @@ impl Cyclic {
     pub fn reference_m(&self) -> f64 {
         self.pos.r
     }
+    /// The force setpoint of the next control period [N] (NaN outside a force test): read
+    /// before `step`, the setpoint at the time of the force that `step` is given.
+    pub fn force_ref_n(&self) -> f64 {
+        match (self.state, &self.test) {
+            (State::Starting | State::Running | State::Holding | State::Stopping, Some(t)) => t.cm.f_ref,
+            _ => f64::NAN,
+        }
+    }
     pub fn protecting(&self) -> bool {
         self.state == State::Position && self.pos.protecting
     }

@@ -120,6 +120,8 @@ class ControlLoop:
         p_a, p_b, p_s, load = self.io.read()
         f = load - self.load_offset_n
         c = self.ctrl
+        fed = self.k % self._decim == 0
+        f_ref = c.force_ref_n if fed else math.nan  # the setpoint at this period's force (set by the last step)
         u = c.step(f, y)
         st = c.state
         # watched values (see htm.devices.config.CHANNELS)
@@ -189,8 +191,8 @@ class ControlLoop:
             self.max_abs_u_after_trip = max(self.max_abs_u_after_trip, abs(u))
         mm = self.meas
         mm["y"], mm["v"], mm["f"], mm["p_a"], mm["p_b"], mm["p_s"], mm["u"] = y, v, f, p_a, p_b, p_s, u
-        if self.k % self._decim == 0:
-            self.feed.append({"period": self.k, "t_s": self.k * self.dt, "state": c.state, **mm})
+        if fed:
+            self.feed.append({"period": self.k, "t_s": self.k * self.dt, "state": c.state, "cycle": c.cycle, "f_ref": f_ref, **mm})
         return u
 
     def _plausibility(self, y: float, v: float) -> float:

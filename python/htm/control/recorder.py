@@ -18,8 +18,11 @@ import numpy as np
 from htm.errors import HtmError
 
 PERIOD_S = 0.25
-# loop feed keys → the recording's signal names (see htm.record)
-SIGNALS = {"t_s": "t_s", "y": "y_m", "f": "f_n", "p_a": "p_a_pa", "p_b": "p_b_pa", "p_s": "p_s_pa", "u": "u_v"}
+# loop feed keys → the signal names of the store's raw table and of the recording, as the engine's
+# raw capture names them (`htm._core.RAW_COLUMNS`), so a live test and `htm run` read back alike;
+# the velocity and the supply pressure are a rig's own (htm.record.streams)
+SIGNALS = {"t_s": "t_s", "cycle": "cycle", "y": "y_m", "f": "f_n", "f_ref": "f_ref_n", "p_a": "p_a_pa", "p_b": "p_b_pa",
+           "u": "u_v", "v": "v_m_s", "p_s": "p_s_pa"}
 
 
 def _columns(rows: list[dict[str, Any]], keys: dict[str, str] | None = None) -> dict[str, np.ndarray]:
@@ -60,6 +63,7 @@ class LiveRecorder:
         self._open = lambda: TestWriter.create(Store(store_root), spec.name, "device", session.cfg.loop.mode, "json",
                                                body, spec.frequency_hz, recording=recording)
         self.period = session.loop.k
+        self.t0_s = self.period * session.loop.dt  # test time [s] starts at the start command
         self.cycle = 0
         self.event = first_event
         self.status: str | None = None
@@ -83,7 +87,9 @@ class LiveRecorder:
         events = self.s.log.since(self.event)
         if feed:
             self.period = feed[-1]["period"]
-            self.w.signals(_columns(feed, SIGNALS))
+            cols = _columns(feed, SIGNALS)
+            cols["t_s"] = cols["t_s"] - self.t0_s
+            self.w.signals(cols)
         prev = self.cycle
         if rows:
             self.cycle = rows[-1]["cycle"]
@@ -91,7 +97,7 @@ class LiveRecorder:
             self.w.cycles(_columns(rows))
         for e in events:  # dated by the last cycle of this test that closed before it
             c = max((r["cycle"] for r in rows if r["period"] <= e["period"]), default=prev)
-            self.w.event(e["kind"], e["message"], cycle=c, time_s=e["period"] * lp.dt,
+            self.w.event(e["kind"], e["message"], cycle=c, time_s=max(e["period"] * lp.dt - self.t0_s, 0.0),
                          level="WARN" if e["kind"] in ("trip", "estop", "error") else "INFO")
         self.event += len(events)
 

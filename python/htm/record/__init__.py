@@ -19,8 +19,10 @@ Every block goes to the journal first (`journal.py`: framed, checksummed, flushe
 at events and at least once a second), then to the catalogue and the recording (`streams.py`).
 `close` writes `cycles.parquet`, `raw.parquet` and `recording.rrd` and drops the journal; after a
 crash `TestWriter.reopen(store, id)` returns the journal so far and a writer that continues it.
-Signal names the recording lays out: `y_m`, `f_n`, `f_ref_n`, `p_a_pa`, `p_b_pa`, `u_v` (others
-go to `signals/NAME`); per-cycle names are the engine table's (`htm.core.run_test`).
+Signal names the recording lays out: `y_m`, `f_n`, `f_ref_n`, `p_a_pa`, `p_b_pa`, `u_v`, and a
+rig's `v_m_s`, `p_s_pa` (others stay in the store's raw table only); per-cycle names are the
+engine table's (`htm.core.run_test`). `htm run` and the console's live recorder both write this
+one layout (`streams.py`).
 """
 from htm.record.store import Store
 from htm.record.writer import TestWriter

@@ -9,15 +9,26 @@ and `cycle` (sequence, the per-cycle table's cycle number). Entities, all SI:
 | `signals/force_n` | load-cell force, force setpoint |
 | `signals/pressure_pa` | chamber pressures A, B |
 | `signals/valve_v` | valve command |
+| `signals/velocity_m_s` | piston velocity (a rig's transducer; the simulator records none) |
+| `signals/supply_pressure_pa` | supply pressure (a rig's sensor; the simulator records none) |
 | `cycle/force_n` | measured peak, valley; target peak, valley |
-| `cycle/force_error_pct` | peak error, ΔF error |
+| `cycle/force_error_pct` | peak error, ΔF error of the judged cycles |
+| `cycle/ramp_force_error_pct` | the same of the ramp cycles (in at the start and after a hold, out at the stop) |
 | `cycle/crack_length_m` | a |
 | `cycle/stress_intensity_pa_sqrt_m` | ΔK, ΔK target, Kmax |
 | `cycle/dadn_m_per_cycle` | da/dN |
 | `cycle/specimen_stiffness_n_m` | K_sp |
 | `cycle/controller_v` | amplitude-loop u1, mean-loop u2 |
 | `crack/dadn_vs_delta_k` | points (log10 ΔK [MPa·√m], log10 da/dN [m/cycle]) |
-| `events` | text log: limit trips, mode changes, operator actions |
+| `events` | text log: limit trips, mode changes, operator actions, where each ramp-in ends |
+
+The ramps' errors (−100 % at cycle 1, the amplitude still rising; the same at the stop) would swamp
+the error plot's scale: they go to an entity of their own, out of the default view, and the event
+log marks where each ramp-in ends.
+
+`htm run` and a test run from the console (`htm.control.recorder`) write through this one
+layout: their columns are named as the engine's per-cycle table and raw capture name them
+(`htm._core.RAW_COLUMNS`), and an entity is written when all its columns are there.
 
 The recording is for visual review: it holds every cycle of the first `full_cycles` and then one
 in `stride` plus every cycle that carries an event (the store's Parquet table holds every cycle).
@@ -32,15 +43,24 @@ from typing import Any
 
 import numpy as np
 
+from htm import core
+
 APP_ID = "htm"
-START_BIT = 1
+START_BIT = core.EVENTS["start"]
+# the cycles whose force error is not judged: the start's ramp-in, the ramp back in after a hold,
+# the ramp out at the stop
+UNJUDGED_BITS = core.EVENTS["start"] | core.EVENTS["ramp"] | core.EVENTS["stop"]
 
 SIGNAL_GROUPS = {  # entity -> (series names, signal column names)
     "signals/position_m": (["y"], ["y_m"]),
     "signals/force_n": (["force", "setpoint"], ["f_n", "f_ref_n"]),
     "signals/pressure_pa": (["p_A", "p_B"], ["p_a_pa", "p_b_pa"]),
     "signals/valve_v": (["u"], ["u_v"]),
+    "signals/velocity_m_s": (["v"], ["v_m_s"]),
+    "signals/supply_pressure_pa": (["p_S"], ["p_s_pa"]),
 }
+ERROR_GROUP = "cycle/force_error_pct"
+RAMP_ERRORS = "cycle/ramp_force_error_pct"
 CYCLE_GROUPS = {
     "cycle/force_n": (["peak", "valley", "target peak", "target valley"], ["fmax_n", "fmin_n", "fmax_target_n", "fmin_target_n"]),
     "cycle/force_error_pct": (["peak", "ΔF"], ["peak_err_pct", "df_err_pct"]),
@@ -178,8 +198,10 @@ class Recording:
         finally:
             self.spool.sink_opened()
         self.rec.send_recording_name(name)
-        for e, (names, _) in {**CYCLE_GROUPS, **SIGNAL_GROUPS}.items():
+        for e, (names, _) in {**CYCLE_GROUPS, RAMP_ERRORS: CYCLE_GROUPS[ERROR_GROUP], **SIGNAL_GROUPS}.items():
             self.rec.log(e, rr.SeriesLines(names=names), static=True)
+        self._ramp_from: int | None = None  # first cycle of the ramp-in under way, if any
+        self._last_cycle = 0
         self.rec.log("crack/dadn_vs_delta_k", rr.Points2D([[0.0, 0.0]], radii=[0.0]), static=True)
 
     def _index(self, cycle: np.ndarray, t_s: np.ndarray) -> list[Any]:
@@ -192,13 +214,21 @@ class Recording:
         c = np.asarray(table["cycle"])
         if len(c) == 0:
             return
-        ev = np.asarray(table.get("events", np.zeros(len(c), np.uint32)))
+        ev = np.asarray(table.get("events", np.zeros(len(c), np.uint32))).astype(np.uint32)
+        ramp = (ev & np.uint32(UNJUDGED_BITS)) != 0
+        self._mark_ramps(c, ramp)
         keep = (c <= self.full_cycles) | (c % self.stride == 0) | ((ev & ~np.uint32(START_BIT)) != 0)
-        c = c[keep]
+        c, ramp = c[keep], ramp[keep]
         idx = self._index(c, c / self.f)
         for e, (_, cols) in CYCLE_GROUPS.items():
             if all(k in table for k in cols):
                 v = np.column_stack([np.asarray(table[k], dtype=np.float64)[keep] for k in cols])
+                if e == ERROR_GROUP:  # the ramp-in's errors to an entity of their own (see the module)
+                    for ent, rows in ((ERROR_GROUP, ~ramp), (RAMP_ERRORS, ramp)):
+                        if rows.any():
+                            self.rec.send_columns(ent, indexes=self._index(c[rows], c[rows] / self.f),
+                                                  columns=rr.Scalars.columns(scalars=v[rows]))
+                    continue
                 self.rec.send_columns(e, indexes=idx, columns=rr.Scalars.columns(scalars=v))
         dk, dadn = (np.asarray(table.get(k, []), dtype=np.float64)[keep] for k in ("delta_k_pa_sqrt_m", "dadn_m_per_cycle"))
         ok = np.flatnonzero((dk > 0) & (dadn > 0))
@@ -208,8 +238,23 @@ class Recording:
             self.rec.send_columns("crack/dadn_vs_delta_k", indexes=self._index(c[ok], c[ok] / self.f),
                                   columns=rr.Points2D.columns(positions=pts).partition(np.ones(len(ok), dtype=np.int64)))
 
+    def _mark_ramps(self, c: np.ndarray, ramp: np.ndarray) -> None:
+        """An event where each ramp-in ends (it may span blocks): its cycles, not judged."""
+        was = np.concatenate([[self._ramp_from is not None], ramp[:-1]])
+        for i in np.flatnonzero(ramp != was):  # the few rows where a ramp begins or ends
+            if ramp[i]:
+                self._ramp_from = int(c[i])
+            else:
+                last = self._last_cycle if i == 0 else int(c[i - 1])
+                self.event("ramp-in", f"cycles {self._ramp_from:,}–{last:,}: amplitude ramping in, force error not judged "
+                           f"(in {RAMP_ERRORS})", last, last / self.f)
+                self._ramp_from = None
+        self._last_cycle = int(c[-1])
+
     def signals(self, cols: dict[str, np.ndarray]) -> None:
-        """Samples with `t_s` [s] (and `cycle` when known) and any of the signal columns."""
+        """Samples with `t_s` [s] (and `cycle` when known) and the layout's signal columns; an
+        entity is written when all its columns are there, other columns stay in the store's
+        raw table only."""
         rr = self.rr
         t = np.asarray(cols["t_s"], dtype=np.float64)
         if len(t) == 0:
@@ -217,15 +262,10 @@ class Recording:
         idx = [rr.TimeColumn("time", duration=t)]
         if "cycle" in cols:
             idx.append(rr.TimeColumn("cycle", sequence=np.asarray(cols["cycle"]).astype(np.int64)))
-        known = set()
         for e, (_, names) in SIGNAL_GROUPS.items():
             if all(k in cols for k in names):
-                known.update(names)
                 v = np.column_stack([np.asarray(cols[k], dtype=np.float64) for k in names])
                 self.rec.send_columns(e, indexes=idx, columns=rr.Scalars.columns(scalars=v))
-        for k, v in cols.items():
-            if k not in known and k not in ("t_s", "cycle"):
-                self.rec.send_columns(f"signals/{k}", indexes=idx, columns=rr.Scalars.columns(scalars=np.asarray(v, dtype=np.float64)))
 
     def event(self, kind: str, detail: str, cycle: int | None, time_s: float | None, level: str = "INFO") -> None:
         if cycle is not None:

@@ -11,15 +11,16 @@ import sys
 from collections.abc import Callable
 from typing import Any
 
+from rich.markup import escape
 from textual import work
 from textual.app import App, ComposeResult
 from textual.binding import Binding
 from textual.containers import VerticalScroll
 from textual.css.query import NoMatches
 from textual.screen import ModalScreen
-from textual.widgets import Footer, Header, Markdown, RichLog, TabbedContent, TabPane
+from textual.widgets import Footer, Header, Markdown, RichLog, Static, TabbedContent, TabPane
 
-from htm.errors import HtmError
+from htm.errors import HtmError, InterlockTripped
 from htm.tui.diagnose_pane import DiagnosePane
 from htm.tui.install import InstallPane
 from htm.tui.results import ResultsPane
@@ -28,6 +29,11 @@ from htm.tui.setup import SetupPane
 
 POLL_HZ = 10.0  # ≤ 20 Hz: the console's view of the loop
 PROTECT_FORCE_N = 2000.0  # specimen protect of the built-in virtual rig
+# what a command does while the loop has not yet done it (motions and starts load the supply first)
+PENDING = {"position": "switching to position control: loading the supply", "start": "starting the test: loading the supply",
+           "jog": "jogging: loading the supply", "jog_step": "stepping: loading the supply",
+           "move_to": "moving to the start position: loading the supply", "reset": "resetting the interlocks"}
+EVENTS_HEADING = f"{'time [s]':>10}  {'event':<10} detail"
 
 
 def virtual_rig_config(rate_hz: float = 500.0):
@@ -45,7 +51,8 @@ Like a controller handset: the keys act on the tab you are in; E-stop works ever
 |---|---|---|
 | **F12** or **ctrl+e** | anywhere | **E-STOP**: valve null, amplifier off, supply unloaded; latched until reset |
 | F1 or ? | anywhere | this help |
-| F2 … F6 | anywhere | Setup, Install, Run, Results, Diagnose |
+| F2 … F6 | anywhere | Setup, Install, Run, Results, Diagnose (the keys then act on that tab at once) |
+| Tab / shift+Tab | anywhere | next / previous field or button; enter presses a button |
 | ctrl+s | anywhere | simulate the Setup spec on the fast engine (predicted life, force errors) |
 | ↑ / ↓ | Install | jog up / down at the jog rate (position control, specimen protect on) |
 | space | Install | stop jogging |
@@ -58,9 +65,11 @@ Like a controller handset: the keys act on the tab you are in; E-stop works ever
 | h / r | Run | hold (freeze at mean) / resume |
 | x | Run | stop (ramp to mean, then null) |
 | ctrl+r | Run | reset interlocks whose condition has gone |
+| ↑ / ↓ | Results | select a test in the list (its summary, report and life band below) |
 | ctrl+l | Results | refresh the list of tests |
 | v | Results | open the selected test's rerun recording |
-| b | Results | the selected test's life band, updated from its own first points |
+| b | Results | the selected test's life band, updated from its own first points (blank set: Virkler 2024-T3) |
+| (fields) | Diagnose | record table and output folder, then Diagnose (enter) |
 | q | anywhere | quit (the loop stops safely: valve null, amplifier off) |
 
 Escape closes this screen.
@@ -94,7 +103,8 @@ class HtmApp(App[None]):
     CSS = """
     #tabs { height: 1fr; }
     TabPane { height: 1fr; padding: 0; }
-    #events { height: 6; border-top: solid $accent; }
+    #events-heading { height: 2; border-top: solid $accent; color: $text-muted; }
+    #events { height: 5; }
     """
 
     def __init__(self, *, config: Any = None, session: Any = None, session_factory: Callable[[], Any] | None = None,
@@ -114,6 +124,7 @@ class HtmApp(App[None]):
         self._last_cycle = 0
         self._last_event = 0
         self.key_latency_ms: list[float] = []
+        self.pending: dict[int, str] = {}  # commands sent and not yet done (worker id -> command)
 
     def compose(self) -> ComposeResult:
         yield Header()
@@ -128,6 +139,7 @@ class HtmApp(App[None]):
                 yield ResultsPane(self.store_root, id="results-pane")
             with TabPane("Diagnose F6", id="diagnose"):
                 yield DiagnosePane(id="diagnose-pane")
+        yield Static(EVENTS_HEADING, id="events-heading", markup=False)
         yield RichLog(id="events", markup=True, max_lines=500)
         yield Footer()
 
@@ -184,34 +196,69 @@ class HtmApp(App[None]):
         if rows:
             self._last_cycle = rows[-1]["cycle"]
         self._last_event += len(events)
+        dt = s.loop.dt
         for e in events:
             color = {"trip": "red", "estop": "b red", "reset": "green"}.get(e.get("kind", ""), "white")
-            self.log_event(f"[{color}]{e.get('period', 0):>9} {e.get('kind', '')}: {e.get('message', '')}[/]")
+            self.log_event(f"[{color}]{e.get('period', 0) * dt:>10.2f}  {escape(e.get('kind', '')):<10} {escape(e.get('message', ''))}[/]")
         run = self.query_one(RunPane)
         run.add_feed(feed)
         run.add_cycles(rows)
-        active = self.query_one("#tabs", TabbedContent).active
-        if active == "run":
+        snap["pending"] = self.pending_text(snap)
+        # numbers on both handset tabs every poll (a few lines of text); plots and the limits panel
+        # only where they are seen
+        if self.query_one("#tabs", TabbedContent).active == "run":
             run.update_live(snap, s.detectors())
-        elif active == "install":
-            self.query_one(InstallPane).update_live(snap)
+        else:
+            run.update_numbers(snap)
+        self.query_one(InstallPane).update_live(snap)
 
     def command(self, name: str, *args: Any) -> None:
         """Send session command `name` (a `Session` method) from a worker thread."""
         if self.session is None or getattr(self.session, "loop", None) is None:
             self.notify(f"{name}: no rig connected", severity="error")
             return
-        self._command(getattr(self.session, name), name, *args)
+        worker = self._command(getattr(self.session, name), name, *args)
+        if name in PENDING:
+            self.pending[id(worker)] = name
+
+    def pending_text(self, snap: dict[str, Any]) -> str:
+        """What the operator waits for: the command sent last and not yet done (the supply comes
+        up before anything moves), with the supply pressure meanwhile."""
+        if not self.pending:
+            return ""
+        name = list(self.pending.values())[-1]
+        p_s = snap.get("p_s", float("nan"))
+        return PENDING[name] + (f" ({p_s / 1e5:.0f} bar)…" if "supply" in PENDING[name] and p_s == p_s else "…")
 
     @work(thread=True, group="commands")
     def _command(self, fn: Callable[..., Any], name: str, *args: Any) -> None:
         """Run a session command off the UI thread; refusals become notifications."""
+        from textual.worker import get_current_worker
+
+        me = id(get_current_worker())
         try:
             fn(*args)
+        except InterlockTripped:
+            self.call_from_thread(self.notify, self.interlock_message(name), severity="error", timeout=8)
         except HtmError as e:
             self.call_from_thread(self.notify, f"{name} refused: {e}", severity="error")
         except TimeoutError:
             self.call_from_thread(self.notify, f"{name}: the loop did not answer", severity="error")
+        finally:
+            self.call_from_thread(self._done, me)
+
+    def _done(self, worker_id: int) -> None:
+        self.pending.pop(worker_id, None)
+
+    def interlock_message(self, name: str) -> str:
+        """A command refused while an interlock holds, in the console's words (its key, not the API)."""
+        s = self.session
+        try:
+            latched = [d["name"] for d in s.detectors() if d["latched"]] + (["E-STOP"] if s.snapshot()["estop"] else [])
+        except Exception:  # the session went meanwhile
+            latched = []
+        return (f"{name} refused: interlock latched ({', '.join(latched) or 'see the limits panel'}). "
+                "Clear the cause, then press ctrl+r on the Run tab (F4) to reset.")
 
     # ---- actions ----------------------------------------------------------------------------
     def action_estop(self) -> None:
@@ -228,13 +275,22 @@ class HtmApp(App[None]):
             # a widget left focused in the old tab would pull it back to the front
             self.set_focus(None)
             tabs.active = tab
-            pane = {"install": InstallPane, "run": RunPane, "results": ResultsPane}.get(tab)
-            if pane is not None:
-                self.query_one(pane).focus()
+            self.focus_tab(tab)
+            self.poll()  # the tab's first picture is of now, not of when it was last seen
+
+    def focus_tab(self, tab: str) -> None:
+        """Keys act at once on the tab just entered: the handset panes take them, Results its list
+        (↑/↓), Diagnose its record field."""
+        target = {"install": lambda: self.query_one(InstallPane), "run": lambda: self.query_one(RunPane),
+                  "results": lambda: self.query_one("#results-table"), "diagnose": lambda: self.query_one("#diag-record")}.get(tab)
+        if target is not None:
+            target().focus()
 
     def on_tabbed_content_tab_activated(self, ev: TabbedContent.TabActivated) -> None:
         if ev.pane.id == "results":  # tests may have ended since: show the store as it is now
             self.query_one(ResultsPane).action_refresh()
+        if self.focused is None:  # nothing has the keys: give them to the tab entered
+            self.focus_tab(ev.pane.id or "")
 
     def action_web(self) -> None:
         """Serve the tests recorded from now on to rerun's web viewer ($HTM_WEB_PORT or 9090, the stream on the next port)."""

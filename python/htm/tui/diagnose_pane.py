@@ -5,12 +5,14 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from rich.markup import escape
 from textual import on, work
 from textual.app import ComposeResult
 from textual.containers import Horizontal, Vertical
 from textual.widgets import Button, DataTable, Input, Static
 
 from htm.errors import HtmError
+from htm.tui.units import eng, plain, right
 
 TABLE_SUFFIXES = (".csv", ".csv.gz", ".parquet")
 EVIDENCE_CELL = 48  # characters of evidence in the table; the whole text shows below it
@@ -24,7 +26,9 @@ def fmt_rmse(d: dict[str, float]) -> str:
 class DiagnosePane(Vertical):
     DEFAULT_CSS = """
     DiagnosePane #diag-bar { height: 3; }
-    DiagnosePane #diag-bar Input { width: 1fr; }
+    DiagnosePane #diag-bar #diag-record { width: 2fr; }
+    DiagnosePane #diag-bar #diag-out { width: 1fr; }
+    DiagnosePane #diag-bar Button { width: auto; min-width: 16; }
     DiagnosePane #diag-status { height: auto; padding: 0 1; }
     DiagnosePane #findings { height: 1fr; }
     DiagnosePane #finding-detail { height: auto; max-height: 8; padding: 0 1; border-top: solid $accent; }
@@ -54,7 +58,7 @@ class DiagnosePane(Vertical):
             self.notify("type the path of a record", severity="warning")
             return
         out_dir = Path(out) if out else Path(rec).with_name(Path(rec).name.split(".")[0] + "-diagnosis")
-        self.query_one("#diag-status", Static).update(f"diagnosing {rec} → {out_dir} …")
+        self.query_one("#diag-status", Static).update(f"diagnosing {escape(rec)} → {escape(str(out_dir))} …")
         self.query_one("#findings", DataTable).clear()
         self._run(rec, out_dir)
 
@@ -68,7 +72,11 @@ class DiagnosePane(Vertical):
                 raise HtmError(f"{out_dir} is not empty; choose another output folder")
             report = diagnose(read_record(path), out_dir=out_dir)
         except (HtmError, OSError) as e:
-            self.app.call_from_thread(self.query_one("#diag-status", Static).update, f"[red]{e}[/]")
+            self.app.call_from_thread(self.query_one("#diag-status", Static).update, f"[red]{escape(str(e))}[/]")
+            return
+        except Exception as e:  # a record it cannot read: a message, never a traceback in the console
+            self.app.call_from_thread(self.query_one("#diag-status", Static).update,
+                                      f"[red]{escape(path)}: cannot diagnose: {type(e).__name__}: {escape(str(e))}[/]")
             return
         self.app.call_from_thread(self.show, report, out_dir)
 
@@ -77,18 +85,19 @@ class DiagnosePane(Vertical):
         t.clear()
         self.findings = list(report["findings"])
         for i, f in enumerate(self.findings, 1):
-            params = ", ".join(f"{k} = {v:.4g}" for k, v in f["params"].items())
+            params = ", ".join(" ".join(eng(k, v, pressures_in_bar=True)).strip() for k, v in f["params"].items())
             ev = f["evidence"]  # long prose: cut in the table (it would run off the screen), whole below
             cell = ev if len(ev) <= EVIDENCE_CELL else ev[: EVIDENCE_CELL - 1] + "…"
-            t.add_row(str(i), f["effect"], f["channel"] or "", params, fmt_rmse(f["rmse_before"]), fmt_rmse(f["rmse_after"]), cell)
+            t.add_row(right(str(i)), plain(f["effect"]), plain(f["channel"] or ""), plain(params), plain(fmt_rmse(f["rmse_before"])),
+                      plain(fmt_rmse(f["rmse_after"])), plain(cell))
         self._detail(0)
         n = len(report["findings"])
         verdict = ("[b yellow]unexplained structure remains[/]" if report["unexplained"]
                    else "[green]nothing systematic left unexplained[/]")
         self.query_one("#diag-status", Static).update(
-            f"[b]{report['record']}[/]: {n} finding{'s' if n != 1 else ''}; {verdict}\n"
+            f"[b]{escape(str(report['record']))}[/]: {n} finding{'s' if n != 1 else ''}; {verdict}\n"
             f"baseline RMSE {fmt_rmse(report['baseline']['rmse'])}\nfinal RMSE    {fmt_rmse(report['final']['rmse'])}\n"
-            f"report: {out_dir / 'report.md'}")
+            f"report: {escape(str(out_dir / 'report.md'))}")
 
     @on(DataTable.RowHighlighted, "#findings")
     def _highlighted(self, ev: DataTable.RowHighlighted) -> None:
@@ -98,4 +107,4 @@ class DiagnosePane(Vertical):
         """The highlighted finding's whole evidence, wrapped to the screen."""
         f = self.findings[i] if 0 <= i < len(self.findings) else None
         self.query_one("#finding-detail", Static).update(
-            "" if f is None else f"[b]{i + 1}. {f['effect']}[/] {f['channel'] or ''}: {f['evidence']}")
+            "" if f is None else f"[b]{i + 1}. {f['effect']}[/] {f['channel'] or ''}: {escape(f['evidence'])}")

@@ -74,7 +74,8 @@ class InstallPane(Vertical):
             f"[b]specimen protect[/] {protect}   [b]interlock[/] {snap.get('interlock') or 'none'}\n"
             f"[b]position[/] {num(y * 1e3, '9.4f')} mm   [b]reference[/] {num(snap.get('reference_m', math.nan) * 1e3, '9.4f')} mm   "
             f"[b]force[/] {num(f / 1e3, '8.3f')} kN\n"
-            f"[b]jog rate[/] {self.rate_mm_s:g} mm/s   [b]step[/] {self.step_mm:g} mm")
+            f"[b]jog rate[/] {self.rate_mm_s:g} mm/s   [b]step[/] {self.step_mm:g} mm"
+            + (f"\n[b yellow]→ {snap['pending']}[/]" if snap.get("pending") else ""))
 
     def _cmd(self, name: str, *args) -> None:
         self.app.command(name, *args)  # type: ignore[attr-defined]

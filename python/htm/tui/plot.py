@@ -17,6 +17,27 @@ def _fmt(v: float) -> str:
     return f"{v:.4g}" if math.isfinite(v) else "–"
 
 
+def axis_labels(lo: float, hi: float, n: int = 2) -> list[str]:
+    """`n` labels from `lo` to `hi`, with as many decimals as the range needs for them to differ
+    (a crack at 15.20 … 15.24 mm reads so, not "15.2" twice); thousands grouped; at most 8 wide."""
+    vals = [lo + (hi - lo) * i / (n - 1) for i in range(n)] if n > 1 else [lo]
+    if not all(math.isfinite(v) for v in vals):
+        return [_fmt(v) for v in vals]
+    span = abs(hi - lo) / max(n - 1, 1)
+    big = max(abs(lo), abs(hi))
+    if big >= 1e7 or (0 < big < 1e-3):
+        return [f"{v:.3g}" for v in vals]
+    decimals = 0 if span <= 0 else max(0, -math.floor(math.log10(span)) + 1)
+    if span > 0 and span >= 10:
+        decimals = 0
+    decimals = min(decimals, 6)
+    out = [f"{v:,.{decimals}f}" for v in vals]
+    while decimals > 0 and max(map(len, out)) > 8:
+        decimals -= 1
+        out = [f"{v:,.{decimals}f}" for v in vals]
+    return [o.replace("-", "−") if o.strip("-0.,") else o.lstrip("-") for o in out]
+
+
 class LinePlot(Widget):
     """`title` on top, y range on the left, series as coloured braille lines."""
 
@@ -59,13 +80,15 @@ class LinePlot(Widget):
             cy = np.clip(((y1 - yd[ok]) / (y1 - y0) * (4 * h - 1)).round().astype(int), 0, 4 * h - 1)
             np.bitwise_or.at(cells, (cy // 4, cx // 2), _BITS[cx % 2, cy % 4])
             owner[cy // 4, cx // 2] = i
+        top, mid, bottom = axis_labels(y0, y1, 3)[::-1]
         for r in range(h):
-            label = _fmt(y1) if r == 0 else _fmt(y0) if r == h - 1 else ""
+            label = top if r == 0 else bottom if r == h - 1 else mid if h >= 5 and r == (h - 1) // 2 and (h - 1) % 2 == 0 else ""
             out.append(f"{label:>8} ", style="dim")
             for c in range(w):
                 v = cells[r, c]
                 out.append(chr(0x2800 + int(v)) if v else " ", style=COLORS[owner[r, c] % len(COLORS)] if v else None)
             out.append("\n")
         legend = "  ".join(f"[{COLORS[i % len(COLORS)]}]■[/] {lab}" for i, (_, _, lab) in enumerate(self.series))
-        out.append_text(Text.from_markup(f"{' ' * 9}{_fmt(x0)} … {_fmt(x1)}   {legend}"))
+        left, right = axis_labels(x0, x1)
+        out.append_text(Text.from_markup(f"{' ' * 9}{left} … {right}   {legend}"))
         return out

@@ -3,26 +3,73 @@ export its tables, and predict a test's life as a band from a specimen set, upda
 first a–N points (`htm.campaign.lifeband`, as `htm life-band`)."""
 from __future__ import annotations
 
+import json
 import shutil
 import subprocess
+import sys
+import tomllib
+from importlib.resources import files
 from pathlib import Path
 from typing import Any
 
+from rich.markup import escape
 from textual import on, work
 from textual.app import ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal, Vertical, VerticalScroll
 from textual.widgets import Button, DataTable, Input, Markdown, Static
 
-from htm.errors import HtmError
+from htm.errors import HtmError, SpecError
+from htm.tui.units import plain, result_lines, right
 
-# the specimen set shipped in the repository (40 Virkler 2024-T3 M(T) panels), when htm runs from it
-VIRKLER = Path(__file__).resolve().parents[3] / "data" / "virkler_2024t3" / "virkler_a_vs_n_specimens_1_40.csv"
+# the specimen set shipped inside the package (40 Virkler 2024-T3 M(T) panels; a copy of the
+# repository's data/virkler_2024t3, its source and licence in the README beside it)
+VIRKLER = Path(str(files("htm").joinpath("data", "virkler_2024t3", "virkler_a_vs_n_specimens_1_40.csv")))
 A_MM_COLUMN = "a_half_crack_mm"  # Virkler's a in mm; files with a_m or a_mm columns are read as usual
+RESULTS_COLUMNS = (("id", "id"), ("name", "name"), ("kind", "kind"), ("status", "status"), ("cycles", "cycles"),
+                   ("a_end", "a end [mm]"), ("end_reason", "end reason"))
+
+
+def rerun_viewer() -> str | None:
+    """The rerun viewer: the one installed beside this Python (the venv htm runs in, whether or
+    not it is on PATH), else the one on PATH."""
+    here = Path(sys.executable).with_name("rerun")
+    if here.is_file():
+        return str(here)
+    return shutil.which("rerun")
+
+
+def stored_specimen(t: dict[str, Any]) -> dict[str, Any] | None:
+    """The specimen (geometry, W, B, a0 [m]) of a stored test, from the spec it keeps; None when
+    the spec cannot be read."""
+    try:
+        if t["spec_format"] == "toml":
+            d = tomllib.loads(t["spec"]).get("specimen", {})
+        else:  # a live test keeps its engine config as JSON (htm.control.recorder)
+            d = json.loads(t["spec"])
+        return {k: d[k] for k in ("geometry", "width_m", "thickness_m", "a0_m")}
+    except (KeyError, TypeError, ValueError, tomllib.TOMLDecodeError):
+        return None
+
+
+def spec_mismatch(test: dict[str, Any], spec: Any) -> tuple[list[str], list[str]]:
+    """(refusals, warnings) of a spec typed in for a stored test's life band: another specimen
+    type or width is another test (refused); another thickness or initial crack a warning."""
+    def name(g: str, w: float) -> str:
+        return f"{'C(T)' if g == 'ct' else 'M(T)' if g == 'mt' else g} W {w * 1e3:.1f} mm"
+
+    ours = name(spec.geometry, spec.width_m)
+    theirs = name(test["geometry"], test["width_m"])
+    refuse, warn = [], []
+    if spec.geometry != test["geometry"] or abs(spec.width_m - test["width_m"]) > 1e-3 * test["width_m"]:
+        refuse.append(f"the spec is for a {ours} specimen, the test ran a {theirs}: enter this test's spec")
+    for key, what in (("thickness_m", "thickness B"), ("a0_m", "initial crack a0")):
+        if abs(getattr(spec, key) - test[key]) > 1e-3 * test[key]:
+            warn.append(f"{what} {getattr(spec, key) * 1e3:.2f} mm in the spec, {test[key] * 1e3:.2f} mm in the test")
+    return refuse, warn
 
 
 class ResultsPane(Vertical):
-    can_focus = True
     BINDINGS = [Binding("ctrl+l", "refresh", "refresh list"), Binding("v", "view", "open recording"),
                 Binding("b", "life_band", "life band")]
     DEFAULT_CSS = """
@@ -41,7 +88,8 @@ class ResultsPane(Vertical):
         self.store_root = store_root
         self.selected: str | None = None
         self.life_band_samples = 200  # Monte Carlo draws (simulated tests) of the band
-        self.life_band: dict[str, Any] | None = None  # the last band shown
+        self.life_band: dict[str, Any] | None = None  # the band of the selected test, once computed
+        self._bands: dict[str, tuple[dict[str, Any] | None, str]] = {}  # test id -> (band, text) shown with it
         self._lb_busy = False
 
     def compose(self) -> ComposeResult:
@@ -52,7 +100,7 @@ class ResultsPane(Vertical):
             yield Input(placeholder="export folder", id="export-dir")
             yield Button("Export", id="export")
         with Horizontal(id="lifeband-bar"):
-            yield Input(placeholder="specimen set a–N CSV" + (" (blank: Virkler 2024-T3, data/)" if VIRKLER.exists() else ""),
+            yield Input(placeholder="specimen set a–N CSV" + (" (blank: Virkler 2024-T3 M(T))" if VIRKLER.exists() else ""),
                         id="lb-data")
             yield Input(placeholder="early: up to cycles", id="lb-upto")
             yield Input(placeholder="spec (blank: the test's)", id="lb-spec")
@@ -64,7 +112,8 @@ class ResultsPane(Vertical):
 
     def on_mount(self) -> None:
         t = self.query_one("#results-table", DataTable)
-        t.add_columns("id", "name", "kind", "status", "cycles", "a end [mm]", "end reason")
+        for key, label in RESULTS_COLUMNS:  # Text labels: "[mm]" as markup would vanish
+            t.add_column(right(label) if key in ("cycles", "a_end") else plain(label), key=key)
         self.action_refresh()
 
     def _store(self):
@@ -83,10 +132,16 @@ class ResultsPane(Vertical):
             self.query_one("#results-summary", Static).update(f"[red]{e}[/]")
             return
         for r in reversed(rows):  # newest first
-            t.add_row(r["id"], r["name"], r["kind"], r["status"], f"{r['cycles']:,}" if r["cycles"] is not None else "",
-                      f"{r['a_end_m'] * 1e3:.3f}" if r["a_end_m"] is not None else "", r["end_reason"] or "", key=r["id"])
+            t.add_row(plain(r["id"]), plain(r["name"]), plain(r["kind"]), plain(r["status"]),
+                      right(f"{r['cycles']:,}" if r["cycles"] is not None else ""),
+                      right(f"{r['a_end_m'] * 1e3:.3f}" if r["a_end_m"] is not None else ""), plain(r["end_reason"] or ""), key=r["id"])
         if not rows:
+            self.selected = None
             self.query_one("#results-summary", Static).update("the store holds no tests yet: run one (Run tab or `htm run`)")
+            return
+        ids = [r["id"] for r in reversed(rows)]
+        if self.selected in ids:  # the selection stays where the operator left it
+            t.move_cursor(row=ids.index(self.selected))
 
     @on(DataTable.RowHighlighted, "#results-table")
     def _row(self, ev: DataTable.RowHighlighted) -> None:
@@ -94,23 +149,26 @@ class ResultsPane(Vertical):
             self.show(str(ev.row_key.value))
 
     def show(self, test_id: str) -> None:
-        """Show one test: summary, results, last events, and its report when it has one."""
+        """Show one test: summary, results, last events, its report when it has one, and its life
+        band when one was computed (never another test's)."""
         self.selected = test_id
+        self.life_band, band_text = self._bands.get(test_id, (None, ""))
+        self.query_one("#lifeband-result", Static).update(band_text)
         try:
             with self._store() as st:
                 t = st.get(test_id)
         except HtmError as e:
             self.query_one("#results-summary", Static).update(f"[red]{e}[/]")
             return
-        lines = [f"[b]{t['id']}[/] {t['name']} ({t['kind']}, {t['mode'] or '-'}) — [b]{t['status']}[/]"
-                 + (f", {t['end_reason']}" if t["end_reason"] else "")]
+        lines = [f"[b]{escape(t['id'])}[/] {escape(t['name'])} ({t['kind']}, {t['mode'] or '-'}) — [b]{t['status']}[/]"
+                 + (f", {escape(t['end_reason'])}" if t["end_reason"] else "")]
         if t["cycles"] is not None:
             lines.append(f"cycles {t['cycles']:,}" + (f", final a = {t['a_end_m'] * 1e3:.3f} mm" if t["a_end_m"] is not None else ""))
-        for k, v in sorted(t["results"].items()):
-            if isinstance(v, float):
-                lines.append(f"  {k} = {v:.6g}")
-        lines.append(f"events ({len(t['events'])}):")
-        lines += [f"  {'' if e['cycle'] is None else e['cycle']:>10} {e['kind']:<18} {e['detail'] or ''}" for e in t["events"][-12:]]
+        lines += ["  " + escape(r) for r in result_lines(t["results"])]
+        lines.append(f"events ({len(t['events'])}, the last 12):")
+        lines.append(f"  {'cycle':>10}  {'event':<18} detail")
+        lines += [f"  {'' if e['cycle'] is None else format(e['cycle'], ','):>10}  {escape(e['kind']):<18} {escape(e['detail'] or '')}"
+                  for e in t["events"][-12:]]
         lines.append("files: " + ", ".join(f"{r} ({(f['bytes'] or 0) / 1e6:.2f} MB)" for r, f in sorted(t["files"].items())))
         self.query_one("#results-summary", Static).update("\n".join(lines))
         report = self._report(t)
@@ -145,9 +203,10 @@ class ResultsPane(Vertical):
         if rrd is None or not rrd.exists():
             self.notify("this test has no rerun recording", severity="warning")
             return
-        exe = shutil.which("rerun")
+        exe = rerun_viewer()
         if exe is None:
-            self.notify(f"rerun viewer not found on PATH; open {rrd} with `rerun {rrd}`", severity="warning", timeout=10)
+            self.notify(f"no rerun viewer beside {sys.executable} nor on PATH (pip install rerun-sdk); "
+                        f"the recording is {rrd}", severity="warning", timeout=10)
             return
         subprocess.Popen([exe, str(rrd)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
         self.notify(f"opened {rrd.name} in the rerun viewer")
@@ -192,8 +251,10 @@ class ResultsPane(Vertical):
             out.update("[red]life band: early points up to cycles must be > 0[/]")
             return
         self.life_band = None
-        out.update(f"[yellow]life band of {self.selected}: fitting the set's specimens and running "
-                   f"{self.life_band_samples} simulated tests…[/]")
+        text = (f"[yellow]life band of {self.selected}: fitting the set's specimens and running "
+                f"{self.life_band_samples} simulated tests…[/]")
+        self._bands[self.selected] = (None, text)
+        out.update(text)
         self._lb_busy = True
         self._life_band(self.selected, data, upto, spec, self.life_band_samples)
 
@@ -203,22 +264,25 @@ class ResultsPane(Vertical):
             res = self._compute_life_band(test_id, data, upto, spec, samples)
             text = self._life_band_text(res)
         except (HtmError, OSError, ValueError) as e:
-            res, text = None, f"[red]life band: {e}[/]"
+            res, text = None, f"[red]life band: {escape(str(e))}[/]"
         except Exception as e:  # never a traceback in the console
-            res, text = None, f"[red]life band failed: {type(e).__name__}: {e}[/]"
-        self.app.call_from_thread(self._show_life_band, res, text)
+            res, text = None, f"[red]life band failed: {type(e).__name__}: {escape(str(e))}[/]"
+        self.app.call_from_thread(self._show_life_band, test_id, res, text)
 
-    def _show_life_band(self, res: dict[str, Any] | None, text: str) -> None:
+    def _show_life_band(self, test_id: str, res: dict[str, Any] | None, text: str) -> None:
         self._lb_busy = False
-        self.life_band = res
-        self.query_one("#lifeband-result", Static).update(text)
+        self._bands[test_id] = (res, text)
+        if self.selected == test_id:  # another test selected meanwhile: shown when it is selected again
+            self.life_band = res
+            self.query_one("#lifeband-result", Static).update(text)
 
     def _compute_life_band(self, test_id: str, data: str, upto: float | None, spec: str | None,
                            samples: int) -> dict[str, Any]:
+        from htm import spec as specmod
         from htm.campaign import engine, lifeband
-        from htm.errors import SpecError
 
         datas = lifeband.read_data(data, A_MM_COLUMN)
+        warnings: list[str] = []
         with self._store() as st:
             t = st.get(test_id)
             out = st.root / "life-band" / test_id
@@ -233,6 +297,14 @@ class ResultsPane(Vertical):
                 spec_path = Path(spec)
                 if not spec_path.is_file():
                     raise SpecError(f"{spec}: no such spec file")
+                ours = stored_specimen(t)
+                if ours is None:
+                    warnings.append(f"test {test_id}'s specimen could not be read: the spec is not checked against it")
+                else:
+                    refuse, warn = spec_mismatch(ours, specmod.load(spec_path, check=False))
+                    if refuse:
+                        raise SpecError(f"{spec_path.name} does not match test {test_id}: " + "; ".join(refuse))
+                    warnings += [f"{spec_path.name} differs from test {test_id}: {w}" for w in warn]
             table = st.cycles(test_id)
             if "a_m" not in table or len(table["a_m"]) == 0:
                 raise SpecError(f"test {test_id} has no a–N points in the store yet")
@@ -244,6 +316,7 @@ class ResultsPane(Vertical):
                        "a_m": float(table["a_m"][-1])}
         res["spanning"] = sum(lifeband.life_between(d, res["a0_m"], res["af_m"]) is not None for d in datas)
         res["data"] = data
+        res["warnings"] = warnings
         return res
 
     @staticmethod
@@ -259,4 +332,5 @@ class ResultsPane(Vertical):
                  f"  test so far    {t['cycles']:,} cycles, a = {t['a_m'] * 1e3:.2f} mm ({t['status']})"]
         if res["spanning"] == 0:
             lines.append("[yellow]  none of the set's specimens spans this test's a0 → af: is it the set of this test?[/]")
+        lines += [f"[b yellow]  warning: {escape(w)}[/]" for w in res.get("warnings", [])]
         return "\n".join(lines)

@@ -6,6 +6,7 @@ import math
 from collections import deque
 from typing import Any
 
+from rich.text import Text
 from textual import on
 from textual.app import ComposeResult
 from textual.binding import Binding
@@ -13,9 +14,24 @@ from textual.containers import Grid, Horizontal, Vertical
 from textual.widgets import Button, DataTable, Static
 
 from htm.tui.plot import LinePlot
+from htm.tui.units import plain, right, shown, unit_of
 
 FEED_KEEP = 200     # decimated samples shown (≈ 10 s at 20 Hz)
 CYCLES_KEEP = 2000  # per-cycle points shown
+
+
+# the limits panel: (column key, heading); limits and value in the channel's engineering unit
+DETECTOR_COLUMNS = (("name", "detector"), ("watches", "watches"), ("lo", "low limit"), ("hi", "high limit"),
+                    ("value", "value"), ("unit", "unit"), ("state", "state"), ("action", "action"), ("latched", "latched"))
+NUMERIC = {"lo", "hi", "value"}
+
+
+def detector_row(d: dict[str, Any]) -> tuple[Text, ...]:
+    """One detector as the limits panel shows it (cells in the order of DETECTOR_COLUMNS)."""
+    ch = d["channel"]
+    return (plain(d["name"]), plain(unit_of(ch).label), right(shown(ch, d["lo"], limit=True)), right(shown(ch, d["hi"], limit=True)),
+            right(shown(ch, d["value"])), plain(unit_of(ch).unit), plain(d["state"]), plain(d["action"]),
+            plain("LATCHED" if d["latched"] else ""))
 
 
 def num(v: float, fmt: str) -> str:
@@ -64,7 +80,8 @@ class RunPane(Vertical):
 
     def on_mount(self) -> None:
         t = self.query_one("#detectors", DataTable)
-        t.add_columns("detector", "channel", "limits", "value", "state", "action", "latched")
+        for key, label in DETECTOR_COLUMNS:
+            t.add_column(right(label) if key in NUMERIC else plain(label), key=key)
 
     # ---- data from the app's poller (≤ 10 Hz, coalesced) ---------------------------------------
     def add_feed(self, samples: list[dict[str, Any]]) -> None:
@@ -84,6 +101,12 @@ class RunPane(Vertical):
             c["dk"].append(r["delta_k_pa_sqrt_m"] / 1e6)
 
     def update_live(self, snap: dict[str, Any], detectors: list[dict[str, Any]]) -> None:
+        self.update_numbers(snap)
+        self._plots()
+        self._detectors(detectors)
+
+    def update_numbers(self, snap: dict[str, Any]) -> None:
+        """The live numbers (kept current behind other tabs too: a tab entered never shows an old state)."""
         tm = snap.get("timing") or {}
         self.query_one("#run-numbers", Static).update(
             f"[b]state[/] {snap['state']}   [b]cycles[/] {snap['cycles']:,}   [b]f[/] {num(snap['frequency_hz'], '.2f')} Hz   "
@@ -93,9 +116,8 @@ class RunPane(Vertical):
             f"[b]amplifier[/] {'ON' if snap['amplifier'] else 'off'}   [b]interlock[/] {snap['interlock'] or 'none'}"
             f"{'   [b red]E-STOP[/]' if snap.get('estop') else ''}   "
             f"[b]loop[/] p99 {num(tm.get('p99_ms', math.nan), '.3f')} ms, overruns {tm.get('overruns', 0)}"
-            + (f"   [b]end[/] {snap['end_reason']}" if snap.get("end_reason") else ""))
-        self._plots()
-        self._detectors(detectors)
+            + (f"   [b]end[/] {snap['end_reason']}" if snap.get("end_reason") else "")
+            + (f"\n[b yellow]→ {snap['pending']}[/]" if snap.get("pending") else ""))
 
     def _plots(self) -> None:
         def draw(pid: str, series: list[tuple[list[float], list[float], str]]) -> None:
@@ -110,16 +132,15 @@ class RunPane(Vertical):
 
     def _detectors(self, dets: list[dict[str, Any]]) -> None:
         t = self.query_one("#detectors", DataTable)
-        rows = [(d["name"], d["channel"], f"[{d['lo']:.4g}, {d['hi']:.4g}]", f"{d['value']:.4g}",
-                 d["state"], d["action"], "LATCHED" if d["latched"] else "") for d in dets]
+        rows = [detector_row(d) for d in dets]
         if t.row_count != len(rows):
             t.clear()
-            for r in rows:
-                t.add_row(*r, key=r[0])
+            for d, r in zip(dets, rows):
+                t.add_row(*r, key=d["name"])
             return
-        for r in rows:
-            for col, val in zip(t.columns, r):
-                t.update_cell(r[0], col, val, update_width=True)  # "ok" → "tripped" must fit
+        for d, r in zip(dets, rows):
+            for (col, _), val in zip(DETECTOR_COLUMNS, r):
+                t.update_cell(d["name"], col, val, update_width=True)  # "ok" → "tripped" must fit
 
     # ---- commands ---------------------------------------------------------------------------
     def _cmd(self, name: str, *args) -> None:

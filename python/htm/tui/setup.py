@@ -66,7 +66,7 @@ class SetupPane(Vertical):
     def __init__(self, doc: dict[str, Any] | None = None, **kw: Any) -> None:
         super().__init__(**kw)
         self.doc = doc or default_doc()
-        self.name_ = "test"
+        self.name_ = DEFAULT_SPEC.stem if doc is None else "spec"  # the test's name in the store and the event log
         self.spec: specmod.TestSpec | None = None
         self.bad: dict[str, str] = {}  # field id -> reason (unparsable text)
 

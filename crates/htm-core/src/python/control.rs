@@ -31,8 +31,8 @@ fn cycle_dict<'py>(py: Python<'py>, r: &CycleResult) -> PyResult<Bound<'py, PyDi
     for (k, v) in [
         ("fmax_n", r.fmax_n), ("fmin_n", r.fmin_n), ("fmax_target_n", r.fmax_target_n), ("fmin_target_n", r.fmin_target_n),
         ("peak_err_pct", r.peak_err_pct), ("df_err_pct", r.df_err_pct), ("a_m", r.a_m), ("delta_k_pa_sqrt_m", r.delta_k),
-        ("kmax_pa_sqrt_m", r.kmax), ("dadn_m_per_cycle", r.dadn_m), ("k_sp_n_m", r.k_sp_n_m), ("ymin_m", r.ymin_m),
-        ("ymax_m", r.ymax_m), ("ctrl_u1_v", r.ctrl_u1_v), ("ctrl_u2_v", r.ctrl_u2_v),
+        ("delta_k_target_pa_sqrt_m", r.delta_k_target), ("kmax_pa_sqrt_m", r.kmax), ("dadn_m_per_cycle", r.dadn_m),
+        ("k_sp_n_m", r.k_sp_n_m), ("ymin_m", r.ymin_m), ("ymax_m", r.ymax_m), ("ctrl_u1_v", r.ctrl_u1_v), ("ctrl_u2_v", r.ctrl_u2_v),
     ] {
         d.set_item(k, v)?;
     }
@@ -148,6 +148,11 @@ impl PyCyclic {
     #[getter]
     fn reference_m(&self) -> f64 {
         self.inner.reference_m()
+    }
+    /// Force setpoint of the next period [N]; NaN outside a force test.
+    #[getter]
+    fn force_ref_n(&self) -> f64 {
+        self.inner.force_ref_n()
     }
     /// (Fmax, Fmin, ΔK) targets of the current cycle [N, N, Pa·√m], or None.
     #[getter]
