@@ -50,11 +50,30 @@ def commands(code: str) -> list[str]:
     return [ln.split("  #")[0].strip() for ln in joined.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
 
 
+def shared_folder() -> Path | None:
+    """The project's `shared/` folder beside the checkout (CI keeps a copy there; a git worktree's
+    is beside its main checkout), which blocks reach as `../shared/...`; None when there is none."""
+    found = [ROOT.parent / "shared"]
+    try:
+        common = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--path-format=absolute", "--git-common-dir"],
+                                capture_output=True, text=True, timeout=30).stdout.strip()
+        if common:
+            found.append(Path(common).parent.parent / "shared")
+    except OSError:
+        pass
+    return next((p for p in found if p.is_dir()), None)
+
+
+SHARED = shared_folder()
+
+
 def layout(base: Path) -> Path:
-    """A folder laid out like the checkout (.venv, examples, benchmarks, data, Makefile linked in);
-    returns the checkout folder."""
+    """A folder laid out like the checkout (.venv, examples, benchmarks, data, Makefile linked in,
+    `shared/` beside it); returns the checkout folder."""
     work = base / "checkout"
     work.mkdir(parents=True)
+    if SHARED is not None:
+        (base / "shared").symlink_to(SHARED)
     (work / ".venv").symlink_to(Path(sys.prefix))
     for name in ("examples", "benchmarks", "data", "Makefile", "python", "crates", "Cargo.toml", "pyproject.toml"):
         (work / name).symlink_to(ROOT / name)
