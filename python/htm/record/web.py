@@ -134,7 +134,7 @@ class WebViewer:
 
     def linger(self) -> None:
         """Keep serving (the test is over, its stream stays on the page) until Ctrl-C or SIGTERM."""
-        print(f"the web viewer keeps serving at {self.page_urls()[-1]} — Ctrl-C to stop", flush=True)
+        print(f"the web viewer keeps serving at {self.page_urls()[-1]} — Ctrl-C to stop", file=sys.stderr, flush=True)
         sys.stderr.flush()
         old = signal.signal(signal.SIGTERM, signal.default_int_handler)
         try:
@@ -218,7 +218,7 @@ def serving(cmd: Callable[[Any], int]) -> Callable[[Any], int]:
         if getattr(args, "no_recording", False) or getattr(args, "no_store", False):
             raise HtmError("--serve-web streams the test's recording: drop --no-recording / --no-store")
         with WebViewer(port) as viewer:
-            print("watch the test in a browser: " + "  or  ".join(viewer.page_urls()), flush=True)
+            print("watch the test in a browser: " + "  or  ".join(viewer.page_urls()), file=sys.stderr, flush=True)
             args.connect = viewer.grpc_url
             rc = cmd(args)
             sys.stdout.flush()
