@@ -13,8 +13,6 @@ import json
 import time
 from pathlib import Path
 
-import numpy as np
-
 from htm.campaign import engine
 from htm.campaign.lifeband import build, evaluate, read_data
 from htm.record.store import Store
