@@ -185,3 +185,20 @@ def test_bad_input_is_one_line_naming_file_row_field_and_exit_2(tmp_path, capsys
     assert len(err.splitlines()) == 1 and "bad.csv" in err and "Traceback" not in err
     for w in words:
         assert w in err
+
+
+@pytest.mark.parametrize("cmd, content, words", [
+    (["en", "fit"], b"strain_amplitude,cycles\n0.005,1e4\n", ["`stress_amplitude_pa`", "missing"]),
+    (["en", "fit"], b"strain_amplitude,cycles,stress_amplitude_pa\n0.5,1e4,300e6\n", ["`strain_amplitude`", "m/m"]),
+    (["en", "fit"], b"strain_amplitude,cycles,stress_amplitude_pa\n0.005,1e4,300e6\n", ["--modulus-pa"]),
+    (["sn", "staircase"], b"stress_amplitude_pa,runout\n200e6,1\n210e6,1\n220e6,1\n", ["all 3 specimens are run-outs"]),
+    (["sn", "staircase"], b"stress_amplitude_pa,runout\n200e6,1\n210e6,yes\n", ["row 3", "`runout`"]),
+])
+def test_en_and_staircase_bad_input_is_one_line_and_exit_2(tmp_path, capsys, cmd, content, words):
+    p = tmp_path / "bad.csv"
+    p.write_bytes(content)
+    assert main([*cmd, str(p), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "bad.csv" in err and "Traceback" not in err
+    for w in words:
+        assert w in err

@@ -42,7 +42,7 @@ def cmd_sn_staircase(args: argparse.Namespace) -> int:
     from htm.fatigue.sn_report import staircase_lines, staircase_report
 
     s, ro = staircase.read_staircase(args.data)
-    st = staircase.dixon_mood(s, ro, args.step_pa)
+    st = staircase.dixon_mood(s, ro, args.step_pa, str(args.data))
     out = Path(args.out)
     doc = st.to_json() | {"data": str(args.data)}
     _dump(out / "fit.json", doc)

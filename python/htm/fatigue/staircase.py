@@ -45,30 +45,32 @@ def read_staircase(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     return c["stress_amplitude_pa"], c["runout"]
 
 
-def infer_step(stress_pa: np.ndarray) -> float:
+def infer_step(stress_pa: np.ndarray, source: str = "staircase") -> float:
     """The staircase's step [Pa]: the smallest spacing of its levels, checked to divide every other."""
     lv = np.unique(np.round(stress_pa, 3))
     if len(lv) < 2:
-        raise SpecError("staircase: all specimens were tested on one level; give --step-pa")
+        raise SpecError(f"{source}: all specimens were tested on one level; give --step-pa")
     d = float(np.min(np.diff(lv)))
     k = (lv - lv[0]) / d
     if np.any(np.abs(k - np.round(k)) > 0.02):
-        raise SpecError(f"staircase: the levels {', '.join(f'{v / 1e6:g}' for v in lv)} MPa are not equally spaced; give --step-pa")
+        raise SpecError(f"{source}: the levels {', '.join(f'{v / 1e6:g}' for v in lv)} MPa are not equally spaced; give --step-pa")
     return d
 
 
-def dixon_mood(stress_pa: np.ndarray, runout: np.ndarray, step_pa: float | None = None) -> Staircase:
+def dixon_mood(stress_pa: np.ndarray, runout: np.ndarray, step_pa: float | None = None, source: str = "staircase") -> Staircase:
     """ISO 12107's estimate. The specimens before the first change of outcome are dropped except the
     last of them. With i the level index above the lowest level of the counted event, F = Σnᵢ,
     A = Σi·nᵢ, B = Σi²·nᵢ: strength = S₀ + d(A/F ∓ ½) (− for failures, + for run-outs);
     sd = 1.62·d·((F·B − A²)/F² + 0.029) when that ratio is ≥ 0.3, else 0.53·d (ISO 12107)."""
     s, ro = np.asarray(stress_pa, float), np.asarray(runout, bool)
     if len(s) < 3:
-        raise SpecError(f"staircase: {len(s)} specimens; at least 3 are needed")
+        raise SpecError(f"{source}: {len(s)} specimens; a staircase needs at least 3")
     if ro.all() or (~ro).all():
         what = "run-outs" if ro.all() else "failures"
-        raise SpecError(f"staircase: all {len(s)} specimens are {what}: the levels never crossed the fatigue strength")
-    d = float(step_pa) if step_pa else infer_step(s)
+        raise SpecError(f"{source}: all {len(s)} specimens are {what}: the staircase never crossed the fatigue strength")
+    if step_pa is not None and not step_pa > 0:
+        raise SpecError(f"--step-pa = {step_pa}: the step must be a positive stress [Pa]")
+    d = float(step_pa) if step_pa else infer_step(s, source)
     change = int(np.argmax(ro != ro[0]))
     keep = slice(max(change - 1, 0), None)
     s_u, ro_u = s[keep], ro[keep]
