@@ -55,7 +55,7 @@ def sn_summary_lines(fit: SNFit) -> list[str]:
     a_mpa = fit.a + 6 * fit.b  # log10 N = a_mpa + b·log10(S / MPa)
     rows = [
         ("method", fit.method),
-        ("specimens", f"{fit.n_specimens} ({fit.n_failures} failures, {fit.n_runouts} run-outs {fit.runouts_used})"),
+        ("specimens", f"{fit.n_specimens} ({fit.n_failures} failures, {fit.n_runouts} run-out(s) {fit.runouts_used})"),
         ("curve", f"log10 N = {fit.a:.4f} + ({fit.b:.4f})·log10 S[Pa]  =  {a_mpa:.4f} + ({fit.b:.4f})·log10 S[MPa]"),
         ("a, 90 % CI", f"{fit.a:.4f}  {_ci(fit.a_ci90)}"),
         ("b, 90 % CI", f"{fit.b:.4f}  {_ci(fit.b_ci90)}   (Basquin exponent k = {-fit.b:.3f})"),
