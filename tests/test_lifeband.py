@@ -82,6 +82,8 @@ def test_life_band_cli_builds_a_band_and_updates_from_early_data(tmp_path):
     u = s["early_update"]
     assert u["points"] == int(k.sum()) and u["p5"] <= u["median"] <= u["p95"]
     assert "updated from" in r.stdout and "held-out specimens: " in r.stdout
+    # a prediction band for a new specimen, saying what it rests on (issue 33)
+    assert s["band"] == "prediction" and s["rests_on_specimens"] == 6 and "resting on 6 specimens" in r.stdout
 
 
 def test_a_tests_table_gives_its_early_points_thinned_and_cut():

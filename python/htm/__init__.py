@@ -6,6 +6,8 @@
 - a fatigue test: `TestSpec`, `load_spec`, `run_test` (simulated), `Session` with `virtual_config`
   (the live or virtual rig), `Store` (every recorded test)
 - fatigue data: `read_a_n`, `CrackData`, `Setup`, `e647` (ASTM E647 reduction)
+- S-N and strain-life: `read_sn`, `sn_fit` (E739 or maximum likelihood with run-outs), `staircase`
+  (ISO 12107), `miner_damage` (rainflow + Miner), `read_en`, `en_fit` (E606 strain-life, K', n')
 - measurement records: `read_record`, `write_record`, `Record`, `diagnose`, and `proving_record`
   (a record of the simulated rig with effects switched on, to try a diagnosis on)
 - errors: `HtmError` and its subclasses
@@ -44,6 +46,12 @@ _LAZY = {
     "CrackData": ("htm.fatigue.data", "CrackData"),
     "Setup": ("htm.fatigue.data", "Setup"),
     "e647": ("htm.fatigue.e647", "reduce"),
+    "read_sn": ("htm.fatigue.sn", "read_sn"),
+    "sn_fit": ("htm.fatigue.sn", "sn_fit"),
+    "miner_damage": ("htm.fatigue.sn", "miner_damage"),
+    "staircase": ("htm.fatigue.staircase", "dixon_mood"),
+    "read_en": ("htm.fatigue.strainlife", "read_en"),
+    "en_fit": ("htm.fatigue.strainlife", "en_fit"),
     "read_record": ("htm.ident.records", "read_record"),
     "Record": ("htm.ident.records", "Record"),
     "write_record": ("htm.ident.records", "write_record"),

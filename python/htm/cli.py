@@ -176,12 +176,13 @@ def _extensions() -> list[Callable[[argparse._SubParsersAction], None]]:
     from htm.campaign import lifeband_cli
     from htm.control import cli as rig_cli
     from htm.fatigue import cli as fatigue_cli
+    from htm.fatigue import sn_cli
     from htm.fleet import cli as fleet_cli
     from htm.ident import cli as ident_cli
     from htm.record import cli as record_cli
 
     return [run_cli.register, fatigue_cli.register, ident_cli.register, rig_cli.register, record_cli.register,
-            campaign_cli.register, lifeband_cli.register, fleet_cli.register, correct_cli.register]
+            campaign_cli.register, lifeband_cli.register, fleet_cli.register, correct_cli.register, sn_cli.register]
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -3,6 +3,13 @@ Virkler specimens), the joint normal of their (log10 C, m), and the life of the 
 Monte Carlo campaign over that joint (`[scatter.joint]`), run by the campaign engine on the simulated
 rig; then updating one running specimen's prediction from its first a–N points.
 
+The band is a prediction band for a new specimen: its (log10 C, m) is drawn from the predictive
+distribution of a new member of the specimen set — a bivariate t with n − 2 degrees of freedom about
+the set's mean, scale Σ̂·(n + 1)(n − 1)/(n(n − 2)) (the normal's mean and covariance estimated from n
+specimens, not known) — so the uncertainty of the fit across specimens widens it, the more so the
+fewer specimens it rests on. The campaign draws from a normal twice as wide (its `[scatter.joint]`)
+and each draw is weighted by the ratio of the two densities (importance weights).
+
 The update reweights the campaign's draws by how well each one's law reproduces the early points
 (importance weights, Gaussian in cycles with the scatter of a measured point around its own
 specimen's fitted curve): the band narrows to the laws the specimen is following, with no new test
@@ -66,6 +73,10 @@ def paris_fits(datas: list[CrackData], setup: Setup) -> list[Model]:
     return out
 
 
+BANDS = ("prediction", "specimens")
+PROPOSAL_WIDTH = 2.0  # the campaign's normal: this times the predictive scale (variance), to cover the t's tails
+
+
 @dataclass
 class Joint:
     """Normal of (log10 C [SI: (m/cycle)/(Pa·√m)^m], m) across specimens, and the point scatter."""
@@ -78,6 +89,31 @@ class Joint:
     @property
     def corr(self) -> float:
         return float(self.cov[0, 1] / np.sqrt(self.cov[0, 0] * self.cov[1, 1]))
+
+    @property
+    def dof(self) -> int:
+        """Degrees of freedom of the predictive t: n − 2 (two parameters)."""
+        return self.n_specimens - 2
+
+    @property
+    def predictive_scale(self) -> np.ndarray:
+        """Scale matrix of the predictive bivariate t for a new specimen: Σ̂·(n + 1)(n − 1)/(n(n − 2))."""
+        n = self.n_specimens
+        return self.cov * (n + 1) * (n - 1) / (n * (n - 2))
+
+    def proposal(self) -> Joint:
+        """The normal the campaign draws from for the prediction band (wider than the t)."""
+        return Joint(self.mean, self.predictive_scale * PROPOSAL_WIDTH, self.point_sigma_cycles, self.n_specimens)
+
+    def predictive_weights(self, x: np.ndarray) -> np.ndarray:
+        """Importance weights (normalised) turning draws x [k, 2] of `proposal()` into draws of the
+        predictive t: t density over the normal density."""
+        from scipy import stats
+
+        t = stats.multivariate_t(loc=self.mean, shape=self.predictive_scale, df=self.dof).logpdf(x)
+        q = stats.multivariate_normal(mean=self.mean, cov=self.predictive_scale * PROPOSAL_WIDTH).logpdf(x)
+        w = np.exp(t - q - np.max(t - q))
+        return w / w.sum()
 
 
 def joint(models: list[Model], datas: list[CrackData]) -> Joint:
@@ -181,8 +217,14 @@ def read_data(path: str | Path, a_mm_column: str | None = None) -> list[CrackDat
 
 
 def build(spec_path: Path, datas: list, hold_out: set[str], samples: int, seed: int, store: Any, runner: Any,
-          out: Path, progress: bool) -> dict[str, Any]:
-    """Fit the specimens not held out, run the campaign, and return the band and what it rests on."""
+          out: Path, progress: bool, band: str = "prediction") -> dict[str, Any]:
+    """Fit the specimens not held out, run the campaign, and return the band and what it rests on.
+
+    band: ``"prediction"`` (a new specimen: the fit's uncertainty across specimens included, see the
+    module's text) or ``"specimens"`` (the normal of the fitted specimens taken as known: the band
+    before issue 33, too narrow on specimens it did not see)."""
+    if band not in BANDS:
+        raise SpecError(f"life band: band `{band}` is unknown: use {' or '.join(BANDS)}")
     from htm.campaign import engine
     from htm.campaign import spec as campaign_spec
 
@@ -190,8 +232,9 @@ def build(spec_path: Path, datas: list, hold_out: set[str], samples: int, seed: 
     setup = setup_of(spec)
     a0, af = spec.a0_m, spec.phases[-1].end_a_m
     fit_set = [d for d in datas if d.specimen not in hold_out]
-    if len(fit_set) < 3:
-        raise SpecError(f"life band: {len(fit_set)} specimens left to fit; at least 3 are needed")
+    if len(fit_set) < 4:
+        raise SpecError(f"life band: {len(fit_set)} specimens left to fit; at least 4 are needed (a prediction band "
+                        "for a new specimen with two law parameters)")
     unknown = hold_out - {d.specimen for d in datas}
     if unknown:
         raise SpecError(f"--hold-out: no specimen {', '.join(sorted(unknown))} in the data")
@@ -199,7 +242,8 @@ def build(spec_path: Path, datas: list, hold_out: set[str], samples: int, seed: 
     j = joint(models, fit_set)
     base = with_paris_base(spec_path, out)
     cpath = out / "campaign.toml"
-    cpath.write_text(campaign_text(base, j, samples, seed, f"life-band-{spec.name}"))
+    drawn = j.proposal() if band == "prediction" else j
+    cpath.write_text(campaign_text(base, drawn, samples, seed, f"life-band-{spec.name}-{band}"))
     c = campaign_spec.load(cpath)
     s = engine.run(c, store, runner, progress=progress)
     rows = engine.table(store, c.id)
@@ -207,8 +251,20 @@ def build(spec_path: Path, datas: list, hold_out: set[str], samples: int, seed: 
     life = np.array([r["life_cycles"] for r in ok], float)
     if len(life) == 0:
         raise SpecError(f"life band: none of the {len(rows)} simulated tests reached a = {af * 1e3:.2f} mm")
+    weights = None
+    if band == "prediction":
+        # draws that did not reach af are left out as for the specimens band (their number is reported)
+        x = np.array([[np.log10(r["law.c"]), r["law.m"]] for r in ok])
+        weights = j.predictive_weights(x)
     return {"campaign": c.id, "run": s, "setup": setup, "a0_m": a0, "af_m": af, "joint": j, "fit_set": fit_set,
-            "rows": ok, "life": life, "band": quantiles(life), "tests_not_reaching_af": len(rows) - len(ok)}
+            "rows": ok, "life": life, "weights": weights, "band_kind": band, "band": quantiles(life, weights),
+            "effective_draws": effective_samples(weights) if weights is not None else float(len(life)),
+            "tests_not_reaching_af": len(rows) - len(ok)}
+
+
+def _prior(res: dict[str, Any]) -> np.ndarray:
+    w = res.get("weights")
+    return np.full(len(res["life"]), 1.0 / len(res["life"])) if w is None else w
 
 
 def evaluate(res: dict[str, Any], held: list, early_fraction: float) -> list[dict[str, Any]]:
@@ -222,7 +278,8 @@ def evaluate(res: dict[str, Any], held: list, early_fraction: float) -> list[dic
         if actual is None:
             continue
         early = first_points(d, early_fraction * med)
-        w = early_weights(draws, early, res["setup"], res["a0_m"], res["joint"].point_sigma_cycles)
+        w = _prior(res) * early_weights(draws, early, res["setup"], res["a0_m"], res["joint"].point_sigma_cycles)
+        w /= w.sum()
         ulo, umed, uhi = quantiles(res["life"], w)
         out.append({"specimen": d.specimen, "life": actual, "in_band": lo <= actual <= hi,
                     "err_no_update": (med - actual) / actual, "early_points": len(early.cycles),
@@ -236,7 +293,8 @@ def update(res: dict[str, Any], early: CrackData) -> dict[str, Any]:
     """The band of `build`'s result updated from a running specimen's first points `early`:
     5 %, median, 95 % of the reweighted draws, the points used and the effective draws left."""
     draws = [{"law.c": r["law.c"], "law.m": r["law.m"]} for r in res["rows"]]
-    w = early_weights(draws, early, res["setup"], res["a0_m"], res["joint"].point_sigma_cycles)
+    w = _prior(res) * early_weights(draws, early, res["setup"], res["a0_m"], res["joint"].point_sigma_cycles)
+    w /= w.sum()
     lo, med, hi = quantiles(res["life"], w)
     return {"p5": lo, "median": med, "p95": hi, "points": len(early.cycles), "effective_draws": effective_samples(w)}
 

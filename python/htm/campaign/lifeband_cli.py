@@ -31,7 +31,8 @@ def cmd_life_band(args: argparse.Namespace) -> int:
         else:
             client, runner = None, engine.local_runner()
         try:
-            res = lifeband.build(Path(args.spec), datas, hold, args.samples, args.seed, store, runner, out, not args.quiet)
+            res = lifeband.build(Path(args.spec), datas, hold, args.samples, args.seed, store, runner, out, not args.quiet,
+                                 band=args.band)
         finally:
             if client is not None:
                 client.close()
@@ -44,11 +45,17 @@ def cmd_life_band(args: argparse.Namespace) -> int:
         "point_sigma_cycles": j.point_sigma_cycles, "draws": len(res["life"]),
         "draws_not_reaching_af": res["tests_not_reaching_af"],
         "life_median": med, "life_p5": lo, "life_p95": hi, "campaign": res["campaign"],
+        "band": res["band_kind"], "rests_on_specimens": j.n_specimens, "effective_draws": res["effective_draws"],
+        "band_note": (f"5-95 % prediction band for a new specimen (bivariate t, {j.dof} degrees of freedom: the "
+                      f"fit's uncertainty across {j.n_specimens} specimens included)" if res["band_kind"] == "prediction"
+                      else f"5-95 % of the {j.n_specimens} fitted specimens' normal taken as known (no fit uncertainty)"),
     }
     say(f"{j.n_specimens} specimens fitted (Paris by life): log10 C = {j.mean[0]:.3f} ± {np.sqrt(j.cov[0, 0]):.3f} (SI), "
           f"m = {j.mean[1]:.3f} ± {np.sqrt(j.cov[1, 1]):.3f}, correlation {j.corr:+.3f}")
+    kind = (f"prediction band for a new specimen, resting on {j.n_specimens} specimens ({res['effective_draws']:.0f} "
+            f"effective draws)" if res["band_kind"] == "prediction" else f"band of the {j.n_specimens} fitted specimens")
     say(f"life a0 {res['a0_m'] * 1e3:.2f} → {res['af_m'] * 1e3:.2f} mm over {len(res['life'])} simulated tests: "
-          f"median {med:,.0f} cycles, 5–95 % {lo:,.0f} .. {hi:,.0f}")
+        f"median {med:,.0f} cycles, 5–95 % {lo:,.0f} .. {hi:,.0f} ({kind})")
     held = [d for d in datas if d.specimen in hold]
     if held:
         ev = lifeband.evaluate(res, held, args.early_fraction)
@@ -96,6 +103,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="held-out specimens: their points up to this fraction of the median life drive the update (default 0.25)")
     p.add_argument("--samples", type=int, default=400, help="Monte Carlo draws (simulated tests; default 400)")
     p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--band", choices=["prediction", "specimens"], default="prediction",
+                   help="prediction: for a new specimen, the fit's uncertainty included (default); specimens: the "
+                        "fitted specimens' spread taken as known (narrower, the band before issue 33)")
     p.add_argument("--cluster", metavar="tcp://HOST:PORT", help="run the campaign on this Dask scheduler's workers")
     p.add_argument("--store", help="test store (folder or postgresql://...), as for `htm campaign`")
     p.add_argument("--out", default="out/life-band", help="folder for campaign.toml and life_band.json (default out/life-band)")
