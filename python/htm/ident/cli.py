@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -72,12 +72,16 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
+    import sys
+
     from htm.ident.diagnose import diagnose
 
     rec = read_record(args.record, args.meta)
     run: dict[str, Any] = {}
-    report = diagnose(rec, out_dir=args.out, verbose=args.verbose, stats=run)
+    report = diagnose(rec, out_dir=args.out, verbose=args.verbose, stats=run, progress=None if args.quiet else stage_line())
     found = ", ".join(f["effect"] + (f"({f['channel']})" if f["channel"] else "") for f in report["findings"]) or "none"
+    if sys.stderr.isatty() and not args.quiet:
+        sys.stderr.write("\n")
     print(f"diagnosed {rec.name}: findings: {found}; unexplained: {str(report['unexplained']).lower()}; "
           f"{run['simulations']} simulations in {run['seconds']:.1f} s; wrote {Path(args.out) / 'report.json'}")
     return 0
@@ -92,7 +96,26 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--meta", help="metadata JSON (default: NAME.json beside the table)")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--verbose", action="store_true", help="print the search as it goes")
+    p.add_argument("--quiet", action="store_true", help="no progress line per stage on stderr")
     p.set_defaults(func=cmd_diagnose)
+
+
+def stage_line(stream: Any = None) -> Callable[[str], None]:
+    """A progress callback for `diagnose`: one line per stage on stderr — plain lines when stderr
+    is not a terminal (a log, a pipe), one line rewritten in place when it is."""
+    import sys
+
+    out = stream if stream is not None else sys.stderr
+    tty = bool(getattr(out, "isatty", lambda: False)())
+
+    def show(line: str) -> None:
+        if tty:
+            out.write("\r\033[K" + line[: 200])
+        else:
+            out.write(line + "\n")
+        out.flush()
+
+    return show
 
 
 def cmd_predict(args: argparse.Namespace) -> int:
