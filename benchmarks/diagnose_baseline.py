@@ -55,12 +55,15 @@ def run(args: argparse.Namespace) -> int:
         if key in out:
             continue
         t0 = time.perf_counter()
+        truth = None
         if key.startswith("A:"):
-            rec, _ = proving.matrix_record(name, "A")
+            rec, truth = proving.matrix_record(name, "A")
         else:
             rec = read_record(external / f"{name}.csv.gz", external / f"{name}.json")
         report = diagnose(rec)
         out[key] = summary(report, time.perf_counter() - t0)
+        if truth is not None:  # the matrix test's own judge (tests/test_diagnose_effects.py)
+            out[key]["judge_problems"] = proving.judge(report, truth)
         print(key, json.dumps(out[key]["findings"]), out[key]["unexplained"], out[key]["seconds"], flush=True)
         path.write_text(json.dumps(out, indent=1) + "\n")
     return 0
@@ -94,7 +97,9 @@ def compare(before: Path, after: Path, rtol: float) -> int:
         print(f"{'same' if ok and ok_rmse else 'DIFFERENT'}  {key}: {[(f['effect'], f['channel']) for f in x['findings']]} "
               f"unexplained={x['unexplained']}  ->  {[(f['effect'], f['channel']) for f in y['findings']]} unexplained={y['unexplained']}"
               f"{'' if ok_rmse else '  (final errors differ)'}  {x['seconds']} s -> {y['seconds']} s")
-    print(json.dumps({"cases": len(b), "different": bad, "rtol": rtol}))
+    judged = [k for k in a if "judge_problems" in a[k]]
+    print(json.dumps({"cases": len(b), "different": bad, "rtol": rtol, "matrix_judged": len(judged),
+                      "matrix_passed": sum(not a[k]["judge_problems"] for k in judged)}))
     return 1 if bad else 0
 
 

@@ -38,10 +38,11 @@ def _one_blas_thread(f: Callable[..., Any]) -> Callable[..., Any]:
     threads, so their rounding — and with it a close decision of the search — would depend on the
     machine's core count and load. The simulations, where the time goes, stay parallel (the core
     runs each one whole on one thread, a batch over all cores)."""
-    from threadpoolctl import threadpool_limits
-
     @functools.wraps(f)
     def pinned(*args: Any, **kw: Any) -> Any:
+        import scipy.linalg  # noqa: F401 - loads scipy's own BLAS now, so that the limit reaches it too
+        from threadpoolctl import threadpool_limits
+
         with threadpool_limits(limits=1, user_api="blas"):
             return f(*args, **kw)
 

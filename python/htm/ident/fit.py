@@ -4,6 +4,8 @@ whose Jacobians and trial steps are batches of simulations (run in parallel by t
 from __future__ import annotations
 
 import math
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -23,6 +25,23 @@ PRIOR_SHARE = DEFAULT.prior_share
 SIGNIFICANT = DEFAULT.significant
 
 Predictor = Callable[..., list[dict[str, np.ndarray]]]
+# Problems are simulated from several threads at once (independent fits run side by side).
+_COUNT = threading.Lock()
+_POOL: ThreadPoolExecutor | None = None
+
+
+def side_by_side(jobs: list[Callable[[], Any]]) -> list[Any]:
+    """Run independent jobs (fits, simulations) side by side on threads and return their results
+    in order. The core's simulations release the GIL and each batch already spreads over the
+    cores, but a batch of one or three simulations leaves cores idle that another fit can use;
+    each job computes exactly what it would alone (the linear algebra runs on one BLAS thread,
+    the simulations are deterministic), so the results do not depend on the scheduling."""
+    global _POOL
+    if len(jobs) <= 1:
+        return [j() for j in jobs]
+    if _POOL is None:
+        _POOL = ThreadPoolExecutor(max_workers=4, thread_name_prefix="htm-fit")
+    return [f.result() for f in [_POOL.submit(j) for j in jobs]]
 
 
 @dataclass
@@ -66,7 +85,8 @@ class Problem:
 
     def predict(self, plist: list[Any], *, whole: bool = False, **extra: Any) -> list[dict[str, np.ndarray]]:
         """Sensor readings predicted for each parameter set over the working window (or the whole record)."""
-        self.simulations += len(plist)
+        with _COUNT:
+            self.simulations += len(plist)
         n = len(self.rec.columns["t"])
         opts = {**self.opts, **extra}
         if not whole and self.truncated:

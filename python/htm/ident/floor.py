@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from htm.ident import features as ft
-from htm.ident.fit import Problem
+from htm.ident.fit import Problem, side_by_side
 from htm.ident.model import Model
 from htm.ident.settings import DEFAULT, SearchSettings
 
@@ -41,15 +41,18 @@ def own_floor(prob: Problem, model: Model, pred: dict[str, np.ndarray], rate: fl
     rng = np.random.default_rng(SEED)
     n = len(prob.rec.columns["t"])
     out = {c: 0.0 for c in prob.channels}
+    syns = []
     for _ in range(prob.settings.floor_realisations):
         cols = dict(prob.rec.columns)
         for c in prob.channels:
             x = np.asarray(pred[c], dtype=float) + rng.normal(0.0, prob.sigma[c], n)
             q = quantum.get(c) or 0.0
             cols[c] = np.round(x / q) * q if q > 0 else x
-        syn = Problem(type(prob.rec)(cols, prob.rec.meta, prob.rec.name), prob.simulate, prob.channels, prob.sigma,
-                      prob.n_work, prob.fit_mask, prob.val_mask, prob.opts, prob.sparse, settings=prob.settings)
-        again = syn.predict([model.params()], whole=True)[0]
+        syns.append(Problem(type(prob.rec)(cols, prob.rec.meta, prob.rec.name), prob.simulate, prob.channels, prob.sigma,
+                            prob.n_work, prob.fit_mask, prob.val_mask, prob.opts, prob.sparse, settings=prob.settings))
+    # each synthetic record is its own simulation: side by side
+    agains = side_by_side([lambda syn=syn: syn.predict([model.params()], whole=True)[0] for syn in syns])
+    for syn, again in zip(syns, agains):
         prob.simulations += 1
         for c in prob.channels:
             out[c] = max(out[c], ft.systematic_ratio(np.asarray(again[c]) - syn.meas[c], prob.sigma[c], rate))

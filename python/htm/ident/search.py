@@ -23,7 +23,7 @@ from typing import Any, Callable, NamedTuple
 import numpy as np
 
 from htm.ident import features as ft
-from htm.ident.fit import Problem, fit
+from htm.ident.fit import Problem, fit, side_by_side
 from htm.ident.model import Candidate, Model
 from htm.ident.settings import DEFAULT, SearchSettings
 from htm.ident.trace import Stages, Trace
@@ -290,24 +290,32 @@ class Selector:
         good: list[Trial] = []
         better_base: _BetterBase | None = None
         too_small = False
-        for cand, gain, step in ranked[:max_refits]:
-            if gain < st.refit_share * ranked[0].gain:
-                tr.add("refit", cand.label, "screened gain >= refit_share x the best", "not refitted",
-                       close=abs(gain - st.refit_share * ranked[0].gain) < st.close_margin * st.refit_share * ranked[0].gain,
-                       other=ranked[0].cand.label, gain=gain, best=ranked[0].gain, refit_share=st.refit_share)
+        todo: list[Screened] = []
+        for sc in ranked[:max_refits]:
+            if sc.gain < st.refit_share * ranked[0].gain:
+                tr.add("refit", sc.cand.label, "screened gain >= refit_share x the best", "not refitted",
+                       close=abs(sc.gain - st.refit_share * ranked[0].gain) < st.close_margin * st.refit_share * ranked[0].gain,
+                       other=ranked[0].cand.label, gain=sc.gain, best=ranked[0].gain, refit_share=st.refit_share)
                 break
+            todo.append(sc)
+
+        def refit_one(sc: Screened) -> Trial:
             # Refit from the current fit and from the nominal base parameters (the current fit may
             # have bent them to stand in for this very effect), each at the best size of the
             # candidate's parameter; keep the better fit.
-            starts = [start.with_candidate(cand, step) for start in _restarts(self.model, self.x0, self.xn)]
-            trial, twork, tjac = fit(prob, _scan(prob, starts, cand, q), iters=st.refit_iters)
-            tpred = prob.whole(trial, twork)
-            verdict = pays_off(prob, self.pred, trial, tpred, self.model, cand)
+            starts = [start.with_candidate(sc.cand, sc.step) for start in _restarts(self.model, self.x0, self.xn)]
+            trial, twork, tjac = fit(prob, _scan(prob, starts, sc.cand, q), iters=st.refit_iters)
+            tpred, verdict = judge(prob, self.pred, trial, twork, self.model, sc.cand)
+            return Trial(sc.cand, trial, twork, tpred, verdict, tjac)
+
+        # The candidates are refitted side by side (each from the same state), then judged in order.
+        for t in side_by_side([lambda sc=sc: refit_one(sc) for sc in todo]):
+            cand, trial, twork, verdict = t.cand, t.model, t.work, t.verdict
             self.log("refit", cand.label, cand.report(trial.params()), verdict)
             tr.add("judge", cand.label, verdict.rule, "pays off" if verdict.ok else "does not pay off", close=verdict.close,
                    params=cand.report(trial.params()), **verdict.numbers())
             if verdict.ok:
-                good.append(Trial(cand, trial, twork, tpred, verdict, tjac))
+                good.append(t)
                 continue
             if not verdict.claimable:
                 # The record wants it only at a size the base's form mimics: not an effect here,
@@ -347,10 +355,8 @@ class Selector:
             retry = fit(prob, again, iters=st.polish_iters)
             if prob.fit_cost(retry[1]) < prob.fit_cost(twork):
                 trial, twork, tjac = retry
-        tpred = prob.whole(trial, twork)
-        out = Trial(g.cand, trial, twork, tpred, pays_off(prob, self.pred, trial, tpred, self.model, g.cand), tjac)
-        self.log("polished", g.cand.label, g.cand.report(trial.params()), out.verdict)
-        return out
+        tpred, verdict = judge(prob, self.pred, trial, twork, self.model, g.cand)
+        return Trial(g.cand, trial, twork, tpred, verdict, tjac)
 
     def break_ties(self, good: list[Trial]) -> Trial:
         """Of the trials that pay off, the one to add: close contenders (the second within
@@ -364,7 +370,9 @@ class Selector:
             tr.add("break ties", good[1].cand.label, "dBIC <= contender_dbic x the best's",
                    "polished beside the best" if len(contenders) == 2 else "not a contender", other=good[0].cand.label,
                    dbic=good[1].verdict.dbic, best_dbic=good[0].verdict.dbic, contender_dbic=st.contender_dbic)
-        polished = [self.polish(g) for g in contenders]
+        polished = side_by_side([lambda g=g: self.polish(g) for g in contenders])
+        for g in polished:
+            self.log("polished", g.cand.label, g.cand.report(g.model.params()), g.verdict)
         if len(polished) == 2:
             polished = on_common_base(prob, self.pred, self.model, polished, self.log)
         # Both at the noise floor, or two faults of one sensor whose held-out costs are apart by
@@ -408,8 +416,8 @@ class Selector:
             return f.cand.claimable is not None and not f.cand.claimable(f.cand.report(self.model.params()))
 
         def refit_without(f: Finding) -> tuple[Model, dict, dict, np.ndarray]:
-            fits = [fit(prob, start, iters=st.refit_iters) for start in _restarts(self.model.without(f.cand, self.nominal),
-                                                                                   self.x0, self.xn)]
+            starts = _restarts(self.model.without(f.cand, self.nominal), self.x0, self.xn)
+            fits = side_by_side([lambda s=s: fit(prob, s, iters=st.refit_iters) for s in starts])
             wmodel, wwork, wjac = min(fits, key=lambda g: prob.fit_cost(g[1]))
             return wmodel, prob.whole(wmodel, wwork), wwork, wjac
 
@@ -490,8 +498,7 @@ def probe(prob: Problem, res: Result, pool: list[Candidate], rate: float, log: L
     q = np.linalg.qr(res.jac)[0]
     for cand, gain, step in ranked[: st.probe_refits]:
         trial, twork, _ = fit(prob, _scan(prob, [model.with_candidate(cand, step)], cand, q), iters=st.refit_iters)
-        tpred = prob.whole(trial, twork)
-        verdict = pays_off(prob, pred, trial, tpred, model, cand)
+        tpred, verdict = judge(prob, pred, trial, twork, model, cand)
         log("probe", cand.label, cand.report(trial.params()), verdict)
         ok = verdict.ok and verdict.dcost < -st.probe_gain and verdict.explained >= st.probe_share
         tr.add("probes", cand.label, "pays off, dcost < -probe_gain and explained >= probe_share",
@@ -536,27 +543,32 @@ def on_common_base(prob: Problem, pred0: dict, model: Model, polished: list[Tria
     the same base."""
     n = len(model.x)
     hold = frozenset(f.key for f in model.frees)
-    out = []
-    for i, g in enumerate(polished):
+
+    def on_other(i: int) -> tuple[Trial, list[tuple]]:
+        g = polished[i]
         cand, verdict, trial, twork, tjac, tpred = g.cand, g.verdict, g.model, g.work, g.jac, g.pred
         other = polished[1 - i].model
         x = trial.x.copy()
         x[:n] = other.x[:n]
         moved, mwork, mjac = fit(prob, trial.at(x), iters=prob.settings.common_iters, hold=hold)
-        mpred = prob.whole(moved, mwork)
-        mverdict = pays_off(prob, pred0, moved, mpred, model, cand)
-        log("on the other's base", cand.label, cand.report(moved.params()), mverdict)
+        mpred, mverdict = judge(prob, pred0, moved, mwork, model, cand)
+        logs: list[tuple] = [("on the other's base", cand.label, cand.report(moved.params()), mverdict)]
         if mverdict.dbic < verdict.dbic:
             # One step with all free: the Jacobian of every parameter (differenced at `moved`)
             # for the screens to come. The step fits the fit blocks and may lose on the held-out
             # ones; then `moved` stays, or the step would decide between the contenders.
             strial, swork, tjac = fit(prob, moved, iters=1, pred0=mwork)
-            spred = prob.whole(strial, swork)
-            sverdict = pays_off(prob, pred0, strial, spred, model, cand)
-            log("one step on", cand.label, cand.report(strial.params()), sverdict)
+            spred, sverdict = judge(prob, pred0, strial, swork, model, cand)
+            logs.append(("one step on", cand.label, cand.report(strial.params()), sverdict))
             trial, twork, tpred, verdict = ((strial, swork, spred, sverdict) if sverdict.dbic <= mverdict.dbic
                                             else (moved, mwork, mpred, mverdict))
-        out.append(Trial(cand, trial, twork, tpred, verdict, tjac))
+        return Trial(cand, trial, twork, tpred, verdict, tjac), logs
+
+    out = []
+    for trial, logs in side_by_side([lambda i=i: on_other(i) for i in range(len(polished))]):
+        for line in logs:
+            log(*line)
+        out.append(trial)
     return out
 
 
@@ -597,7 +609,19 @@ def _scan(prob: Problem, starts: list[Model], cand: Candidate, q: np.ndarray) ->
     return models[int(np.argmin(costs))]
 
 
-def pays_off(prob: Problem, pred0: dict, trial: Model, tpred: dict, before: Model, cand: Candidate) -> Verdict:
+def judge(prob: Problem, pred0: dict, trial: Model, twork: dict, before: Model, cand: Candidate) -> tuple[dict, Verdict]:
+    """A fitted trial's whole-record prediction and its verdict (`pays_off`), the two
+    whole-record simulations they need (the trial, and the trial with its effect switched off)
+    in one batch."""
+    if prob.truncated or prob.sparse:
+        tpred, abl = prob.predict([trial.params(), trial.ablated(before, cand).params()], whole=True)
+    else:
+        tpred, abl = twork, None
+    return tpred, pays_off(prob, pred0, trial, tpred, before, cand, abl=abl)
+
+
+def pays_off(prob: Problem, pred0: dict, trial: Model, tpred: dict, before: Model, cand: Candidate,
+             abl: dict | None = None) -> Verdict:
     """Does the effect pay off on the held-out data? It must beat the model without it by the
     information criterion and by min_gain of the cost, and so must it against its own refit
     with the effect switched off (else it only helped the base parameters converge); and it
@@ -606,7 +630,8 @@ def pays_off(prob: Problem, pred0: dict, trial: Model, tpred: dict, before: Mode
     st = prob.settings
     k = max(1, len(cand.frees))
     dbic, dcost = prob.bic_delta(pred0, tpred, k)
-    abl = prob.predict([trial.ablated(before, cand).params()], whole=True)[0]
+    if abl is None:  # the ablated model's whole-record prediction, unless the caller batched it (`judge`)
+        abl = prob.predict([trial.ablated(before, cand).params()], whole=True)[0]
     abic, acost = prob.bic_delta(abl, tpred, k)
     # A sensor's fault is in its own reading: there is its signature. (Through the restarts from the
     # measured state it also moves the other channels, so there it can buy a fit it does not explain.)
