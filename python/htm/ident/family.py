@@ -70,6 +70,22 @@ class Family:
         fields = tuple(self.effect_fields(effect, channel).items())
         return Candidate(effect, channel, frees, signature, fields=fields, own_reading=effect in SENSOR_EFFECTS, **kw)
 
+    def sensor_candidate(self, effect: str, channel: str, unit: float, *, bound: float = 1e3,
+                         claimable: Claim | None = None) -> Candidate:
+        """A fault of one sensor's reading (EFFECTS.md): `sensor_offset` (in units of `unit`,
+        the channel's scale, within ±`bound` of them), `sensor_gain` (in 1 % steps, 0.5-1.5 and
+        beyond) or `sensor_delay` (in units of `unit`, the sample period, up to 100 of them);
+        the parameter-set keys are `sensor_offset_<c>`, `sensor_gain_<c>`, `sensor_delay_<c>_s`."""
+        if effect == "sensor_offset":
+            free, signature = lin(f"sensor_offset_{channel}", unit, -bound, bound), "constant"
+        elif effect == "sensor_gain":
+            free, signature = lin(f"sensor_gain_{channel}", 0.01, -50.0, 50.0, origin=1.0), f"predicted {channel}"
+        elif effect == "sensor_delay":
+            free, signature = lin(f"sensor_delay_{channel}_s", unit, 0.0, 100.0), f"d(predicted {channel})/dt"
+        else:
+            raise ValueError(f"`{effect}` is not a sensor effect ({', '.join(SENSOR_EFFECTS)})")
+        return self.candidate(effect, channel, (free,), signature, claimable=claimable)
+
     def closure_candidates(self, y: np.ndarray, zero_position_m: float, stiffness_n_m: float) -> list[Candidate]:
         """A specimen's closure (EFFECTS.md `specimen_nonlinearity` on f: a stiffer spring
         beyond a closure position): its position is not smooth to find, so a few starts along

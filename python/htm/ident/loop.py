@@ -221,7 +221,7 @@ class LoopFamily(Family):
                 # a finding, not a base parameter: on a record whose force follows its velocity
                 # (a damper) a compliance trades with the delay and would not carry to other loads
                 cand("loop_compliance", (lin("compliance_m_per_n", sy / fmax, 0.0, 1e5, step=1.0),), "y"),
-                cand("sensor_offset", (lin("sensor_offset_f", scales["f"], -1e4, 1e4),), "constant"),
+                self.sensor_candidate("sensor_offset", "f", scales["f"], bound=1e4),
                 cand("specimen_friction", (lin("specimen_friction_n", 0.01 * fmax, 0.0, 1e4),
                                            logf("specimen_friction_velocity_m_s", 0.02, 50.0, step=0.1)), "sign(v)",
                      starts=(0.0,)),

@@ -143,11 +143,9 @@ class ValveFamily(Family):
         cand = self.candidate
 
         for c in channels:
-            offset = cand("sensor_offset", c, (lin(f"sensor_offset_{c}", scales[c], -1e3, 1e3),), "constant",
-                          claimable=_not_a_tolerated_gain(rec, c, st.min_gain_error))
-            gain = cand("sensor_gain", c, (lin(f"sensor_gain_{c}", 0.01, -50.0, 50.0, origin=1.0),), f"predicted {c}",
-                        claimable=_calibrated_off(st.min_gain_error))
-            delay = cand("sensor_delay", c, (lin(f"sensor_delay_{c}_s", dt, 0.0, 100.0),), f"d(predicted {c})/dt")
+            offset = self.sensor_candidate("sensor_offset", c, scales[c], claimable=_not_a_tolerated_gain(rec, c, st.min_gain_error))
+            gain = self.sensor_candidate("sensor_gain", c, 0.01, claimable=_calibrated_off(st.min_gain_error))
+            delay = self.sensor_candidate("sensor_delay", c, dt)
             # The loop regulates what its own sensor reads: an offset or gain of that sensor only
             # moves the true state, which nothing else measures — unless a specimen ties position
             # and force: its zero-force position is trusted, so the force's offset shows against
