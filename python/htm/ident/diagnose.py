@@ -148,9 +148,12 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
         if probes:
             with stages("probes", f"{len(probes)} probes for structure outside the vocabulary"):
                 outside = probe(prob, fitted, probes, rate, log=log, trace=trace)
+        if left or outside is not None:
+            trace.add("verdict", outside.cand.label if outside is not None else None,
+                      "structure left is unexplained only where a probe outside the vocabulary reproduces it",
+                      "unexplained on " + ", ".join(left or [outside.focus]) if outside is not None
+                      else "no probe reproduces it: the model's form, explained")
         left = (left or [outside.focus]) if outside is not None else []
-        trace.add("verdict", outside.cand.label if outside is not None else None, "a probe pays off: unexplained",
-                  "unexplained on " + ", ".join(left) if left else "explained")
     with stages("report", "restating and writing"):
         res = _restate_free_run(free, fitted, rate) if free is not prob else fitted
         if dropped:  # the channel left out is still predicted and reported (DATA_FORMAT.md: every measured channel)

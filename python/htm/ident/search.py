@@ -639,10 +639,14 @@ def pays_off(prob: Problem, pred0: dict, trial: Model, tpred: dict, before: Mode
     share = prob.explained(pred0, tpred, only=own)
     big = cand.claimable is None or cand.claimable(cand.report(trial.params()))
     met = (dbic < 0, dcost < -st.min_gain, abic < 0, acost < -st.min_gain, share >= st.min_share, big)
+    # Close: a verdict that passes with one of its measured margins within close_margin of its
+    # threshold, or that fails only by such margins (the ΔBIC and the size are not graded).
     m = st.close_margin
-    close = (abs(dcost + st.min_gain) < m * st.min_gain or abs(acost + st.min_gain) < m * st.min_gain
-             or abs(share - st.min_share) < m * st.min_share)
-    return Verdict(all(met), dbic, dcost, acost, share, bool(big), tuple(r for r, ok in zip(RULES, met) if not ok), bool(close))
+    near = (False, abs(dcost + st.min_gain) < m * st.min_gain, False, abs(acost + st.min_gain) < m * st.min_gain,
+            abs(share - st.min_share) < m * st.min_share, False)
+    failed = [i for i, ok in enumerate(met) if not ok]
+    close = any(near) if not failed else all(near[i] for i in failed)
+    return Verdict(all(met), dbic, dcost, acost, share, bool(big), tuple(RULES[i] for i in failed), bool(close))
 
 
 def screen(prob: Problem, model: Model, work_pred: dict, jac: np.ndarray,
