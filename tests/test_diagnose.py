@@ -14,7 +14,7 @@ from htm.ident.diagnose import IdentificationError, diagnose
 from htm.ident.records import Record, write_record
 from htm.ident.report import read_predictions
 
-REPORT_KEYS = {"format", "record", "baseline", "findings", "final", "unexplained", "predictions"}
+REPORT_KEYS = {"format", "record", "baseline", "findings", "final", "unexplained", "predictions", "settings", "trace"}
 FINDING_KEYS = {"effect", "channel", "params", "rmse_before", "rmse_after", "evidence"}
 
 

@@ -7,9 +7,10 @@ from htm.ident.valve import MIN_GAIN_ERROR, _calibrated_off
 
 
 def test_a_gain_within_calibration_tolerance_is_not_claimed():
-    assert not _calibrated_off({"gain": 1.0 + 0.5 * MIN_GAIN_ERROR})
-    assert _calibrated_off({"gain": 0.965})
-    assert _calibrated_off({"gain": 1.15})
+    claimable = _calibrated_off(MIN_GAIN_ERROR)
+    assert not claimable({"gain": 1.0 + 0.5 * MIN_GAIN_ERROR})
+    assert claimable({"gain": 0.965})
+    assert claimable({"gain": 1.15})
 
 
 def test_a_parameter_pinned_where_it_started_stays_one_pinned_elsewhere_goes_to_nominal():
@@ -47,9 +48,10 @@ def _sensor_problem():
     prob = Problem(rec, simulate, ["a", "b"], {"a": 0.05, "b": 0.05}, n, fit_mask, val_mask)
     nominal = {"k": 1.0, "off_a": 0.0, "gain_a": 1.0}
     base = Model(nominal, [lin("k", 0.1, -100.0, 100.0)], np.zeros(1))
-    offset = Candidate("sensor_offset", "a", (lin("off_a", 0.01, -1e5, 1e5),), "constant", fields=(("offset", "off_a"),))
+    offset = Candidate("sensor_offset", "a", (lin("off_a", 0.01, -1e5, 1e5),), "constant", fields=(("offset", "off_a"),),
+                       own_reading=True)
     gain = Candidate("sensor_gain", "a", (lin("gain_a", 0.01, -50.0, 50.0, origin=1.0),), "predicted a",
-                     fields=(("gain", "gain_a"),))
+                     fields=(("gain", "gain_a"),), own_reading=True)
     return prob, base, offset, gain
 
 
@@ -57,7 +59,7 @@ def test_two_contenders_are_judged_on_one_base():
     # The offset was polished where the base fits `b` (k = 2), the true gain where it does not
     # (k = 1): judged as they stand the better base picks the offset; on a common base the gain
     # explains channel `a` and wins.
-    from htm.ident.search import _on_common_base, pays_off
+    from htm.ident.search import Trial, on_common_base, pays_off
 
     prob, base, offset, gain = _sensor_problem()
     pred0 = prob.predict([base.params()], whole=True)[0]
@@ -65,13 +67,13 @@ def test_two_contenders_are_judged_on_one_base():
     for cand, k, own in ((offset, 2.0, -5.0 / 0.01), (gain, 1.0, -0.05 / 0.01)):
         trial = base.with_candidate(cand, own).at(np.array([k / 0.1, own]))
         tpred = prob.predict([trial.params()], whole=True)[0]
-        polished.append((cand, pays_off(prob, pred0, trial, tpred, base, cand), trial, tpred, None, tpred))
-    as_polished = min(polished, key=lambda g: g[1]["dbic"])[0]
+        polished.append(Trial(cand, trial, tpred, tpred, pays_off(prob, pred0, trial, tpred, base, cand)))
+    as_polished = min(polished, key=lambda g: g.verdict.dbic).cand
     assert as_polished.effect == "sensor_offset"
-    judged = _on_common_base(prob, pred0, base, polished, lambda *a: None)
-    best = min(judged, key=lambda g: g[1]["dbic"])
-    assert best[0].effect == "sensor_gain"
-    assert abs(best[2].params()["gain_a"] - 0.95) < 0.002 and abs(best[2].params()["k"] - 2.0) < 0.01
+    judged = on_common_base(prob, pred0, base, polished, lambda *a: None)
+    best = min(judged, key=lambda g: g.verdict.dbic)
+    assert best.cand.effect == "sensor_gain"
+    assert abs(best.model.params()["gain_a"] - 0.95) < 0.002 and abs(best.model.params()["k"] - 2.0) < 0.01
 
 
 def test_an_offset_a_tolerated_gain_would_read_is_not_claimed():
@@ -86,10 +88,10 @@ def test_an_offset_a_tolerated_gain_would_read_is_not_claimed():
     supply = 186e5 + rng.normal(0, 3e3, n)
     chamber = 93e5 + 40e5 * np.sin(2 * np.pi * t) + rng.normal(0, 3e3, n)
     rec = Record({"t": t, "y": t, "p_s": supply, "p_a": chamber}, {}, "toy")
-    on_supply = _not_a_tolerated_gain(rec, "p_s")
+    on_supply = _not_a_tolerated_gain(rec, "p_s", MIN_GAIN_ERROR)
     assert not on_supply({"offset_pa": 0.31e5}) and not on_supply({"offset_pa": -1.55e5})
     assert on_supply({"offset_pa": 2.6e5})
-    assert _not_a_tolerated_gain(rec, "p_a")({"offset_pa": 0.31e5})
+    assert _not_a_tolerated_gain(rec, "p_a", MIN_GAIN_ERROR)({"offset_pa": 0.31e5})
 
 
 def test_a_null_bias_or_a_leak_within_a_valves_own_null_is_not_claimed():
@@ -163,7 +165,8 @@ def test_a_sensor_fault_must_show_in_its_own_reading():
         m = len(rec.columns["t"])
         return [{"a": x[:m] + 10.0 * p["off_b"], "b": z[:m] + p["off_b"]} for p in plist]
 
-    offset_b = Candidate("sensor_offset", "b", (lin("off_b", 0.01, -1e3, 1e3),), "constant", fields=(("offset", "off_b"),))
+    offset_b = Candidate("sensor_offset", "b", (lin("off_b", 0.01, -1e3, 1e3),), "constant", fields=(("offset", "off_b"),),
+                         own_reading=True)
     fit_mask, val_mask = blocks(n, n, 1e3)
     verdicts = {}
     for name, a, b in (("bias on a", x + 1.0, z), ("offset on b", x + 1.0, z + 0.1)):

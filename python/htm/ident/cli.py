@@ -7,7 +7,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -99,11 +99,15 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
+    import sys
+
     from htm.ident.diagnose import diagnose
 
     rec = read_record(args.record, args.meta)
     run: dict[str, Any] = {}
-    report = diagnose(rec, out_dir=args.out, verbose=args.verbose, stats=run)
+    report = diagnose(rec, out_dir=args.out, verbose=args.verbose, stats=run, progress=None if args.quiet else stage_line())
+    if sys.stderr.isatty() and not args.quiet:
+        sys.stderr.write("\n")
     notes = list(report.get("warnings", []))
     absent = [c for c in ("p_a", "p_b") if c not in rec.columns]
     if absent:
@@ -132,7 +136,26 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--verbose", action="store_true", help="print the search as it goes")
     add_json_flag(p)
+    p.add_argument("--quiet", action="store_true", help="no progress line per stage on stderr")
     p.set_defaults(func=cmd_diagnose)
+
+
+def stage_line(stream: Any = None) -> Callable[[str], None]:
+    """A progress callback for `diagnose`: one line per stage on stderr — plain lines when stderr
+    is not a terminal (a log, a pipe), one line rewritten in place when it is."""
+    import sys
+
+    out = stream if stream is not None else sys.stderr
+    tty = bool(getattr(out, "isatty", lambda: False)())
+
+    def show(line: str) -> None:
+        if tty:
+            out.write("\r\033[K" + line[: 200])
+        else:
+            out.write(line + "\n")
+        out.flush()
+
+    return show
 
 
 def cmd_predict(args: argparse.Namespace) -> int:

@@ -4,34 +4,44 @@ whose Jacobians and trial steps are batches of simulations (run in parallel by t
 from __future__ import annotations
 
 import math
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import numpy as np
 
 from htm.ident import features as ft
-from htm.ident.model import Model, get_value
+from htm.ident.model import Model
 from htm.ident.records import Record
+from htm.ident.settings import DEFAULT, SearchSettings
 
-# Length of the interleaved fit/validation blocks (s): short blocks put every phase of the
-# experiment (holds, ramps, sines, steps) on both sides.
-BLOCK_S = 0.3
-# A fit whose noise-scaled cost per residual falls below this on every channel is at the noise.
-NOISE_COST = 1.2
-# Largest LM step of any normalised coordinate (a factor e for a log parameter): far jumps land in
-# wrong basins (friction trading against compressibility).
-RADIUS_MAX = 1.0
-# The Jacobian is differenced afresh every this many iterations (Broyden updates in between).
-JACOBIAN_EVERY = 2
-# Weak prior on parameters that have one, as a share of the noise-level cost that a change of
-# `prior` (normalised coordinates) costs: it gives the flat valleys (bulk modulus vs dead volumes)
-# curvature without moving what the data determine.
-PRIOR_SHARE = 0.003
-# A channel's residual has a systematic part only where its mean square (noise-scaled) exceeds 1 by
-# this many standard deviations of white noise's own mean square.
-SIGNIFICANT = 3.0
+# The knobs live in `settings.SearchSettings` (unit and reason there); these names are its defaults.
+BLOCK_S = DEFAULT.block_s
+NOISE_COST = DEFAULT.noise_cost
+RADIUS_MAX = DEFAULT.radius_max
+JACOBIAN_EVERY = DEFAULT.jacobian_every
+PRIOR_SHARE = DEFAULT.prior_share
+SIGNIFICANT = DEFAULT.significant
 
 Predictor = Callable[..., list[dict[str, np.ndarray]]]
+# Problems are simulated from several threads at once (independent fits run side by side).
+_COUNT = threading.Lock()
+_POOL: ThreadPoolExecutor | None = None
+
+
+def side_by_side(jobs: list[Callable[[], Any]]) -> list[Any]:
+    """Run independent jobs (fits, simulations) side by side on threads and return their results
+    in order. The core's simulations release the GIL and each batch already spreads over the
+    cores, but a batch of one or three simulations leaves cores idle that another fit can use;
+    each job computes exactly what it would alone (the linear algebra runs on one BLAS thread,
+    the simulations are deterministic), so the results do not depend on the scheduling."""
+    global _POOL
+    if len(jobs) <= 1:
+        return [j() for j in jobs]
+    if _POOL is None:
+        _POOL = ThreadPoolExecutor(max_workers=4, thread_name_prefix="htm-fit")
+    return [f.result() for f in [_POOL.submit(j) for j in jobs]]
 
 
 @dataclass
@@ -56,6 +66,7 @@ class Problem:
     simulations: int = 0
     meas: dict[str, np.ndarray] = field(default_factory=dict)
     work: Record | None = None
+    settings: SearchSettings = DEFAULT
 
     def __post_init__(self) -> None:
         self.meas = {c: np.asarray(self.rec.columns[c], dtype=float) for c in self.channels}
@@ -66,7 +77,7 @@ class Problem:
     def variant(self, **opts: Any) -> "Problem":
         """The same problem simulated with other options (e.g. on the recorded command)."""
         return Problem(self.rec, self.simulate, self.channels, self.sigma, self.n_work, self.fit_mask, self.val_mask,
-                       {**self.opts, **opts}, self.sparse)
+                       {**self.opts, **opts}, self.sparse, settings=self.settings)
 
     @property
     def truncated(self) -> bool:
@@ -74,7 +85,8 @@ class Problem:
 
     def predict(self, plist: list[Any], *, whole: bool = False, **extra: Any) -> list[dict[str, np.ndarray]]:
         """Sensor readings predicted for each parameter set over the working window (or the whole record)."""
-        self.simulations += len(plist)
+        with _COUNT:
+            self.simulations += len(plist)
         n = len(self.rec.columns["t"])
         opts = {**self.opts, **extra}
         if not whole and self.truncated:
@@ -153,9 +165,8 @@ class Problem:
         # noise's own scatter (SIGNIFICANT standard deviations, sqrt(2/n) each): at the floor there
         # is no systematic part to share, and a sliver of it would read as a huge share.
         shares = [(s0[c][0] - s1[c][0]) / n / (s0[c][0] / n - 1.0) for c, (_, n) in s0.items()
-                  if n > 0 and only in (None, c) and s0[c][0] / n - 1.0 > SIGNIFICANT * np.sqrt(2.0 / n)]
+                  if n > 0 and only in (None, c) and s0[c][0] / n - 1.0 > self.settings.significant * np.sqrt(2.0 / n)]
         return max(shares, default=0.0)
-
 
     def explained_in_band(self, before: dict, after: dict, f_hz: float, rate: float) -> float:
         """The largest share, over the channels, of the residual's power within a narrow band
@@ -173,10 +184,10 @@ class Problem:
         return max(shares, default=0.0)
 
 
-def blocks(n_work: int, n: int, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
-    """Fit mask over the working window (the even ones of interleaved `BLOCK_S` blocks) and
+def blocks(n_work: int, n: int, rate_hz: float, block_s: float = BLOCK_S) -> tuple[np.ndarray, np.ndarray]:
+    """Fit mask over the working window (the even ones of interleaved `block_s` blocks) and
     validation mask over the whole record (the odd blocks and all beyond the window)."""
-    nblk = int(max(2, n_work / (BLOCK_S * rate_hz)))
+    nblk = int(max(2, n_work / (block_s * rate_hz)))
     fit_mask = (np.arange(n_work) * nblk // n_work) % 2 == 0
     val_mask = np.ones(n, bool)
     val_mask[:n_work] = ~fit_mask
@@ -214,14 +225,14 @@ def likelihood_cost(r_data: np.ndarray, n_channels: int) -> float:
     return float(n * np.sum(np.where(ms > 1.0, 1.0 + np.log(np.maximum(ms, 1e-300)), ms)))
 
 
-def at_noise(r_data: np.ndarray, n_channels: int) -> bool:
+def at_noise(r_data: np.ndarray, n_channels: int, noise_cost: float = NOISE_COST) -> bool:
     """Is the noise-scaled residual at the noise on every channel? (Judged per channel: one
     channel's systematic misfit must not hide among channels that are at their floor.)"""
     per = r_data.reshape(n_channels, -1)
-    return bool(np.max(np.mean(per * per, axis=1)) < NOISE_COST)
+    return bool(np.max(np.mean(per * per, axis=1)) < noise_cost)
 
 
-def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, ftol: float = 2e-3,
+def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, ftol: float | None = None,
         hold: frozenset[str] = frozenset(), log: Callable[..., None] | None = None) -> tuple[Model, dict, np.ndarray]:
     """Bounded Levenberg-Marquardt on the weighted fit-block residual over the model's free
     parameters: forward-difference Jacobians (one batch of simulations), then three damping
@@ -229,6 +240,8 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, f
     gains less than `ftol` of the cost twice. `pred0`: the model's working-window prediction, if
     known; `hold`: keys of free parameters kept where they are (columns of the Jacobian are zero).
     Returns the fitted model, its working-window prediction and the Jacobian there."""
+    st = prob.settings
+    ftol = st.ftol if ftol is None else ftol
     lo = np.array([f.lo for f in model.frees])
     hi = np.array([f.hi for f in model.frees])
     steps = np.array([f.step for f in model.frees])
@@ -240,8 +253,8 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, f
     # Prior rows: sqrt(W) (x - x_nominal) / width, W a small share of the noise-level cost.
     has = np.array([f.prior > 0 for f in model.frees])
     width = np.array([f.prior if f.prior > 0 else 1.0 for f in model.frees])
-    x_nom = np.array([0.0 if f.log else f.coord(get_value(model.nominal, f.key), 0.0) for f in model.frees])
-    wp = math.sqrt(PRIOR_SHARE * n_data) * has / width
+    x_nom = model.start()
+    wp = math.sqrt(st.prior_share * n_data) * has / width
 
     def full(rd: np.ndarray, xx: np.ndarray) -> np.ndarray:
         return np.concatenate([rd, wp * (xx - x_nom)])
@@ -260,7 +273,7 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, f
     jac = np.zeros((n_data, len(x)))
     fresh = 0  # iterations since the Jacobian was last differenced
     for _ in range(iters):
-        if fresh == 0 or fresh >= JACOBIAN_EVERY:
+        if fresh == 0 or fresh >= st.jacobian_every:
             hs = np.where(x + steps <= hi, steps, -steps)  # step inwards at an upper bound
             idx = np.flatnonzero(moving)
             preds = prob.predict([model.at(x + hs[i] * np.eye(len(x))[i]).params() for i in idx])
@@ -304,7 +317,7 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, f
             if tcost[k] < cost:
                 gain = (cost - tcost[k]) / cost
                 if np.max(np.abs(trials[k] - x) / reach) >= 0.99 * radius:
-                    radius = min(RADIUS_MAX, 2.0 * radius)  # the step was capped and still good: widen
+                    radius = min(st.radius_max, 2.0 * radius)  # the step was capped and still good: widen
                 # Broyden's rank-one update carries the Jacobian to the new point until it is
                 # differenced again (one simulation per parameter saved on every other iteration).
                 dx, dr = trials[k] - x, tres[k][:n_data] - r[:n_data]
@@ -315,10 +328,10 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, f
             lam *= 100.0
             radius *= 0.25
         if not improved and fresh > 1:  # failed on a carried Jacobian: difference it afresh, same damping
-            fresh, lam = JACOBIAN_EVERY, lam0
+            fresh, lam = st.jacobian_every, lam0
         if log is not None:
             log(f"    LM cost {cost:.6g} lam {lam:.3g} radius {radius:.3g} free {int(free.sum())}/{len(x)}")
         small = 0 if improved and gain >= ftol else small + 1
-        if (not improved and fresh == 1) or small >= 2 or at_noise(r[:n_data], len(prob.channels)):
+        if (not improved and fresh == 1) or small >= 2 or at_noise(r[:n_data], len(prob.channels), st.noise_cost):
             break  # stalled on a fresh Jacobian, or down to the noise on every channel
     return model.at(x), pred, jac

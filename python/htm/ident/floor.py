@@ -17,23 +17,20 @@ from __future__ import annotations
 import numpy as np
 
 from htm.ident import features as ft
-from htm.ident.fit import Problem
+from htm.ident.fit import Problem, side_by_side
 from htm.ident.model import Model
+from htm.ident.settings import DEFAULT, SearchSettings
 
-# Structure is reported unexplained above this systematic ratio (a clear margin over the search's
-# stopping point, search.SYSTEMATIC) and above `MARGIN` times the model's own floor.
-UNEXPLAINED = 1.5
-MARGIN = 2.0
-# Structure this many times beyond the unexplained threshold is no form error of a model that
-# fits: unexplained whether or not a probe reproduces it (and, with the declared rig's parameters
-# pinned at their bounds, the record is refused as not of that rig).
-GROSS = 10.0
-# Synthetic records of the fitted model and their seed.
-REALISATIONS, SEED = 2, 20261121
-# Time constants of the lags of the form map [s], and the smoothing of its sign regressor.
-FORM_LAGS_S = (0.004, 0.02, 0.1)
-# Ridge weight of the form map's standardised regressors (per sample).
-FORM_RIDGE = 1e-2
+# The knobs live in `settings.SearchSettings` (unexplained, margin, gross, form_lags_s, form_ridge,
+# floor_realisations: unit and reason there); these names are its defaults.
+UNEXPLAINED = DEFAULT.unexplained
+MARGIN = DEFAULT.margin
+GROSS = DEFAULT.gross
+REALISATIONS = DEFAULT.floor_realisations
+# The seed of the synthetic records (fixed: the same record gets the same verdict).
+SEED = 20261121
+FORM_LAGS_S = DEFAULT.form_lags_s
+FORM_RIDGE = DEFAULT.form_ridge
 
 
 def own_floor(prob: Problem, model: Model, pred: dict[str, np.ndarray], rate: float,
@@ -44,15 +41,18 @@ def own_floor(prob: Problem, model: Model, pred: dict[str, np.ndarray], rate: fl
     rng = np.random.default_rng(SEED)
     n = len(prob.rec.columns["t"])
     out = {c: 0.0 for c in prob.channels}
-    for _ in range(REALISATIONS):
+    syns = []
+    for _ in range(prob.settings.floor_realisations):
         cols = dict(prob.rec.columns)
         for c in prob.channels:
             x = np.asarray(pred[c], dtype=float) + rng.normal(0.0, prob.sigma[c], n)
             q = quantum.get(c) or 0.0
             cols[c] = np.round(x / q) * q if q > 0 else x
-        syn = Problem(type(prob.rec)(cols, prob.rec.meta, prob.rec.name), prob.simulate, prob.channels, prob.sigma,
-                      prob.n_work, prob.fit_mask, prob.val_mask, prob.opts, prob.sparse)
-        again = syn.predict([model.params()], whole=True)[0]
+        syns.append(Problem(type(prob.rec)(cols, prob.rec.meta, prob.rec.name), prob.simulate, prob.channels, prob.sigma,
+                            prob.n_work, prob.fit_mask, prob.val_mask, prob.opts, prob.sparse, settings=prob.settings))
+    # each synthetic record is its own simulation: side by side
+    agains = side_by_side([lambda syn=syn: syn.predict([model.params()], whole=True)[0] for syn in syns])
+    for syn, again in zip(syns, agains):
         prob.simulations += 1
         for c in prob.channels:
             out[c] = max(out[c], ft.systematic_ratio(np.asarray(again[c]) - syn.meas[c], prob.sigma[c], rate))
@@ -70,7 +70,7 @@ def loop_floor(prob: Problem, model: Model, clean: dict[str, np.ndarray], rate: 
     p = model.params()
     rng = np.random.default_rng(SEED)
     out = {c: 0.0 for c in prob.channels}
-    for _ in range(REALISATIONS):
+    for _ in range(prob.settings.floor_realisations):
         noise = {c: rng.normal(0.0, prob.sigma[c], n) for c in prob.channels}
         syn = prob.predict([p], whole=True, noise=noise, quantum=quantum)[0]
         for c in prob.channels:
@@ -105,7 +105,7 @@ def form_regressors(prob: Problem, pred: dict[str, np.ndarray], rate: float) -> 
             continue
         z = (x - float(np.mean(x))) / s
         feats.append(z)
-        for tau in FORM_LAGS_S:
+        for tau in prob.settings.form_lags_s:
             a = np.exp(-dt / tau)
             from scipy.signal import lfilter
 
@@ -130,14 +130,15 @@ def form_ratios(prob: Problem, pred: dict[str, np.ndarray], rate: float) -> dict
             continue
         # ridge: the lags are nearly collinear and must not extrapolate to the held-out samples
         a = X[sel]
-        coef = np.linalg.solve(a.T @ a + FORM_RIDGE * len(a) * np.eye(a.shape[1]), a.T @ r[sel])
+        coef = np.linalg.solve(a.T @ a + prob.settings.form_ridge * len(a) * np.eye(a.shape[1]), a.T @ r[sel])
         left = np.where(ok, r - X @ coef, np.nan)
         held = prob.val_mask & ok
         out[c] = ft.systematic_ratio(np.where(held, left, np.nan), prob.sigma[c], rate)
     return out
 
 
-def unexplained(ratios: dict[str, float], floor: dict[str, float], margin: float = 1.0) -> list[str]:
-    """The channels whose structure is left unexplained: above UNEXPLAINED and above MARGIN
-    times the model's own floor (both times `margin`)."""
-    return [c for c, r in ratios.items() if r > margin * max(UNEXPLAINED, MARGIN * floor.get(c, 0.0))]
+def unexplained(ratios: dict[str, float], floor: dict[str, float], margin: float = 1.0,
+                settings: SearchSettings = DEFAULT) -> list[str]:
+    """The channels whose structure is left unexplained: above `settings.unexplained` and above
+    `settings.margin` times the model's own floor (both times `margin`)."""
+    return [c for c, r in ratios.items() if r > margin * max(settings.unexplained, settings.margin * floor.get(c, 0.0))]

@@ -18,9 +18,11 @@ import numpy as np
 
 from htm.core import LoopParams, loop_simulate
 from htm.errors import InputError, RecordError
+from htm.ident.family import Family
 from htm.ident.features import smooth
-from htm.ident.model import Candidate, Free, Model, lin, logf
+from htm.ident.model import Candidate, Free, lin, logf
 from htm.ident.records import Record
+from htm.ident.settings import DEFAULT, SearchSettings
 
 FAMILY = "machine_position"
 # What the loop model predicts (DATA_FORMAT channels).
@@ -98,17 +100,19 @@ def simulate(plist: list[LoopParams], rec: Record, *, threads: int = 0) -> list[
     return [{c: r[c] for c in CHANNELS} for r in out]
 
 
-class LoopFamily:
+class LoopFamily(Family):
     """The machine's closed displacement loop for one `machine_position` record: nominal
     parameters (started where a coarse scan of the record puts them), free parameters,
     candidate effects; the model is driven by the recorded command (no loop to re-close)."""
 
     name = FAMILY
+    vocabulary = tuple(EFFECT_FIELDS)
     closed_loop = False  # the model runs on the recorded command; sensor noise does not enter it
     has_command = False  # no valve command: nothing to fit on instead of the model's own run
     whole_record = True  # a simulation costs milliseconds: fit every block of the record
 
-    def __init__(self, rec: Record, channels: list[str]) -> None:
+    def __init__(self, rec: Record, channels: list[str], settings: SearchSettings = DEFAULT) -> None:
+        self.settings = settings
         other = [c for c in channels if c not in CHANNELS]
         if other:
             raise RecordError(f"record `{rec.name}` declares a machine that closes its own loop, whose model predicts "
@@ -179,9 +183,8 @@ class LoopFamily:
         self.nominal["feedforward"] = best["feedforward"]
 
     @staticmethod
-    def start(base: Model) -> np.ndarray:
-        """The fit starts at the nominal values (already placed by the coarse scan)."""
-        return base.start()
+    def effect_fields(effect: str, channel: str | None = None) -> dict[str, str]:
+        return effect_fields(effect)
 
     @staticmethod
     def simulate(plist: list[LoopParams], rec: Record, **opts: Any) -> list[dict[str, np.ndarray]]:
@@ -195,8 +198,7 @@ class LoopFamily:
         sy = scales["y"]
 
         def cand(effect: str, frees: tuple[Free, ...], signature: str, **kw: Any) -> Candidate:
-            return Candidate(effect, EFFECT_CHANNEL.get(effect), frees, signature,
-                             fields=tuple(effect_fields(effect).items()), **kw)
+            return self.candidate(effect, EFFECT_CHANNEL.get(effect), frees, signature, **kw)
 
         out = [
             cand("valve_dynamics", (lin("valve_tau_s", 1e-3, 0.0, 300.0, step=2.0),), "v"),
@@ -219,23 +221,13 @@ class LoopFamily:
                 # a finding, not a base parameter: on a record whose force follows its velocity
                 # (a damper) a compliance trades with the delay and would not carry to other loads
                 cand("loop_compliance", (lin("compliance_m_per_n", sy / fmax, 0.0, 1e5, step=1.0),), "y"),
-                cand("sensor_offset", (lin("sensor_offset_f", scales["f"], -1e4, 1e4),), "constant"),
+                self.sensor_candidate("sensor_offset", "f", scales["f"], bound=1e4),
                 cand("specimen_friction", (lin("specimen_friction_n", 0.01 * fmax, 0.0, 1e4),
                                            logf("specimen_friction_velocity_m_s", 0.02, 50.0, step=0.1)), "sign(v)",
                      starts=(0.0,)),
             ]
-            # The closure position is not smooth to find: screen a few along the travel. It stays
-            # inside the travel: a kink beyond it is a stiffer spring with an offset, not closure.
-            y = filled(self.rec.columns["y"])
             k = max(self.nominal["specimen_stiffness_n_m"], fmax / self.y_span)
-            y0 = self.nominal["specimen_zero_force_position_m"]
-            unit_off = max(1e-6, 0.1 * float(np.std(y)))
-            lo, hi = ((float(np.percentile(y, q)) - y0) / unit_off for q in (2, 98))
-            for q in (10, 30, 50, 70, 90):
-                off = float(np.percentile(y, q)) - y0
-                out.append(cand("specimen_nonlinearity", (lin("specimen_closure_stiffness_n_m", 0.1 * k, 0.0, 1e4),
-                                                          lin("specimen_closure_offset_m", unit_off, lo, hi)),
-                                "y", starts=(off / unit_off,)))
+            out += self.closure_candidates(self.rec.columns["y"], self.nominal["specimen_zero_force_position_m"], k)
         return out
 
 

@@ -49,32 +49,40 @@ def logf(key: str, lo: float, hi: float, step: float = 0.02, prior: float = 0.0)
     return Free(key, math.log(lo), math.log(hi), log=True, step=step, prior=prior)
 
 
-# Keys that are not single fields of the parameter set: the base model's Coulomb friction is
-# symmetric (one level for both directions); friction_asymmetry splits it (pos = C + d, neg = C - d).
+@dataclass(frozen=True)
+class Derived:
+    """A key that is not a single field of a family's parameter set (the valve family's symmetric
+    Coulomb level and its asymmetry over the pos/neg pair): how to read, write and test it, and
+    the fields it stands for in a report. A family registers its own (`derive`); the engine
+    knows none by name."""
+
+    key: str
+    get: Callable[[Any], float]
+    set: Callable[[Any, float], None]
+    fields: tuple[str, ...]
+
+
+DERIVED: dict[str, Derived] = {}
+
+
+def derive(d: Derived) -> None:
+    """Register a family's derived key (idempotent)."""
+    DERIVED[d.key] = d
+
+
 def set_value(p: Any, key: str, value: float) -> None:
-    if key == "friction_coulomb_n":
-        p["friction_coulomb_pos_n"] = value
-        p["friction_coulomb_neg_n"] = value
-    elif key == "friction_coulomb_diff_n":
-        c = p["friction_coulomb_pos_n"]
-        p["friction_coulomb_pos_n"] = max(0.0, c + value)
-        p["friction_coulomb_neg_n"] = max(0.0, c - value)
+    if key in DERIVED:
+        DERIVED[key].set(p, value)
     else:
         p[key] = value
 
 
 def get_value(p: Any, key: str) -> float:
-    if key == "friction_coulomb_n":
-        return 0.5 * (p["friction_coulomb_pos_n"] + p["friction_coulomb_neg_n"])
-    if key == "friction_coulomb_diff_n":
-        return 0.5 * (p["friction_coulomb_pos_n"] - p["friction_coulomb_neg_n"])
-    return p[key]
+    return DERIVED[key].get(p) if key in DERIVED else p[key]
 
 
 def has_key(p: Any, key: str) -> bool:
-    if key in ("friction_coulomb_n", "friction_coulomb_diff_n"):
-        return "friction_coulomb_pos_n" in p
-    return key in p
+    return all(k in p for k in DERIVED[key].fields) if key in DERIVED else key in p
 
 
 @dataclass
@@ -152,15 +160,12 @@ class Model:
         return Model(self.nominal, self.frees[:n], self.x[:n])
 
     def values(self) -> dict[str, float]:
-        """The free parameters' values (the Coulomb pair for the virtual friction keys)."""
+        """The free parameters' values (a derived key by the fields it stands for)."""
         p = self.params()
         out: dict[str, float] = {}
         for f in self.frees:
-            if f.key in ("friction_coulomb_n", "friction_coulomb_diff_n"):
-                out["friction_coulomb_pos_n"] = p["friction_coulomb_pos_n"]
-                out["friction_coulomb_neg_n"] = p["friction_coulomb_neg_n"]
-            else:
-                out[f.key] = p[f.key]
+            for k in DERIVED[f.key].fields if f.key in DERIVED else (f.key,):
+                out[k] = p[k]
         return out
 
 
@@ -184,6 +189,9 @@ class Candidate:
     # A tone (a probe at a fixed frequency): judged in its own narrow band around this frequency,
     # where a broadband residual would drown it.
     tone_hz: float | None = None
+    # The effect is a fault of the reading of `channel` (a sensor's): its signature is judged in
+    # that reading (through restarts from the measured state it moves the others too).
+    own_reading: bool = False
 
     def report(self, p: Any) -> dict[str, float]:
         return {name: float(p[key]) for name, key in self.fields}

@@ -10,6 +10,7 @@ import numpy as np
 from htm.ident import features as ft
 from htm.ident.records import Record
 from htm.ident.search import Finding, Result
+from htm.ident.trace import Trace
 from htm.report import pyplot, save
 
 # Engineering units for a person reading report.md: (scale from SI, unit).
@@ -107,8 +108,28 @@ def _write_markdown(out: Path, rec: Record, report: dict[str, Any], before: dict
             _plot_finding(out / "outside.png", rec, outside)
     else:
         lines.append("No: what remains is within the noise or within what the model leaves on records of itself.")
+    lines += decision_lines(info.get("trace"))
     _plot_residuals(out / "residuals.png", rec, before, after, sigma)
     (out / "report.md").write_text("\n".join(lines) + "\n")
+
+
+# Stages of the trace shown in report.md (report.json's `trace` holds every decision).
+_MD_STAGES = ("finding", "break ties", "backward check", "stop", "verdict")
+
+
+def decision_lines(trace: Trace | None) -> list[str]:
+    """report.md's brief account of the search: the decisions that added, named, dropped or
+    stopped (report.json's `trace` has every one, with all its numbers), close ones marked."""
+    if trace is None:
+        return []
+    shown = [d for d in trace.decisions if d.stage in _MD_STAGES or d.close]
+    if not shown:
+        return []
+    return ["", "## Decisions", "",
+            "Why each effect was kept or dropped (the rule and the numbers it compared; the settings and every "
+            "decision are in report.json, `settings` and `trace`). A decision marked CLOSE lay within "
+            "close_margin of its threshold or between two candidates the record barely tells apart.", "",
+            *[f"- {d.text()}" for d in shown]]
 
 
 def _plot_residuals(path: Path, rec: Record, before: dict, after: dict, sigma: dict) -> None:

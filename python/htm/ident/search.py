@@ -1,47 +1,113 @@
-"""The effect search: fit the base model, then add candidate effects one at a time while one
-pays off on held-out data (greedy forward selection with a backward check). Family-neutral: the
-problem's simulator and the candidates say what the model is."""
+"""The effect search as an explicit selector: fit the base model, then add candidate effects one
+at a time while one pays off on held-out data (greedy forward selection with a backward check).
+Family-neutral: the problem's simulator and the candidates say what the model is.
+
+Its stages, each a method of `Selector` returning typed values:
+
+* **base fit** — the base model, in two stages (the details held first);
+* **screen** (`screen`) — rank candidates by a linearised score test (`Screened`);
+* **refit** (`Selector.refit`) — refit the best screened candidates (`Trial`), each judged;
+* **judge** (`pays_off`) — does a trial pay off on the held-out data (`Verdict`, its rules named);
+* **break ties** (`Selector.break_ties`) — polish close contenders, compare them on one base,
+  name the more common effect when the record cannot tell them apart;
+* **backward check** (`Selector.backward_check`) — drop a finding the others make redundant.
+
+Every knob is a field of `settings.SearchSettings` (the problem's `prob.settings`); every decision
+goes into a `trace.Trace` with the rule it applied and the numbers it compared.
+"""
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Any, Callable
+from dataclasses import dataclass
+from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
 from htm.ident import features as ft
-from htm.ident.fit import Problem, fit
+from htm.ident.fit import Problem, fit, side_by_side
 from htm.ident.model import Candidate, Model
-from htm.ident.sim import SENSOR_EFFECTS
+from htm.ident.settings import DEFAULT, SearchSettings
+from htm.ident.trace import Stages, Trace
 
-# Non-noise residual over the noise floor (features.systematic_ratio): the search stops at or below.
-SYSTEMATIC = 1.0
-# A refit must cut the held-out weighted cost by this fraction (and win by BIC) to count.
-MIN_GAIN = 0.05
-# ...and remove this share of the systematic residual (above the noise) of at least one channel:
-# a finding that shaves a few percent off a large misfit is bending to the model's form.
-MIN_SHARE = 0.2
-# Evidence a candidate's signature must carry before it is refitted (chi^2 units, fraction).
-SCREEN_CHI2 = 25.0
-SCREEN_FRACTION = 0.01
-# A probe for structure outside the vocabulary must cut the held-out cost by this much.
-PROBE_GAIN = 0.1
-# ...and account for half of some channel's systematic residual: structure outside the
-# vocabulary is a feature that dominates what is left, not a sliver of the model's form.
-PROBE_SHARE = 0.5
-# Candidates refitted per round: those whose screened gain is at least this share of the best.
-REFIT_SHARE = 0.3
-# Least-squares budgets: Jacobians (one simulation per free parameter each, plus 3 trial steps).
-BASE_ITERS, REFIT_ITERS, POLISH_ITERS = 10, 6, 15
-# ...and for a contender's own parameters on another contender's base (few: the base is held).
-COMMON_ITERS = 3
-# Fitting a tone's amplitude (sine and cosine, the model held: nearly linear).
-TONE_ITERS = 1
-# Which of two effects that explain a record equally well is named (the more common first).
-PREFERENCE = ("sensor_offset", "valve_null_bias", "sensor_gain", "sensor_delay", "valve_dynamics", "internal_leakage",
-              "friction_asymmetry", "valve_deadband", "valve_hysteresis", "supply_pressure_sag",
-              "pressure_dependent_friction", "entrained_air", "load_pressure_feedback", "specimen_nonlinearity")
+# The knobs live in `settings.SearchSettings` (unit and reason there); these names are its defaults.
+SYSTEMATIC = DEFAULT.systematic
+MIN_GAIN = DEFAULT.min_gain
+MIN_SHARE = DEFAULT.min_share
+SCREEN_CHI2 = DEFAULT.screen_chi2
+SCREEN_FRACTION = DEFAULT.screen_fraction
+PROBE_GAIN = DEFAULT.probe_gain
+PROBE_SHARE = DEFAULT.probe_share
+REFIT_SHARE = DEFAULT.refit_share
+BASE_ITERS, REFIT_ITERS, POLISH_ITERS = DEFAULT.base_iters, DEFAULT.refit_iters, DEFAULT.polish_iters
+COMMON_ITERS = DEFAULT.common_iters
+TONE_ITERS = DEFAULT.tone_iters
+PREFERENCE = DEFAULT.preference
 
 Log = Callable[..., None]
+
+
+@dataclass
+class Verdict:
+    """Whether a trial pays off on the held-out data, with the numbers each rule compared:
+    `dbic` (ΔBIC against the model without it), `dcost` (relative change of the held-out cost),
+    `ablation_dcost` (against itself switched off, other parameters kept), `explained` (share of
+    a channel's systematic residual removed), `claimable` (its size is worth claiming).
+    `failed` names the rules it does not meet; `close`, whether a deciding number lies within
+    the settings' close_margin of its threshold. Indexable like the dict it replaces."""
+
+    ok: bool
+    dbic: float
+    dcost: float
+    ablation_dcost: float
+    explained: float
+    claimable: bool = True
+    failed: tuple[str, ...] = ()
+    close: bool = False
+    alternative: str = ""
+
+    def __getitem__(self, key: str) -> Any:
+        return getattr(self, key)
+
+    def get(self, key: str, default: Any = None) -> Any:
+        return getattr(self, key, default)
+
+    def numbers(self) -> dict[str, Any]:
+        return {"dbic": self.dbic, "dcost": self.dcost, "ablation_dcost": self.ablation_dcost, "explained": self.explained,
+                "claimable": self.claimable}
+
+    @property
+    def rule(self) -> str:
+        return "pays off: " + ", ".join(RULES) if self.ok else "fails: " + ", ".join(self.failed)
+
+    def __repr__(self) -> str:
+        return (f"Verdict(ok={self.ok}, dbic={self.dbic:.4g}, dcost={self.dcost:+.4f}, ablation_dcost={self.ablation_dcost:+.4f}, "
+                f"explained={self.explained:.3f}, claimable={self.claimable}{', failed=' + str(list(self.failed)) if self.failed else ''})")
+
+
+# The rules of `pays_off`, by the names the trace uses.
+RULES = ("dBIC < 0", "dcost < -min_gain", "ablation dBIC < 0", "ablation dcost < -min_gain", "explained >= min_share",
+         "claimable size")
+
+
+class Screened(NamedTuple):
+    """A screened candidate: the share of the fit cost its signature explains and the starting
+    value of its first parameter (None for a switch)."""
+
+    cand: Candidate
+    gain: float
+    step: float | None
+
+
+@dataclass
+class Trial:
+    """A candidate refitted: the model with it, its working-window and whole-record predictions,
+    the Jacobian at the fit (if known) and the verdict."""
+
+    cand: Candidate
+    model: Model
+    work: dict[str, np.ndarray]
+    pred: dict[str, np.ndarray]
+    verdict: Verdict
+    jac: np.ndarray | None = None
 
 
 @dataclass
@@ -59,7 +125,7 @@ class Finding:
     pred_after: dict[str, np.ndarray]
     focus: str  # the channel the effect shows in most
     feature: tuple[str, np.ndarray]  # (name, signal) the residual is plotted against
-    verdict: dict[str, Any] = field(default_factory=dict)
+    verdict: Verdict | None = None
 
     @property
     def effect(self) -> str:
@@ -87,193 +153,328 @@ class Result:
     jac: np.ndarray | None = None  # and its Jacobian there
 
 
-def search(prob: Problem, base: Model, nominal: Any, pool: list[Candidate], rate: float, *, max_findings: int = 3,
-           max_refits: int = 2, first: frozenset[str] = frozenset(), log: Log = lambda *a: None) -> Result:
-    """Fit the base model, then add effects from `pool` while one pays off on the held-out data.
+@dataclass
+class _BetterBase:
+    """A refit whose effect did nothing but that still cut the cost: its base parameters."""
+
+    cost: float
+    model: Model
+    cand: str
+
+
+def search(prob: Problem, base: Model, nominal: Any, pool: list[Candidate], rate: float, *, max_findings: int | None = None,
+           max_refits: int | None = None, first: frozenset[str] = frozenset(), log: Log = lambda *a: None,
+           trace: Trace | None = None, stages: Stages | None = None) -> Result:
+    """Fit the base model, then add effects from `pool` while one pays off on the held-out data
+    (`Selector`; the settings are `prob.settings`, `max_findings`/`max_refits` override theirs).
     The base model is fitted in two stages: first with the parameters in `first` held (the
     details of a real rig — its spool, return line, orifice shape — that would otherwise wander
     into a wrong basin while the gross parameters are far off), then with all free."""
-    x0 = base.x.copy()
-    # The nominal values (the spool at its typical value, not static as the fit starts it):
-    # where a parameter pinned at the bound it started from goes back to (Model.unpinned).
-    xn = base.start()
-    if first:
-        base, _, _ = fit(prob, base, iters=BASE_ITERS, hold=first)
-        log("first stage", {k: f"{v:.4g}" for k, v in base.values().items()})
-    base, work_pred, jac = fit(prob, base, iters=BASE_ITERS)
-    base_pred = prob.whole(base, work_pred)
-    log("baseline", {k: f"{v:.4g}" for k, v in base.values().items()}, prob.rmse(base_pred))
+    st = prob.settings
+    sel = Selector(prob, nominal, pool, rate, log=log, trace=trace if trace is not None else Trace(),
+                   stages=stages if stages is not None else Stages())
+    return sel.run(base, first, st.max_findings if max_findings is None else max_findings,
+                   st.max_refits if max_refits is None else max_refits)
 
-    model, pred = base, base_pred
-    findings: list[Finding] = []
-    kept_base = False
-    for _round in range(2 * max_findings + 2):  # a round per finding, and one per better base
-        if len(findings) >= max_findings:
-            break
-        ratios = prob.ratios(pred, rate)
-        log("systematic ratios", {c: round(v, 2) for c, v in ratios.items()})
-        if max(ratios.values()) <= SYSTEMATIC:
-            break  # at the noise floor: nothing left to explain
-        # The same budget without a new effect: a candidate must beat a model merely fitted longer.
-        model, work_pred, jac = fit(prob, model, iters=REFIT_ITERS, pred0=work_pred)
-        pred = prob.whole(model, work_pred)
-        ratios = prob.ratios(pred, rate)
-        log("refit without effect", {c: round(v, 2) for c, v in ratios.items()})
-        if max(ratios.values()) <= SYSTEMATIC:
-            break
-        ranked = screen(prob, model, work_pred, jac, pool)
-        q = np.linalg.qr(jac)[0]  # what the base parameters can absorb, to first order
-        log("screen", [(c.effect, c.channel, round(g, 3)) for c, g, _ in ranked[:6]])
-        good: list[tuple[Candidate, dict, Model, dict, dict]] = []  # (cand, verdict, fit, its work and whole predictions)
-        better_base: tuple[float, Model] | None = None
-        too_small = False
-        for cand, gain, step in ranked[:max_refits]:
-            if gain < REFIT_SHARE * ranked[0][1]:
+
+class Selector:
+    """Greedy forward selection with a backward check over a pool of candidate effects, one
+    stage per method; its state is the current model, its predictions and Jacobian."""
+
+    def __init__(self, prob: Problem, nominal: Any, pool: list[Candidate], rate: float, *, log: Log, trace: Trace,
+                 stages: Stages) -> None:
+        self.prob, self.nominal, self.pool, self.rate = prob, nominal, list(pool), rate
+        self.st: SearchSettings = prob.settings
+        self.log, self.trace, self.stages = log, trace, stages
+        self.findings: list[Finding] = []
+
+    # --- the loop --------------------------------------------------------------------------
+    def run(self, base: Model, first: frozenset[str], max_findings: int, max_refits: int) -> Result:
+        prob, st, log, tr = self.prob, self.st, self.log, self.trace
+        self.x0 = base.x.copy()
+        # The nominal values (the spool at its typical value, not static as the fit starts it):
+        # where a parameter pinned at the bound it started from goes back to (Model.unpinned).
+        self.xn = base.start()
+        with self.stages("base fit", f"{len(base.x)} parameters"):
+            if first:
+                base, _, _ = fit(prob, base, iters=st.base_iters, hold=first)
+                log("first stage", {k: f"{v:.4g}" for k, v in base.values().items()})
+            base, work_pred, jac = fit(prob, base, iters=st.base_iters)
+            base_pred = prob.whole(base, work_pred)
+        log("baseline", {k: f"{v:.4g}" for k, v in base.values().items()}, prob.rmse(base_pred))
+        self.base, self.base_pred = base, base_pred
+        self.model, self.pred, self.work_pred, self.jac = base, base_pred, work_pred, jac
+        kept_base = False
+        for rnd in range(2 * max_findings + 2):  # a round per finding, and one per better base
+            tr.round = rnd + 1
+            if len(self.findings) >= max_findings:
+                tr.add("stop", None, "max_findings reached", "search ends", findings=len(self.findings), max_findings=max_findings)
                 break
+            if self.at_floor("before refit"):
+                break  # at the noise floor: nothing left to explain
+            # The same budget without a new effect: a candidate must beat a model merely fitted longer.
+            with self.stages("refit", f"round {rnd + 1}: the model without a new effect"):
+                self.model, self.work_pred, self.jac = fit(prob, self.model, iters=st.refit_iters, pred0=self.work_pred)
+                self.pred = prob.whole(self.model, self.work_pred)
+            if self.at_floor("refit without effect"):
+                break
+            with self.stages("screen", f"round {rnd + 1}: {len(self.pool)} candidates"):
+                ranked = screen(prob, self.model, self.work_pred, self.jac, self.pool)
+            log("screen", [(c.effect, c.channel, round(g, 3)) for c, g, _ in ranked[:6]])
+            tr.add("screen", None, "signature explains > screen_chi2 and > screen_fraction of the fit cost",
+                   f"{len(ranked)} of {len(self.pool)} carry evidence",
+                   ranked={c.label: g for c, g, _ in ranked[:6]})
+            with self.stages("refit", f"round {rnd + 1}: {', '.join(c.label for c, _, _ in ranked[:max_refits]) or 'none'}"):
+                good, better_base, too_small = self.refit(ranked, max_refits)
+            if better_base is not None and good:
+                good = self.settle(good, better_base)
+            if not good:
+                if (better_base is None or kept_base) and not too_small:
+                    tr.add("stop", None, "no candidate pays off on the held-out data", "search ends")
+                    break
+                if better_base is None or kept_base:
+                    tr.add("round", None, "a candidate too small to claim left the pool", "screen the others")
+                    continue
+                kept_base = True  # once per finding: a second time the search would only go round in circles
+                self.model = better_base.model
+                self.work_pred = prob.predict([self.model.params()])[0]
+                self.pred = prob.whole(self.model, self.work_pred)
+                log("kept better base parameters")
+                tr.add("refit", better_base.cand, "a refit whose effect did nothing cut the fit cost",
+                       "kept its base parameters (once per finding)", fit_cost=better_base.cost)
+                continue
+            with self.stages("break ties", ", ".join(g.cand.label for g in good)):
+                chosen = self.break_ties(good)
+            self.pool = [c for c in self.pool if c.key != chosen.cand.key]
+            if not chosen.verdict.ok:
+                # Polished, the effect no longer matters: keep the better-fitted model without it.
+                self.model = chosen.model.truncated(len(self.model.x))
+                self.work_pred = prob.predict([self.model.params()])[0]
+                assert chosen.jac is not None
+                self.pred, self.jac = prob.whole(self.model, self.work_pred), chosen.jac[:, : len(self.model.x)]
+                log("polished away", chosen.cand.label, chosen.verdict)
+                tr.add("break ties", chosen.cand.label, chosen.verdict.rule, "polished away: kept the model without it",
+                       close=chosen.verdict.close, **chosen.verdict.numbers())
+                continue
+            if not self.findings:  # the baseline is the base model as fitted just before the first finding
+                self.base, self.base_pred = self.model, self.pred
+            self.findings.append(finding(prob, chosen.cand, self.model, self.pred, chosen.model, chosen.pred, chosen.verdict,
+                                         self.rate))
+            tr.add("finding", chosen.cand.label, chosen.verdict.rule, "added", close=chosen.verdict.close,
+                   params=chosen.cand.report(chosen.model.params()), **chosen.verdict.numbers())
+            assert chosen.jac is not None
+            self.model, self.pred, self.work_pred, self.jac = chosen.model, chosen.pred, chosen.work, chosen.jac
+            kept_base = False
+        with self.stages("backward check", f"{len(self.findings)} findings"):
+            self.backward_check()
+        return self.result()
+
+    def at_floor(self, when: str) -> bool:
+        ratios = self.prob.ratios(self.pred, self.rate)
+        self.log("systematic ratios" if when == "before refit" else when, {c: round(v, 2) for c, v in ratios.items()})
+        worst = max(ratios, key=lambda c: ratios[c])
+        if ratios[worst] <= self.st.systematic:
+            self.trace.add("stop", None, "every channel's systematic ratio <= systematic", f"at the noise floor ({when})",
+                           worst=worst, ratio=ratios[worst], systematic=self.st.systematic)
+            return True
+        return False
+
+    # --- stages ----------------------------------------------------------------------------
+    def refit(self, ranked: list[Screened], max_refits: int) -> tuple[list[Trial], _BetterBase | None, bool]:
+        """Refit the best screened candidates (those within refit_share of the best), each from
+        the current fit and from the nominal base parameters at the best size of its parameter;
+        judge each. Returns the trials that pay off, the better base parameters a refit that did
+        not pay off found, and whether a candidate left the pool as too small to claim."""
+        prob, st, tr = self.prob, self.st, self.trace
+        q = np.linalg.qr(self.jac)[0]  # what the base parameters can absorb, to first order
+        good: list[Trial] = []
+        better_base: _BetterBase | None = None
+        too_small = False
+        todo: list[Screened] = []
+        for sc in ranked[:max_refits]:
+            if sc.gain < st.refit_share * ranked[0].gain:
+                tr.add("refit", sc.cand.label, "screened gain >= refit_share x the best", "not refitted",
+                       close=abs(sc.gain - st.refit_share * ranked[0].gain) < st.close_margin * st.refit_share * ranked[0].gain,
+                       other=ranked[0].cand.label, gain=sc.gain, best=ranked[0].gain, refit_share=st.refit_share)
+                break
+            todo.append(sc)
+
+        def refit_one(sc: Screened) -> Trial:
             # Refit from the current fit and from the nominal base parameters (the current fit may
             # have bent them to stand in for this very effect), each at the best size of the
             # candidate's parameter; keep the better fit.
-            starts = [start.with_candidate(cand, step) for start in _restarts(model, x0, xn)]
-            trial, twork, tjac = fit(prob, _scan(prob, starts, cand, q), iters=REFIT_ITERS)
-            tpred = prob.whole(trial, twork)
-            verdict = pays_off(prob, pred, trial, tpred, model, cand)
-            log("refit", cand.label, cand.report(trial.params()), verdict)
-            if verdict["ok"]:
-                good.append((cand, verdict, trial, twork, tpred))
+            starts = [start.with_candidate(sc.cand, sc.step) for start in _restarts(self.model, self.x0, self.xn)]
+            trial, twork, tjac = fit(prob, _scan(prob, starts, sc.cand, q), iters=st.refit_iters)
+            tpred, verdict = judge(prob, self.pred, trial, twork, self.model, sc.cand)
+            return Trial(sc.cand, trial, twork, tpred, verdict, tjac)
+
+        # The candidates are refitted side by side (each from the same state), then judged in order.
+        for t in side_by_side([lambda sc=sc: refit_one(sc) for sc in todo]):
+            cand, trial, twork, verdict = t.cand, t.model, t.work, t.verdict
+            self.log("refit", cand.label, cand.report(trial.params()), verdict)
+            tr.add("judge", cand.label, verdict.rule, "pays off" if verdict.ok else "does not pay off", close=verdict.close,
+                   params=cand.report(trial.params()), **verdict.numbers())
+            if verdict.ok:
+                good.append(t)
                 continue
-            if not verdict["claimable"]:
+            if not verdict.claimable:
                 # The record wants it only at a size the base's form mimics: not an effect here,
                 # and not to be screened again ahead of the others.
-                pool = [c for c in pool if c.key != cand.key]
+                self.pool = [c for c in self.pool if c.key != cand.key]
                 too_small = True
-            if verdict["dcost"] < -MIN_GAIN:
+                tr.add("judge", cand.label, "claimable size", "left the pool: too small to claim")
+            if verdict.dcost < -st.min_gain:
                 # Not the effect but a better fit of the base parameters: remember those.
                 cost = prob.fit_cost(twork)
-                if better_base is None or cost < better_base[0]:
-                    better_base = (cost, trial.truncated(len(model.x)))
-        if better_base is not None and good:
-            # A refit whose effect did nothing still cut the cost: the current fit had not settled.
-            # An effect must pay off against those base parameters too, or it is only getting
-            # the credit for their convergence.
-            bpred = prob.predict([better_base[1].params()], whole=True)[0]
-            settled = []
-            for g in good:
-                if pays_off(prob, bpred, g[2], g[4], model, g[0])["ok"]:
-                    settled.append(g)
-                else:
-                    log("not against the better base", g[0].label)
-            good = settled
-        if not good:
-            if (better_base is None or kept_base) and not too_small:
-                break  # no candidate pays off on the held-out data
-            if better_base is None or kept_base:
-                continue  # a candidate too small to claim left the pool: screen the others
-            kept_base = True  # once per finding: a second time the search would only go round in circles
-            model = better_base[1]
-            work_pred = prob.predict([model.params()])[0]
-            pred = prob.whole(model, work_pred)
-            log("kept better base parameters")
-            continue
-        good.sort(key=lambda g: g[1]["dbic"])
-        # Close contenders (e.g. an offset and a gain of the same sensor) are told apart polished.
-        contenders = [g for g in good[:2] if g[1]["dbic"] <= 0.5 * good[0][1]["dbic"]]
-        polished = []
-        for cand, _, trial, twork, _ in contenders:
-            trial, twork, tjac = fit(prob, trial, iters=POLISH_ITERS, pred0=twork)
-            again = trial.unpinned(x0, xn)
-            if not np.array_equal(again.x, trial.x):
-                # Stuck with base parameters at a bound: polish once more from their nominal values.
-                retry = fit(prob, again, iters=POLISH_ITERS)
-                if prob.fit_cost(retry[1]) < prob.fit_cost(twork):
-                    trial, twork, tjac = retry
-            tpred = prob.whole(trial, twork)
-            polished.append((cand, pays_off(prob, pred, trial, tpred, model, cand), trial, twork, tjac, tpred))
-            log("polished", cand.label, cand.report(trial.params()), polished[-1][1])
+                if better_base is None or cost < better_base.cost:
+                    better_base = _BetterBase(cost, trial.truncated(len(self.model.x)), cand.label)
+        return good, better_base, too_small
+
+    def settle(self, good: list[Trial], better_base: _BetterBase) -> list[Trial]:
+        """A refit whose effect did nothing still cut the cost: the current fit had not settled.
+        An effect must pay off against those base parameters too, or it is only getting the
+        credit for their convergence."""
+        bpred = self.prob.predict([better_base.model.params()], whole=True)[0]
+        settled = []
+        for g in good:
+            v = pays_off(self.prob, bpred, g.model, g.pred, self.model, g.cand)
+            if v.ok:
+                settled.append(g)
+            else:
+                self.log("not against the better base", g.cand.label)
+            self.trace.add("judge", g.cand.label, "pays off against the better base parameters of " + better_base.cand,
+                           "kept" if v.ok else "dropped: only the base's convergence", close=v.close, **v.numbers())
+        return settled
+
+    def polish(self, g: Trial) -> Trial:
+        prob, st = self.prob, self.st
+        trial, twork, tjac = fit(prob, g.model, iters=st.polish_iters, pred0=g.work)
+        again = trial.unpinned(self.x0, self.xn)
+        if not np.array_equal(again.x, trial.x):
+            # Stuck with base parameters at a bound: polish once more from their nominal values.
+            retry = fit(prob, again, iters=st.polish_iters)
+            if prob.fit_cost(retry[1]) < prob.fit_cost(twork):
+                trial, twork, tjac = retry
+        tpred, verdict = judge(prob, self.pred, trial, twork, self.model, g.cand)
+        return Trial(g.cand, trial, twork, tpred, verdict, tjac)
+
+    def break_ties(self, good: list[Trial]) -> Trial:
+        """Of the trials that pay off, the one to add: close contenders (the second within
+        contender_dbic of the best's ΔBIC) are polished and compared on a common base; two the
+        record cannot tell apart (both at the noise floor, or two faults of one sensor tied
+        within min_gain) are named by preference, and the verdict says so."""
+        prob, st, tr = self.prob, self.st, self.trace
+        good = sorted(good, key=lambda g: g.verdict.dbic)
+        contenders = [g for g in good[:2] if g.verdict.dbic <= st.contender_dbic * good[0].verdict.dbic]
+        if len(good) > 1:
+            tr.add("break ties", good[1].cand.label, "dBIC <= contender_dbic x the best's",
+                   "polished beside the best" if len(contenders) == 2 else "not a contender", other=good[0].cand.label,
+                   dbic=good[1].verdict.dbic, best_dbic=good[0].verdict.dbic, contender_dbic=st.contender_dbic)
+        polished = side_by_side([lambda g=g: self.polish(g) for g in contenders])
+        for g in polished:
+            self.log("polished", g.cand.label, g.cand.report(g.model.params()), g.verdict)
         if len(polished) == 2:
-            polished = _on_common_base(prob, pred, model, polished, log)
+            polished = on_common_base(prob, self.pred, self.model, polished, self.log)
         # Both at the noise floor, or two faults of one sensor whose held-out costs are apart by
-        # less than the MIN_GAIN that makes a refit count at all (a reading that moves little
+        # less than the min_gain that makes a refit count at all (a reading that moves little
         # about its mean is scaled or shifted alike): the record cannot tell them apart; name
-        # the more common effect (PREFERENCE: an offset before a gain before a delay...) and say so.
-        at_floor = [g for g in polished if max(prob.ratios(g[5], rate).values()) <= SYSTEMATIC]
-        if len(polished) == 2 and polished[0][0].channel is not None and polished[0][0].channel == polished[1][0].channel \
-                and _tied(polished[0][1], polished[1][1]):
+        # the more common effect (preference: an offset before a gain before a delay...) and say so.
+        at_floor = [g for g in polished if max(prob.ratios(g.pred, self.rate).values()) <= st.systematic]
+        rule = "both at the noise floor: preference"
+        if len(polished) == 2 and polished[0].cand.channel is not None and polished[0].cand.channel == polished[1].cand.channel \
+                and _tied(polished[0].verdict, polished[1].verdict, st.min_gain):
             at_floor = polished
+            rule = "one sensor's faults tied within min_gain: preference"
         if len(at_floor) == 2:
-            at_floor.sort(key=lambda g: PREFERENCE.index(g[0].effect) if g[0].effect in PREFERENCE else len(PREFERENCE))
-            cand, verdict, trial, twork, tjac, tpred = at_floor[0]
-            other = at_floor[1]
-            verdict["alternative"] = (f" {other[0].label} ({', '.join(f'{k} = {v:.4g}' for k, v in other[0].report(other[2].params()).items())}) "
-                                      "explains the record as well; this record cannot tell the two apart.")
-        else:
-            cand, verdict, trial, twork, tjac, tpred = min(polished, key=lambda g: g[1]["dbic"])
-        pool = [c for c in pool if c.key != cand.key]
-        if not verdict["ok"]:
-            # Polished, the effect no longer matters: keep the better-fitted model without it.
-            model = trial.truncated(len(model.x))
-            work_pred = prob.predict([model.params()])[0]
-            pred, jac = prob.whole(model, work_pred), tjac[:, : len(model.x)]
-            log("polished away", cand.label, verdict)
-            continue
-        if not findings:  # the baseline is the base model as fitted just before the first finding
-            base, base_pred = model, pred
-        findings.append(finding(prob, cand, model, pred, trial, tpred, verdict, rate))
-        model, pred, work_pred, jac = trial, tpred, twork, tjac
-        kept_base = False
+            at_floor.sort(key=lambda g: st.preference.index(g.cand.effect) if g.cand.effect in st.preference else len(st.preference))
+            chosen, other = at_floor
+            chosen.verdict.alternative = (
+                f" {other.cand.label} ({', '.join(f'{k} = {v:.4g}' for k, v in other.cand.report(other.model.params()).items())}) "
+                "explains the record as well; this record cannot tell the two apart.")
+            tr.add("break ties", chosen.cand.label, rule, "named (the more common effect)", close=True, other=other.cand.label,
+                   dbic=chosen.verdict.dbic, other_dbic=other.verdict.dbic, dcost=chosen.verdict.dcost,
+                   other_dcost=other.verdict.dcost)
+            return chosen
+        chosen = min(polished, key=lambda g: g.verdict.dbic)
+        if len(polished) == 2:
+            other = polished[1] if chosen is polished[0] else polished[0]
+            tr.add("break ties", chosen.cand.label, "smaller dBIC on a common base", "chosen",
+                   close=_tied(chosen.verdict, other.verdict, st.close_margin * st.min_gain) or not other.verdict.ok,
+                   other=other.cand.label, dbic=chosen.verdict.dbic, other_dbic=other.verdict.dbic,
+                   dcost=chosen.verdict.dcost, other_dcost=other.verdict.dcost)
+        return chosen
 
-    # Backward check, latest first: a finding the others make redundant is dropped. Without it the
-    # model is refitted from where the search left it and from the base parameters anew: a
-    # finding added late may only have led the fit out of a basin it had settled in.
-    def too_small(f: Finding) -> bool:
-        # Refits after a finding move its parameters too: one that ends below a claimable size goes.
-        return f.cand.claimable is not None and not f.cand.claimable(f.cand.report(model.params()))
+    def backward_check(self) -> None:
+        """Latest first: a finding the others make redundant is dropped. Without it the model is
+        refitted from where the search left it and from the base parameters anew: a finding
+        added late may only have led the fit out of a basin it had settled in."""
+        prob, st, tr = self.prob, self.st, self.trace
+        tr.round += 1
 
-    def refit_without(f: Finding) -> tuple[Model, dict, dict, np.ndarray]:
-        fits = [fit(prob, start, iters=REFIT_ITERS) for start in _restarts(model.without(f.cand, nominal), x0, xn)]
-        wmodel, wwork, wjac = min(fits, key=lambda g: prob.fit_cost(g[1]))
-        return wmodel, prob.whole(wmodel, wwork), wwork, wjac
+        def too_small(f: Finding) -> bool:
+            # Refits after a finding move its parameters too: one that ends below a claimable size goes.
+            return f.cand.claimable is not None and not f.cand.claimable(f.cand.report(self.model.params()))
 
-    for f in list(reversed(findings)):
-        small = too_small(f)
-        if len(findings) < 2 and not small:
-            break  # a single finding was weighed against the model without it when it was made
-        wmodel, wpred, wwork, wjac = refit_without(f)
-        dbic, dcost = prob.bic_delta(wpred, pred, max(1, len(f.cand.frees)))
-        log("backward check", f.cand.label, f"dBIC {dbic:.0f} dcost {dcost:+.3f}")
-        if small or not (dbic < 0 and dcost < -MIN_GAIN):
-            findings.remove(f)
-            model, pred, work_pred, jac = wmodel, wpred, wwork, wjac
-    # A drop refits the model, which moves the findings checked before it: one it left below a
-    # claimable size (a leak gone to zero once the dead band beside it went) goes too.
-    while small_ones := [f for f in findings if too_small(f)]:
-        log("below a claimable size after a drop", small_ones[-1].cand.label)
-        model, pred, work_pred, jac = refit_without(small_ones[-1])
-        findings.remove(small_ones[-1])
-    if findings and findings[0].pred_before is not base_pred:
-        first = findings[0]  # after a drop, the first remaining finding starts from the baseline
-        first.pred_before = base_pred
-        first.rmse_before = prob.rmse(base_pred)
-    if not findings:
-        base, base_pred = model, pred
-    else:  # refits after the last finding belong to it: its "after" is the final model
-        last = findings[-1]
-        last.pred_after = pred
-        last.rmse_after = prob.rmse(pred)
-        last.params = last.cand.report(model.params())
-    return Result(base, base_pred, model, pred, findings, work_pred, jac)
+        def refit_without(f: Finding) -> tuple[Model, dict, dict, np.ndarray]:
+            starts = _restarts(self.model.without(f.cand, self.nominal), self.x0, self.xn)
+            fits = side_by_side([lambda s=s: fit(prob, s, iters=st.refit_iters) for s in starts])
+            wmodel, wwork, wjac = min(fits, key=lambda g: prob.fit_cost(g[1]))
+            return wmodel, prob.whole(wmodel, wwork), wwork, wjac
+
+        for f in list(reversed(self.findings)):
+            small = too_small(f)
+            if len(self.findings) < 2 and not small:
+                break  # a single finding was weighed against the model without it when it was made
+            wmodel, wpred, wwork, wjac = refit_without(f)
+            dbic, dcost = prob.bic_delta(wpred, self.pred, max(1, len(f.cand.frees)))
+            self.log("backward check", f.cand.label, f"dBIC {dbic:.0f} dcost {dcost:+.3f}")
+            keep = not small and dbic < 0 and dcost < -st.min_gain
+            tr.add("backward check", f.cand.label, "below a claimable size" if small else "dBIC < 0 and dcost < -min_gain "
+                   "against the model refitted without it", "kept" if keep else "dropped",
+                   close=not small and abs(dcost + st.min_gain) < st.close_margin * st.min_gain,
+                   dbic=dbic, dcost=dcost, min_gain=st.min_gain)
+            if not keep:
+                self.findings.remove(f)
+                self.model, self.pred, self.work_pred, self.jac = wmodel, wpred, wwork, wjac
+        # A drop refits the model, which moves the findings checked before it: one it left below a
+        # claimable size (a leak gone to zero once the dead band beside it went) goes too.
+        while small_ones := [f for f in self.findings if too_small(f)]:
+            self.log("below a claimable size after a drop", small_ones[-1].cand.label)
+            tr.add("backward check", small_ones[-1].cand.label, "below a claimable size after a drop", "dropped")
+            self.model, self.pred, self.work_pred, self.jac = refit_without(small_ones[-1])
+            self.findings.remove(small_ones[-1])
+
+    def result(self) -> Result:
+        findings, prob = self.findings, self.prob
+        base, base_pred = self.base, self.base_pred
+        if findings and findings[0].pred_before is not base_pred:
+            first = findings[0]  # after a drop, the first remaining finding starts from the baseline
+            first.pred_before = base_pred
+            first.rmse_before = prob.rmse(base_pred)
+        if not findings:
+            base, base_pred = self.model, self.pred
+        else:  # refits after the last finding belong to it: its "after" is the final model
+            last = findings[-1]
+            last.pred_after = self.pred
+            last.rmse_after = prob.rmse(self.pred)
+            last.params = last.cand.report(self.model.params())
+        return Result(base, base_pred, self.model, self.pred, findings, self.work_pred, self.jac)
 
 
-def probe(prob: Problem, res: Result, pool: list[Candidate], rate: float, log: Log = lambda *a: None) -> Finding | None:
+def probe(prob: Problem, res: Result, pool: list[Candidate], rate: float, log: Log = lambda *a: None,
+          trace: Trace | None = None) -> Finding | None:
     """Structure outside the effect vocabulary: the probe of `pool` (a force over part of the
     stroke, a pump's ripple...) that pays off on the held-out data on top of the final model by
-    `PROBE_GAIN` of the cost, or None. Not a finding of the record: evidence that structure
+    probe_gain of the cost, or None. Not a finding of the record: evidence that structure
     remains which no effect of the vocabulary accounts for."""
+    st = prob.settings
+    tr = trace if trace is not None else Trace()
     if not pool or res.work_pred is None or res.jac is None:
         return None
     model, pred = res.model, res.pred
     best: tuple[float, Finding] | None = None
     # A tone (a pump's ripple) is small against a broadband residual but stands out in its band:
-    # its amplitude is fitted with the model held, and it must remove PROBE_SHARE of the
+    # its amplitude is fitted with the model held, and it must remove probe_share of the
     # residual's power there and pay off on the held-out data.
     tones = {c.tone_hz: c for c in pool if c.tone_hz}
     for f_hz, cand in tones.items():
@@ -282,8 +483,12 @@ def probe(prob: Problem, res: Result, pool: list[Candidate], rate: float, log: L
         dbic, dcost = prob.bic_delta(pred, tpred, len(cand.frees))
         share = prob.explained_in_band(pred, tpred, f_hz, rate)
         log("tone", f"{f_hz:.4f} Hz", cand.report(trial.params()), f"dBIC {dbic:.0f} dcost {dcost:+.4f} in band {share:.0%}")
-        if dbic < 0 and share >= PROBE_SHARE and (best is None or dbic < best[0]):
-            verdict = {"ok": True, "dbic": dbic, "dcost": dcost, "ablation_dcost": dcost, "explained": share}
+        ok = dbic < 0 and share >= st.probe_share
+        tr.add("probes", f"{cand.label} at {f_hz:.4f} Hz", "dBIC < 0 and explained in band >= probe_share",
+               "pays off" if ok else "does not pay off", close=abs(share - st.probe_share) < st.close_margin * st.probe_share,
+               dbic=dbic, dcost=dcost, explained_in_band=share, probe_share=st.probe_share)
+        if ok and (best is None or dbic < best[0]):
+            verdict = Verdict(True, dbic, dcost, dcost, share)
             best = (dbic, finding(prob, cand, model, pred, trial, tpred, verdict, rate))
     pool = [c for c in pool if not c.tone_hz]
     if not pool:
@@ -291,14 +496,18 @@ def probe(prob: Problem, res: Result, pool: list[Candidate], rate: float, log: L
     ranked = screen(prob, model, res.work_pred, res.jac, pool)
     log("probe screen", [(c.effect, round(g, 3)) for c, g, _ in ranked[:4]])
     q = np.linalg.qr(res.jac)[0]
-    for cand, gain, step in ranked[:2]:
-        trial, twork, _ = fit(prob, _scan(prob, [model.with_candidate(cand, step)], cand, q), iters=REFIT_ITERS)
-        tpred = prob.whole(trial, twork)
-        verdict = pays_off(prob, pred, trial, tpred, model, cand)
+    for cand, gain, step in ranked[: st.probe_refits]:
+        trial, twork, _ = fit(prob, _scan(prob, [model.with_candidate(cand, step)], cand, q), iters=st.refit_iters)
+        tpred, verdict = judge(prob, pred, trial, twork, model, cand)
         log("probe", cand.label, cand.report(trial.params()), verdict)
-        if (verdict["ok"] and verdict["dcost"] < -PROBE_GAIN and verdict["explained"] >= PROBE_SHARE
-                and (best is None or verdict["dbic"] < best[0])):
-            best = (verdict["dbic"], finding(prob, cand, model, pred, trial, tpred, verdict, rate))
+        ok = verdict.ok and verdict.dcost < -st.probe_gain and verdict.explained >= st.probe_share
+        tr.add("probes", cand.label, "pays off, dcost < -probe_gain and explained >= probe_share",
+               "pays off" if ok else "does not pay off",
+               close=verdict.ok and (abs(verdict.dcost + st.probe_gain) < st.close_margin * st.probe_gain
+                                     or abs(verdict.explained - st.probe_share) < st.close_margin * st.probe_share),
+               params=cand.report(trial.params()), **verdict.numbers())
+        if ok and (best is None or verdict.dbic < best[0]):
+            best = (verdict.dbic, finding(prob, cand, model, pred, trial, tpred, verdict, rate))
     return best[1] if best else None
 
 
@@ -315,18 +524,18 @@ def _tone(prob: Problem, model: Model, cand: Candidate) -> tuple[Model, dict]:
     amp = np.linalg.lstsq(sig, -r0, rcond=None)[0]
     lo, hi = np.array([f.lo for f in cand.frees]), np.array([f.hi for f in cand.frees])
     start = zero.at(np.concatenate([model.x, np.clip(amp, lo, hi)]))
-    trial, twork, _ = fit(prob, start, iters=TONE_ITERS, hold=frozenset(f.key for f in model.frees))
+    trial, twork, _ = fit(prob, start, iters=prob.settings.tone_iters, hold=frozenset(f.key for f in model.frees))
     return trial, twork
 
 
-def _tied(a: dict, b: dict) -> bool:
+def _tied(a: Verdict | dict, b: Verdict | dict, min_gain: float = MIN_GAIN) -> bool:
     """Two verdicts whose held-out costs after (1 + dcost of the cost before) differ by less than
-    MIN_GAIN of the larger: no evidence for either over the other by the search's own standard."""
+    `min_gain` of the larger: no evidence for either over the other by the search's own standard."""
     ca, cb = 1.0 + a["dcost"], 1.0 + b["dcost"]
-    return a["ok"] and b["ok"] and abs(ca - cb) < MIN_GAIN * max(ca, cb)
+    return bool(a["ok"] and b["ok"] and abs(ca - cb) < min_gain * max(ca, cb))
 
 
-def _on_common_base(prob: Problem, pred0: dict, model: Model, polished: list[tuple], log: Log) -> list[tuple]:
+def on_common_base(prob: Problem, pred0: dict, model: Model, polished: list[Trial], log: Log) -> list[Trial]:
     """Two contenders polished apart may have settled their base parameters in different basins
     (a flat cost lets them wander), and the better base would then decide between the effects.
     Each contender is also fitted on the other's base (its own parameters only, the base held)
@@ -334,26 +543,32 @@ def _on_common_base(prob: Problem, pred0: dict, model: Model, polished: list[tup
     the same base."""
     n = len(model.x)
     hold = frozenset(f.key for f in model.frees)
-    out = []
-    for i, (cand, verdict, trial, twork, tjac, tpred) in enumerate(polished):
-        other = polished[1 - i][2]
+
+    def on_other(i: int) -> tuple[Trial, list[tuple]]:
+        g = polished[i]
+        cand, verdict, trial, twork, tjac, tpred = g.cand, g.verdict, g.model, g.work, g.jac, g.pred
+        other = polished[1 - i].model
         x = trial.x.copy()
         x[:n] = other.x[:n]
-        moved, mwork, mjac = fit(prob, trial.at(x), iters=COMMON_ITERS, hold=hold)
-        mpred = prob.whole(moved, mwork)
-        mverdict = pays_off(prob, pred0, moved, mpred, model, cand)
-        log("on the other's base", cand.label, cand.report(moved.params()), mverdict)
-        if mverdict["dbic"] < verdict["dbic"]:
+        moved, mwork, mjac = fit(prob, trial.at(x), iters=prob.settings.common_iters, hold=hold)
+        mpred, mverdict = judge(prob, pred0, moved, mwork, model, cand)
+        logs: list[tuple] = [("on the other's base", cand.label, cand.report(moved.params()), mverdict)]
+        if mverdict.dbic < verdict.dbic:
             # One step with all free: the Jacobian of every parameter (differenced at `moved`)
             # for the screens to come. The step fits the fit blocks and may lose on the held-out
             # ones; then `moved` stays, or the step would decide between the contenders.
             strial, swork, tjac = fit(prob, moved, iters=1, pred0=mwork)
-            spred = prob.whole(strial, swork)
-            sverdict = pays_off(prob, pred0, strial, spred, model, cand)
-            log("one step on", cand.label, cand.report(strial.params()), sverdict)
-            trial, twork, tpred, verdict = ((strial, swork, spred, sverdict) if sverdict["dbic"] <= mverdict["dbic"]
+            spred, sverdict = judge(prob, pred0, strial, swork, model, cand)
+            logs.append(("one step on", cand.label, cand.report(strial.params()), sverdict))
+            trial, twork, tpred, verdict = ((strial, swork, spred, sverdict) if sverdict.dbic <= mverdict.dbic
                                             else (moved, mwork, mpred, mverdict))
-        out.append((cand, verdict, trial, twork, tjac, tpred))
+        return Trial(cand, trial, twork, tpred, verdict, tjac), logs
+
+    out = []
+    for trial, logs in side_by_side([lambda i=i: on_other(i) for i in range(len(polished))]):
+        for line in logs:
+            log(*line)
+        out.append(trial)
     return out
 
 
@@ -378,7 +593,8 @@ def _scan(prob: Problem, starts: list[Model], cand: Candidate, q: np.ndarray) ->
         i = len(starts[0].x) - len(cand.frees)
         x_lin = starts[0].x[i]
         sign = -1.0 if x_lin < 0 else 1.0
-        values = sorted({float(np.clip(v, f.lo, f.hi)) for v in (sign * f.step * 2.0**k for k in range(-1, 7))} - {x_lin})
+        octaves = prob.settings.scan_octaves
+        values = sorted({float(np.clip(v, f.lo, f.hi)) for v in (sign * f.step * 2.0**k for k in octaves)} - {x_lin})
         for start in starts:
             for v in values:
                 x = start.x.copy()
@@ -393,38 +609,60 @@ def _scan(prob: Problem, starts: list[Model], cand: Candidate, q: np.ndarray) ->
     return models[int(np.argmin(costs))]
 
 
-def pays_off(prob: Problem, pred0: dict, trial: Model, tpred: dict, before: Model, cand: Candidate) -> dict[str, Any]:
+def judge(prob: Problem, pred0: dict, trial: Model, twork: dict, before: Model, cand: Candidate) -> tuple[dict, Verdict]:
+    """A fitted trial's whole-record prediction and its verdict (`pays_off`), the two
+    whole-record simulations they need (the trial, and the trial with its effect switched off)
+    in one batch."""
+    if prob.truncated or prob.sparse:
+        tpred, abl = prob.predict([trial.params(), trial.ablated(before, cand).params()], whole=True)
+    else:
+        tpred, abl = twork, None
+    return tpred, pays_off(prob, pred0, trial, tpred, before, cand, abl=abl)
+
+
+def pays_off(prob: Problem, pred0: dict, trial: Model, tpred: dict, before: Model, cand: Candidate,
+             abl: dict | None = None) -> Verdict:
     """Does the effect pay off on the held-out data? It must beat the model without it by the
-    information criterion and by MIN_GAIN of the cost, and so must it against its own refit
+    information criterion and by min_gain of the cost, and so must it against its own refit
     with the effect switched off (else it only helped the base parameters converge); and it
-    must remove MIN_SHARE of some channel's systematic residual (its own signature, not a
-    sliver of a misfit it does not account for)."""
+    must remove min_share of some channel's systematic residual (its own signature, not a
+    sliver of a misfit it does not account for). The rules are named in `RULES`."""
+    st = prob.settings
     k = max(1, len(cand.frees))
     dbic, dcost = prob.bic_delta(pred0, tpred, k)
-    abl = prob.predict([trial.ablated(before, cand).params()], whole=True)[0]
+    if abl is None:  # the ablated model's whole-record prediction, unless the caller batched it (`judge`)
+        abl = prob.predict([trial.ablated(before, cand).params()], whole=True)[0]
     abic, acost = prob.bic_delta(abl, tpred, k)
     # A sensor's fault is in its own reading: there is its signature. (Through the restarts from the
     # measured state it also moves the other channels, so there it can buy a fit it does not explain.)
-    own = cand.channel if cand.effect in SENSOR_EFFECTS and cand.channel in prob.channels else None
+    own = cand.channel if cand.own_reading and cand.channel in prob.channels else None
     share = prob.explained(pred0, tpred, only=own)
     big = cand.claimable is None or cand.claimable(cand.report(trial.params()))
-    ok = dbic < 0 and dcost < -MIN_GAIN and abic < 0 and acost < -MIN_GAIN and share >= MIN_SHARE and big
-    return {"ok": bool(ok), "dbic": dbic, "dcost": dcost, "ablation_dcost": acost, "explained": share, "claimable": bool(big)}
+    met = (dbic < 0, dcost < -st.min_gain, abic < 0, acost < -st.min_gain, share >= st.min_share, big)
+    # Close: a verdict that passes with one of its measured margins within close_margin of its
+    # threshold, or that fails only by such margins (the ΔBIC and the size are not graded).
+    m = st.close_margin
+    near = (False, abs(dcost + st.min_gain) < m * st.min_gain, False, abs(acost + st.min_gain) < m * st.min_gain,
+            abs(share - st.min_share) < m * st.min_share, False)
+    failed = [i for i, ok in enumerate(met) if not ok]
+    close = any(near) if not failed else all(near[i] for i in failed)
+    return Verdict(all(met), dbic, dcost, acost, share, bool(big), tuple(RULES[i] for i in failed), bool(close))
 
 
 def screen(prob: Problem, model: Model, work_pred: dict, jac: np.ndarray,
-           pool: list[Candidate]) -> list[tuple[Candidate, float, float | None]]:
+           pool: list[Candidate]) -> list[Screened]:
     """Rank candidates by how much of the fit residual their simulated signature explains beyond
     what the current free parameters absorb (a linearised score test, one simulation each).
-    Returns (candidate, explained fraction of the cost, starting value of its first parameter),
-    best first, one entry per effect and channel."""
+    Returns `Screened` (candidate, explained fraction of the cost, starting value of its first
+    parameter), best first, one entry per effect and channel."""
+    st = prob.settings
     r0 = prob.residual(work_pred, prob.fit_mask)
     cost = float(r0 @ r0)
     trials = [model.with_candidate(c) for c in pool]
     preds = prob.predict([t.params() for t in trials])
     q = np.linalg.qr(jac)[0] if jac.size else np.zeros((len(r0), 0))
     pr = r0 - q @ (q.T @ r0)
-    best: dict[tuple[str, str | None], tuple[Candidate, float, float | None]] = {}
+    best: dict[tuple[str, str | None], Screened] = {}
     for c, p in zip(pool, preds):
         s = prob.residual(p, prob.fit_mask) - r0
         if not np.all(np.isfinite(s)) or not np.any(s):
@@ -442,13 +680,13 @@ def screen(prob: Problem, model: Model, work_pred: dict, jac: np.ndarray,
             else:  # a switch: all or nothing
                 step, e = None, res + sig
             gain = float(res @ res - e @ e)
-            if gain > SCREEN_CHI2 and gain > SCREEN_FRACTION * cost and (c.key not in best or gain / cost > best[c.key][1]):
-                best[c.key] = (c, gain / cost, step)
-    return sorted(best.values(), key=lambda g: -g[1])
+            if gain > st.screen_chi2 and gain > st.screen_fraction * cost and (c.key not in best or gain / cost > best[c.key].gain):
+                best[c.key] = Screened(c, gain / cost, step)
+    return sorted(best.values(), key=lambda g: -g.gain)
 
 
 def finding(prob: Problem, cand: Candidate, before: Model, pred0: dict, after: Model, pred1: dict,
-            verdict: dict[str, Any], rate: float) -> Finding:
+            verdict: Verdict, rate: float) -> Finding:
     """The finding of `cand` between two models, with its evidence in words."""
     rb, ra = prob.rmse(pred0), prob.rmse(pred1)
     # The channel the effect shows in: its own for a sensor effect, else the one it improves most.
@@ -462,9 +700,9 @@ def finding(prob: Problem, cand: Candidate, before: Model, pred0: dict, after: M
     ptxt = ", ".join(f"{k} = {v:.4g}" for k, v in params.items())
     evidence = (f"Before: the {ch} residual (RMS {rb[ch]:.3g} {unit}, noise floor {prob.sigma[ch]:.2g} {unit}) has "
                 f"{what} {corr:+.2f}. Adding {cand.label} ({ptxt or 'no parameters'}) brings it to "
-                f"{ra[ch]:.3g} {unit} and cuts the held-out cost by {-verdict['dcost']:.0%} (ΔBIC {verdict['dbic']:.0f}); "
+                f"{ra[ch]:.3g} {unit} and cuts the held-out cost by {-verdict.dcost:.0%} (ΔBIC {verdict.dbic:.0f}); "
                 f"switched off again, other parameters kept, the held-out cost would be "
-                f"{1 / max(1 + verdict['ablation_dcost'], 1e-9):.3g}x higher." + verdict.get("alternative", ""))
+                f"{1 / max(1 + verdict.ablation_dcost, 1e-9):.3g}x higher." + verdict.alternative)
     # An offset shows best against the reading itself (a shift; a gain would be a slope).
     feature = (f"measured {ch}", prob.meas[ch]) if cand.signature == "constant" else (name, signal)
     return Finding(cand, params, rb, ra, evidence, before, pred0, pred1, ch, feature, verdict)

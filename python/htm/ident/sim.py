@@ -25,6 +25,7 @@ import numpy as np
 from htm.core import CHANNELS, Params, replay
 from htm.errors import InputError, RecordError, SolverError
 from htm.ident.records import Record
+from htm.ident.family import SENSOR_EFFECTS
 
 # Open-loop predictions restart from the measured state this often [s].
 DEFAULT_HORIZON_S = 0.5
@@ -58,7 +59,6 @@ EFFECT_FIELDS: dict[str, dict[str, str]] = {
     "specimen_nonlinearity": {"closure_stiffness_n_m": "specimen_closure_stiffness_n_m",
                               "closure_offset_m": "specimen_closure_offset_m"},
 }
-SENSOR_EFFECTS = ("sensor_offset", "sensor_gain", "sensor_delay")
 EFFECT_IDS = SENSOR_EFFECTS + tuple(EFFECT_FIELDS)
 # Channel named in a finding for non-sensor effects (EFFECTS.md table).
 EFFECT_CHANNEL = {"specimen_nonlinearity": "f"}

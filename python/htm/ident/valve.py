@@ -10,23 +10,17 @@ import numpy as np
 from htm.core import Params
 from htm.ident import features as ft
 from htm.ident import sim
-from htm.ident.model import Candidate, Free, Model, get_value, has_key, lin, logf
+from htm.ident.family import Family
+from htm.ident.model import Candidate, Derived, Free, Model, derive, get_value, has_key, lin, logf
 from htm.ident.records import Record
+from htm.ident.settings import DEFAULT, SearchSettings
 
-# Friction asymmetry claimed from this share of the mean Coulomb friction on (EFFECTS.md's
-# effect is a seal that grips harder one way; a few percent is the friction law's form).
-MIN_ASYMMETRY = 0.1
-# A sensor's gain claimed off from this relative error (transducers are calibrated to ±0.1-0.5 %).
-MIN_GAIN_ERROR = 0.01
-# A valve's null claimed biased, or a dead band about it, from this share of its rated command: a
-# servo-valve's null is set to about 0.1 % of it, and its amplifier's offset is of that order too;
-# a smaller bias or band is the metering edges' form (underlap, edges that open smoothly) that a
-# fit takes up.
-MIN_NULL_BIAS = 0.002
-# Leakage across the piston claimed from this share of the valve's rated flow at supply pressure:
-# a servo-valve's own null (tare) leakage is about 1-3 % of it, and the base model's underlap takes
-# a leak that small whichever path it runs.
-MIN_LEAKAGE = 0.005
+# Claim thresholds of this family's effects: `settings.SearchSettings` (min_asymmetry,
+# min_gain_error, min_null_bias, min_leakage: unit and reason there); these names are its defaults.
+MIN_ASYMMETRY = DEFAULT.min_asymmetry
+MIN_GAIN_ERROR = DEFAULT.min_gain_error
+MIN_NULL_BIAS = DEFAULT.min_null_bias
+MIN_LEAKAGE = DEFAULT.min_leakage
 # Base-model parameters stated by the metadata (nominal; bounds say how far a rig may be off).
 RIG_FREES = [
     logf("moving_mass_kg", 0.4, 2.5, prior=0.3),
@@ -63,13 +57,39 @@ DETAILS = frozenset({"friction_stribeck_m_s", "friction_smoothing_m_s", "valve_t
                      "valve_damping", "tank_pressure_pa", "bulk_modulus_slope"})
 
 
-class ValveFamily:
+
+
+def _set_coulomb(p: Any, value: float) -> None:
+    p["friction_coulomb_pos_n"] = value
+    p["friction_coulomb_neg_n"] = value
+
+
+def _set_coulomb_diff(p: Any, value: float) -> None:
+    c = p["friction_coulomb_pos_n"]
+    p["friction_coulomb_pos_n"] = max(0.0, c + value)
+    p["friction_coulomb_neg_n"] = max(0.0, c - value)
+
+
+# The base model's Coulomb friction is symmetric (one level for both directions);
+# friction_asymmetry splits it (pos = C + d, neg = C - d).
+_COULOMB_PAIR = ("friction_coulomb_pos_n", "friction_coulomb_neg_n")
+derive(Derived("friction_coulomb_n", lambda p: 0.5 * (p["friction_coulomb_pos_n"] + p["friction_coulomb_neg_n"]),
+               _set_coulomb, _COULOMB_PAIR))
+derive(Derived("friction_coulomb_diff_n", lambda p: 0.5 * (p["friction_coulomb_pos_n"] - p["friction_coulomb_neg_n"]),
+               _set_coulomb_diff, _COULOMB_PAIR))
+
+
+class ValveFamily(Family):
     """The valve-level plant for one record: nominal parameters, free parameters, candidates and
     the simulator options (a switched supply, the open-loop horizon)."""
 
     name = "valve"
+    vocabulary = sim.EFFECT_IDS
+    has_probes = True
 
-    def __init__(self, rec: Record, channels: list[str], horizon_s: float | None = None) -> None:
+    def __init__(self, rec: Record, channels: list[str], horizon_s: float | None = None,
+                 settings: SearchSettings = DEFAULT) -> None:
+        self.settings = settings
         self.rec = rec
         self.channels = channels
         nominal = sim.params_from_meta(rec.meta)
@@ -106,6 +126,10 @@ class ValveFamily:
         return "u" in self.rec.columns and bool(np.isfinite(self.rec.columns["u"]).any())
 
     @staticmethod
+    def effect_fields(effect: str, channel: str | None = None) -> dict[str, str]:
+        return sim.effect_fields(effect, channel)
+
+    @staticmethod
     def simulate(plist: list[Params], rec: Record, **opts: Any) -> list[dict[str, np.ndarray]]:
         return sim.predict(plist, rec, **opts)
 
@@ -115,17 +139,13 @@ class ValveFamily:
         out: list[Candidate] = []
         dt = 1.0 / rate_hz
         ctrl = (rec.meta.get("controller") or {}).get("type")
-
-        def cand(effect: str, channel: str | None, frees: tuple[Free, ...], signature: str, **kw: Any) -> Candidate:
-            fields = tuple(sim.effect_fields(effect, channel).items())
-            return Candidate(effect, channel, frees, signature, fields=fields, **kw)
+        st = self.settings
+        cand = self.candidate
 
         for c in channels:
-            offset = cand("sensor_offset", c, (lin(f"sensor_offset_{c}", scales[c], -1e3, 1e3),), "constant",
-                          claimable=_not_a_tolerated_gain(rec, c))
-            gain = cand("sensor_gain", c, (lin(f"sensor_gain_{c}", 0.01, -50.0, 50.0, origin=1.0),), f"predicted {c}",
-                        claimable=_calibrated_off)
-            delay = cand("sensor_delay", c, (lin(f"sensor_delay_{c}_s", dt, 0.0, 100.0),), f"d(predicted {c})/dt")
+            offset = self.sensor_candidate("sensor_offset", c, scales[c], claimable=_not_a_tolerated_gain(rec, c, st.min_gain_error))
+            gain = self.sensor_candidate("sensor_gain", c, 0.01, claimable=_calibrated_off(st.min_gain_error))
+            delay = self.sensor_candidate("sensor_delay", c, dt)
             # The loop regulates what its own sensor reads: an offset or gain of that sensor only
             # moves the true state, which nothing else measures — unless a specimen ties position
             # and force: its zero-force position is trusted, so the force's offset shows against
@@ -145,11 +165,11 @@ class ValveFamily:
             return q["half_width_v"] >= u_noise
 
         def wider_than_null(q: dict[str, float]) -> bool:
-            return wider_than_noise(q) and q["half_width_v"] >= MIN_NULL_BIAS * p["valve_max_command_v"]
+            return wider_than_noise(q) and q["half_width_v"] >= st.min_null_bias * p["valve_max_command_v"]
 
         out += [
             cand("valve_null_bias", None, (lin("valve_null_bias_v", 0.02, -50.0, 50.0),), "small |u|",
-                 claimable=_share_of("bias_v", MIN_NULL_BIAS * p["valve_max_command_v"])),
+                 claimable=_share_of("bias_v", st.min_null_bias * p["valve_max_command_v"])),
             cand("valve_dynamics", None, (lin("valve_tau_s", 1e-3, 0.0, 100.0, step=2.0),), "du/dt"),
             cand("valve_deadband", None, (lin("valve_deadband_half_width_v", 0.05, 0.0, 40.0),), "small |u|",
                  claimable=wider_than_null),
@@ -157,10 +177,10 @@ class ValveFamily:
                  claimable=wider_than_noise),
             cand("supply_pressure_sag", None, (lin("supply_resistance_pa_s_per_m3", 1e9, 0.0, 1e3),), "v"),
             cand("internal_leakage", None, (lin("leakage_coeff_m3_per_s_pa", 1e-12, 0.0, 1e3),), "load pressure",
-                 claimable=_share_of("coeff_m3_per_s_pa", MIN_LEAKAGE * p["valve_rated_flow_m3_s"]
+                 claimable=_share_of("coeff_m3_per_s_pa", st.min_leakage * p["valve_rated_flow_m3_s"]
                                      / max(p["supply_pressure_pa"], 1.0))),
-            Candidate("friction_asymmetry", None, (lin("friction_coulomb_diff_n", 50.0, -100.0, 100.0),), "sign(v)",
-                      fields=tuple(sim.effect_fields("friction_asymmetry").items()), claimable=_asymmetric),
+            cand("friction_asymmetry", None, (lin("friction_coulomb_diff_n", 50.0, -100.0, 100.0),), "sign(v)",
+                 claimable=_asymmetric(st.min_asymmetry)),
             cand("pressure_dependent_friction", None, (lin("friction_pressure_coeff_n_per_pa", 1e-6, 0.0, 1e3, step=2.0),),
                  "(p_a + p_b) sign(v)"),
             cand("entrained_air", None, (lin("air_fraction", 1e-3, 0.0, 100.0, step=5.0),), "p_a + p_b"),
@@ -168,16 +188,7 @@ class ValveFamily:
         if p["valve_linear_flow"] > 0.5:  # a declared linear valve may in truth feel the load pressure
             out.append(cand("load_pressure_feedback", None, (), "load pressure", switch=(("valve_linear_flow", 0.0),)))
         if p["specimen_stiffness_n_m"] > 0 and "f" in channels:
-            # The closure position is not smooth to find: screen a few along the travel.
-            k = p["specimen_stiffness_n_m"]
-            y = np.asarray(rec.columns["y"], dtype=float)
-            y0 = p["specimen_zero_force_position_m"]
-            unit_off = max(1e-5, float(np.nanstd(y)) * 0.1)
-            for q in (10, 30, 50, 70, 90):
-                off = float(np.nanpercentile(y, q)) - y0
-                out.append(cand("specimen_nonlinearity", "f",
-                                (lin("specimen_closure_stiffness_n_m", 0.1 * k, 0.0, 1e3),
-                                 lin("specimen_closure_offset_m", unit_off, -1e4, 1e4)), "y", starts=(off / unit_off,)))
+            out += self.closure_candidates(rec.columns["y"], p["specimen_zero_force_position_m"], p["specimen_stiffness_n_m"])
         return [c for c in out if all(has_key(p, f.key) for f in c.frees)]
 
     def probes(self, residual: dict[str, np.ndarray], rate_hz: float) -> list[Candidate]:
@@ -221,13 +232,13 @@ class ValveFamily:
         return [c for c in out if all(has_key(p, f.key) for f in c.frees)]
 
 
-def _calibrated_off(p: dict[str, float]) -> bool:
-    """A gain off by MIN_GAIN_ERROR at least: within it a transducer is inside its calibration
-    tolerance, and a fit's gain there is taking up the model's form, not a fault."""
-    return abs(p["gain"] - 1.0) >= MIN_GAIN_ERROR
+def _calibrated_off(least: float) -> Callable[[dict[str, float]], bool]:
+    """A gain off by `least` (min_gain_error) at least: within it a transducer is inside its
+    calibration tolerance, and a fit's gain there is taking up the model's form, not a fault."""
+    return lambda p: abs(p["gain"] - 1.0) >= least
 
 
-def _not_a_tolerated_gain(rec: Record, channel: str) -> Callable[[dict[str, float]], bool]:
+def _not_a_tolerated_gain(rec: Record, channel: str, min_gain_error: float) -> Callable[[dict[str, float]], bool]:
     """An offset claimed only where no gain inside calibration tolerance could read the same: a
     gain error e reads e·median + e·(reading − median); an offset o is that with e = o/median
     whenever the varying part, |o|·spread/median, is lost in the noise (a supply gauge reads
@@ -240,7 +251,7 @@ def _not_a_tolerated_gain(rec: Record, channel: str) -> Callable[[dict[str, floa
 
     def claimable(p: dict[str, float]) -> bool:
         o = abs(next(iter(p.values())))
-        return median <= 0 or o >= MIN_GAIN_ERROR * median or o * spread / median > noise
+        return median <= 0 or o >= min_gain_error * median or o * spread / median > noise
 
     return claimable
 
@@ -250,11 +261,15 @@ def _share_of(name: str, least: float) -> Callable[[dict[str, float]], bool]:
     return lambda p: abs(p[name]) >= least
 
 
-def _asymmetric(p: dict[str, float]) -> bool:
-    """Coulomb friction that differs with direction by MIN_ASYMMETRY of its mean at least (a
-    smaller difference is within what the friction law's form, Stribeck or pre-sliding, mimics)."""
-    pos, neg = p["coulomb_pos_n"], p["coulomb_neg_n"]
-    return abs(pos - neg) >= MIN_ASYMMETRY * 0.5 * (abs(pos) + abs(neg))
+def _asymmetric(least: float) -> Callable[[dict[str, float]], bool]:
+    """Coulomb friction that differs with direction by `least` (min_asymmetry) of its mean at
+    least (a smaller difference is within what the friction law's form, Stribeck or
+    pre-sliding, mimics)."""
+    def claimable(p: dict[str, float]) -> bool:
+        pos, neg = p["coulomb_pos_n"], p["coulomb_neg_n"]
+        return abs(pos - neg) >= least * 0.5 * (abs(pos) + abs(neg))
+
+    return claimable
 
 
 def _ripple_frequencies(rec: Record, residual: dict[str, np.ndarray], rate_hz: float, top: int = 2) -> list[float]:

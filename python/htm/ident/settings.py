@@ -1,0 +1,135 @@
+"""Every knob of the diagnosis path in one place: `SearchSettings`.
+
+Each field carries its unit and the reason for its value (`dataclasses.fields(...)[i].metadata`,
+`SearchSettings.describe()`); `diagnose(rec, settings=...)` passes one down to the fit, the
+search, the verdict on structure left and the model family's claim thresholds, and writes it into
+report.json (`settings`). The defaults are the values the search was built and checked with (the
+effect matrices and the external set); a changed setting is a changed diagnosis, and the report's
+decision trace (`trace`) names the rule each decision applied.
+
+What is not here: the bounds and steps of the models' own free parameters (`valve.RIG_FREES`,
+`loop.LoopFamily._base_frees`: they describe the physics of a rig, not the search) and the
+signal-processing constants of `features` and `sim` (a noise floor's estimator, the simulator's
+tolerance), which serve other commands too.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any
+
+
+def knob(default: Any, unit: str, reason: str) -> Any:
+    """A setting with its unit and the reason for its value."""
+    if isinstance(default, (tuple, list)):
+        return field(default=tuple(default), metadata={"unit": unit, "reason": reason})
+    return field(default=default, metadata={"unit": unit, "reason": reason})
+
+
+@dataclass(frozen=True)
+class SearchSettings:
+    """The knobs of `diagnose` (see the module docstring). Frozen: change one with
+    `dataclasses.replace(DEFAULT, min_gain=0.1)` or `SearchSettings(min_gain=0.1)`."""
+
+    # --- the record and its split (diagnose, fit) -------------------------------------------
+    min_samples: int = knob(200, "samples", "a record shorter than this carries too little to fit a model of ~20 parameters")
+    work_s: float = knob(20.0, "s", "fits use the record's first seconds (interleaved fit/validation blocks); the rest is held out")
+    block_s: float = knob(0.3, "s", "interleaved fit/validation blocks: short enough that every phase of the experiment "
+                                    "(holds, ramps, sines, steps) falls on both sides")
+    excitation_noise: float = knob(50.0, "x position noise", "a record whose position moves less than this many noise "
+                                                             "floors carries no information: refused")
+    excitation_stroke: float = knob(1e-4, "x stroke", "...nor less than this share of the stroke")
+    screen_scale_noise: float = knob(10.0, "x noise", "a sensor effect's parameter unit is this many noise floors of its "
+                                                      "channel (or 1e-6 of its largest reading)")
+    cannot_follow: float = knob(0.5, "share of the channel's std", "a fitted model whose held-out error exceeds this share "
+                                                                   "of a channel's own variation does not follow it at all")
+    max_findings: int = knob(3, "findings", "effects added at most (greedy forward selection)")
+    max_refits: int = knob(2, "candidates per round", "screened candidates refitted per round")
+    # --- the least-squares fit (fit.fit) ----------------------------------------------------
+    base_iters: int = knob(10, "Jacobians", "budget of the base model's fit")
+    refit_iters: int = knob(6, "Jacobians", "budget of a refit with a candidate (and of the same fit without one)")
+    polish_iters: int = knob(15, "Jacobians", "budget of polishing a contender before it is chosen")
+    common_iters: int = knob(3, "Jacobians", "a contender's own parameters fitted on the other contender's base (base held)")
+    tone_iters: int = knob(1, "Jacobians", "a tone's amplitudes with the model held (nearly linear)")
+    ftol: float = knob(2e-3, "relative cost", "a fit stops after two iterations that gain less than this share of the cost")
+    noise_cost: float = knob(1.2, "noise-scaled mean square", "a fit at or below this on every channel is at its noise: stops")
+    radius_max: float = knob(1.0, "normalised coordinate", "largest LM step (a factor e for a log parameter): far jumps land "
+                                                           "in wrong basins (friction trading against compressibility)")
+    jacobian_every: int = knob(2, "iterations", "the Jacobian is differenced afresh every this many iterations (Broyden between)")
+    prior_share: float = knob(0.003, "share of the noise-level cost", "weak prior on parameters that have one: curvature for "
+                                                                      "flat valleys without moving what the data determine")
+    # --- the search: screen, refit, judge, break ties, backward check -------------------------
+    systematic: float = knob(1.0, "systematic ratio (residual / noise)", "the search stops when no channel's non-noise "
+                                                                         "residual stands above its noise floor")
+    screen_chi2: float = knob(25.0, "chi^2", "evidence a candidate's signature must carry before it is refitted")
+    screen_fraction: float = knob(0.01, "share of the fit cost", "...and as a share of the fit cost")
+    refit_share: float = knob(0.3, "share of the best screened gain", "candidates refitted per round: those within this "
+                                                                      "share of the best screened gain")
+    scan_octaves: tuple[int, ...] = knob((-1, 0, 1, 2, 3, 4, 5, 6), "powers of 2 of the parameter's step",
+                                         "sizes of a candidate's first parameter tried before its refit (a delay's, a dead "
+                                         "band's cost is not convex)")
+    min_gain: float = knob(0.05, "relative held-out cost", "a refit must cut the held-out cost by this share (and win by BIC) "
+                                                           "to count; also the margin under which two contenders are tied")
+    min_share: float = knob(0.2, "share of a channel's systematic residual", "and remove this share of some channel's "
+                                                                            "residual above its noise: shaving a few percent "
+                                                                            "off a large misfit is bending to the model's form")
+    significant: float = knob(3.0, "standard deviations of white noise's mean square", "a channel has a systematic part to "
+                                                                                       "share only this far above its noise")
+    contender_dbic: float = knob(0.5, "share of the best dBIC", "a second candidate that pays off is polished beside the "
+                                                                "best when its dBIC reaches this share of the best's")
+    preference: tuple[str, ...] = knob(
+        ("sensor_offset", "valve_null_bias", "sensor_gain", "sensor_delay", "valve_dynamics", "internal_leakage",
+         "friction_asymmetry", "valve_deadband", "valve_hysteresis", "supply_pressure_sag",
+         "pressure_dependent_friction", "entrained_air", "load_pressure_feedback", "specimen_nonlinearity"),
+        "effect ids, most common first", "which of two effects the record cannot tell apart is named")
+    close_margin: float = knob(0.2, "share of a threshold", "a decision whose deciding number lies within this share of "
+                                                            "its threshold is marked close in the trace")
+    # --- structure outside the vocabulary (probes) -----------------------------------------
+    probe_gain: float = knob(0.1, "relative held-out cost", "a probe for structure outside the vocabulary must cut the "
+                                                            "held-out cost by this much")
+    probe_share: float = knob(0.5, "share of a channel's systematic residual (or of a band's power)",
+                              "...and account for this share: structure outside the vocabulary dominates what is left")
+    probe_refits: int = knob(2, "probes", "screened probes refitted")
+    # --- the verdict on structure left (floor) ---------------------------------------------
+    unexplained: float = knob(1.5, "systematic ratio", "structure is reported unexplained above this (a clear margin over "
+                                                       "`systematic`)...")
+    margin: float = knob(2.0, "x the model's own floor", "...and above this many times the model's own floor")
+    gross: float = knob(10.0, "x the unexplained threshold", "structure this far beyond is no form error of a model that "
+                                                             "fits: unexplained whatever a probe says; refused with a rig "
+                                                             "parameter pinned")
+    floor_realisations: int = knob(2, "synthetic records", "records of the fitted model itself (its prediction with the "
+                                                           "record's noise) its own floor is the worst of")
+    form_lags_s: tuple[float, ...] = knob((0.004, 0.02, 0.1), "s", "first-order lags of the model's own signals in the "
+                                                                    "linear map of its form errors")
+    form_ridge: float = knob(1e-2, "per sample", "ridge weight of the form map's standardised regressors: the lags are "
+                                                 "nearly collinear and must not extrapolate to the held-out samples")
+    # --- claim thresholds of the valve family's effects ---------------------------------------
+    min_asymmetry: float = knob(0.1, "share of the mean Coulomb friction", "a few percent is the friction law's form")
+    min_gain_error: float = knob(0.01, "relative gain error", "transducers are calibrated to 0.1-0.5 %")
+    min_null_bias: float = knob(0.002, "share of the rated command", "a servo-valve's null is set to about 0.1 % of it")
+    min_leakage: float = knob(0.005, "share of the rated flow at supply", "a valve's own null leakage is 1-3 % of it; the "
+                                                                          "underlap takes a leak that small")
+
+    def describe(self) -> dict[str, dict[str, Any]]:
+        """{name: {value, unit, reason}} of every setting."""
+        return {f.name: {"value": _plain(getattr(self, f.name)), "unit": f.metadata["unit"], "reason": f.metadata["reason"]}
+                for f in dataclasses.fields(self)}
+
+    def to_json(self) -> dict[str, Any]:
+        """{name: value} (report.json's `settings`)."""
+        return {f.name: _plain(getattr(self, f.name)) for f in dataclasses.fields(self)}
+
+    @classmethod
+    def from_json(cls, d: dict[str, Any]) -> "SearchSettings":
+        known = {f.name: f for f in dataclasses.fields(cls)}
+        unknown = sorted(set(d) - set(known))
+        if unknown:
+            raise ValueError(f"unknown search setting(s): {', '.join(unknown)}")
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+
+
+def _plain(v: Any) -> Any:
+    return list(v) if isinstance(v, tuple) else v
+
+
+DEFAULT = SearchSettings()
