@@ -11,7 +11,7 @@ import htm
 from htm import control, errors, params, run, spec
 from htm.core import Machine, Params
 from htm.devices import config
-from htm.fatigue import data, e647
+from htm.fatigue import data, e647, sn, staircase, strainlife
 from htm.ident import diagnose, proving, records
 from htm.record import store
 
@@ -29,6 +29,8 @@ REAL = {
     "HtmError": errors.HtmError, "ParameterError": errors.ParameterError, "InputError": errors.InputError,
     "SolverError": errors.SolverError, "SpecError": errors.SpecError, "InfeasibleTest": errors.InfeasibleTest, "RecordError": errors.RecordError,
     "DeviceError": errors.DeviceError, "InterlockTripped": errors.InterlockTripped,
+    "read_sn": sn.read_sn, "sn_fit": sn.sn_fit, "miner_damage": sn.miner_damage, "staircase": staircase.dixon_mood,
+    "read_en": strainlife.read_en, "en_fit": strainlife.en_fit,
 }
 # the names this branch documented (htm.ident's docstrings are its own work's to convert)
 NUMPYDOC = ["thesis_rig", "TestSpec", "load_spec", "run_test", "Store", "Session", "virtual_config",
