@@ -46,8 +46,8 @@ def run_spec(spec: TestSpec, mode: str | None = None, progress: bool = False) ->
     if bar:
         out = box.get("out")
         if out:
-            f, _ = _crack_fraction(spec, int(out["cycles"]), float(out["a_end_m"]))
-            bar.close(out["end_reason"], f, int(out["cycles"]))
+            f, where = _crack_fraction(spec, int(out["cycles"]), float(out["a_end_m"]))
+            bar.close(f"{out['end_reason']}: {where}", f, int(out["cycles"]))
         else:
             bar.close("failed")
     if "err" in box:
@@ -122,7 +122,8 @@ def drive(sess: Any, writer: Any, spec: TestSpec | None, progress: bool) -> tupl
     wall = time.perf_counter() - t0
     outcome = sess.outcome()
     if bar:
-        bar.close(outcome["end_reason"] if outcome else None, _crack_fraction(spec, sess.cycle, sess.a_m)[0], sess.cycle)
+        f, where = _crack_fraction(spec, sess.cycle, sess.a_m)
+        bar.close(f"{outcome['end_reason']}: {where}" if outcome else None, f, sess.cycle)
     return dict(outcome, engine_wall_s=engine_s), wall
 
 
