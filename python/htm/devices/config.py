@@ -249,7 +249,8 @@ def parse_config(doc: dict[str, Any], base: Path | None = None) -> RigConfig:
 
     pos = doc.get("position", {})
     _keys(pos, {"bandwidth_per_s", "velocity_gain_m_s_per_v", "integral_time_s", "max_speed_m_s", "protect_force_n",
-                "protect_stiffness_n_m", "y_min_m", "y_max_m", "u_max_v"}, "position")
+                "protect_stiffness_n_m", "y_min_m", "y_max_m", "u_max_v", "low_supply_pa", "startup_low_s", "startup_ramp_s"},
+          "position")
     rig = doc.get("rig", {})
     _keys(rig, {"preset", "overrides"}, "rig")
     return RigConfig(bus, tr, analog, loop, tuple(limits), {k: float(v) for k, v in pos.items()},
