@@ -11,6 +11,7 @@ from htm.control.identify import Plan, identify
 from htm.devices.config import virtual_config
 from htm.errors import HtmError
 from htm.ident.records import read_record
+from htm.record.store import Store
 
 
 def test_a_trip_stops_the_experiment_safely_and_keeps_the_record(tmp_path, monkeypatch):
@@ -25,12 +26,16 @@ def test_a_trip_stops_the_experiment_safely_and_keeps_the_record(tmp_path, monke
     monkeypatch.setattr(rig_mod.VirtualRig, "close", spy)
     cfg = virtual_config("lockstep", virtual={"effects": {}})
     plan = Plan(ramp_speeds_m_s=(0.005,), sweep_s=2.0)
-    res = identify(cfg, tmp_path / "id", plan=plan, inject=("supply_loss", 1.0, 0.8))
+    res = identify(cfg, tmp_path / "id", plan=plan, inject=("supply_loss", 1.0, 0.8), store=tmp_path / "store")
     assert res.tripped and res.tripped[0].startswith("supply_pressure"), res.tripped
     assert res.report is None and not (tmp_path / "id" / "report.json").exists(), "no diagnosis of a cut record"
     assert closed == {"valve": 0.0, "relay": False, "supply": 0.0}, closed
     rec = read_record(tmp_path / "id" / "identify.csv")
     assert rec.columns["t"].size == res.samples > 0.8 * 500
     assert np.isfinite(rec.columns["y"]).all() and json.loads((tmp_path / "id" / "identify.json").read_text())["controller"] is None
+    with Store(tmp_path / "store") as st:  # kept in the test store too, as stopped, with its trip
+        t = st.get(res.test_id)
+        assert t["kind"] == "identify" and t["status"] == "stopped" and "supply_pressure" in t["end_reason"]
+        assert read_record(st.test_dir(res.test_id) / "identify.csv").columns["t"].size == res.samples
     with pytest.raises(HtmError, match="already holds an identification"):
         identify(cfg, tmp_path / "id", plan=plan)

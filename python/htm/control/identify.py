@@ -45,6 +45,7 @@ class Outcome:
     samples: int
     tripped: list[str] = field(default_factory=list)
     report: dict[str, Any] | None = None
+    test_id: str | None = None  # the test store's id of this identification
 
     @property
     def complete(self) -> bool:
@@ -146,10 +147,11 @@ class _Stopped(Exception):
 
 
 def identify(config: RigConfig | str | Path, out: str | Path, *, specimen: Any = None, plan: Plan | None = None,
-             diagnose: bool = True, inject: tuple[str, float, float] | None = None) -> Outcome:
-    """Run the experiment on the configured rig, record it into `out`, diagnose it there.
-    `inject` = (fault, value, at_s): a virtual rig's fault injected that far into the experiment
-    (the safety path's test)."""
+             diagnose: bool = True, inject: tuple[str, float, float] | None = None, store: Any = None) -> Outcome:
+    """Run the experiment on the configured rig, record it into `out`, diagnose it there, and
+    keep the record (and the report and model) as a test of kind `identify` in the test store
+    (`store`: its root, default $HTM_STORE; False = not stored). `inject` = (fault, value, at_s):
+    a virtual rig's fault injected that far into the experiment (the safety path's test)."""
     from htm.ident.records import write_record
 
     cfg = load_config(config) if isinstance(config, (str, Path)) else config
@@ -191,11 +193,53 @@ def identify(config: RigConfig | str | Path, out: str | Path, *, specimen: Any =
         s.close()  # valve null, amplifier off, supply unloaded
     write_record(rec, base)
     res = Outcome(base, len(rec.columns["t"]), tripped)
-    if diagnose and not tripped:
-        from htm.ident.diagnose import diagnose as run_diagnosis
+    test_id = _store_open(store, plan, res) if store is not False else None
+    try:
+        if diagnose and not tripped:
+            from htm.ident.diagnose import diagnose as run_diagnosis
 
-        res.report = run_diagnosis(rec, out_dir=out)
+            res.report = run_diagnosis(rec, out_dir=out)
+    finally:
+        if test_id is not None:
+            _store_close(store, test_id, out, res)
+    res.test_id = test_id
     return res
+
+
+def _store_open(root: Any, plan: Plan, res: Outcome) -> str:
+    import dataclasses
+    import json
+
+    from htm.record.store import Store
+
+    with Store(root) as st:
+        test_id = st.create_test("identify", "identify", None, "json", json.dumps(dataclasses.asdict(plan)))
+        import shutil
+
+        for ext, role in ((".csv", "record"), (".json", "record_meta")):
+            dst = st.test_dir(test_id) / f"identify{ext}"
+            shutil.copy2(res.record_base.with_suffix(ext), dst)
+            st.add_file(test_id, role, dst)
+        for why in res.tripped:
+            st.add_event(test_id, "trip", why, source="identify")
+        return test_id
+
+
+def _store_close(root: Any, test_id: str, out: Path, res: Outcome) -> None:
+    import shutil
+
+    from htm.record.store import Store
+
+    with Store(root) as st:
+        for name, role in (("report.json", "report"), ("model.json", "model")):
+            if (out / name).exists():
+                dst = st.test_dir(test_id) / name
+                shutil.copy2(out / name, dst)
+                st.add_file(test_id, role, dst)
+        findings = (res.report or {}).get("findings") or []
+        st.set_results(test_id, {"samples": res.samples, "findings": [f["effect"] for f in findings]})
+        st.set_status(test_id, "stopped" if res.tripped else ("finished" if res.report is not None else "failed"),
+                      end_reason=("; ".join(res.tripped) or None))
 
 
 def _session_params(s: Session):
