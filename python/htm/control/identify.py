@@ -156,7 +156,14 @@ def identify(config: RigConfig | str | Path, out: str | Path, *, specimen: Any =
 
     cfg = load_config(config) if isinstance(config, (str, Path)) else config
     plan = plan or Plan()
-    cfg = replace(cfg, position={**cfg.position, "max_speed_m_s": plan.max_speed_m_s, "bandwidth_per_s": plan.bandwidth_per_s})
+    pos = {**cfg.position, "max_speed_m_s": plan.max_speed_m_s, "bandwidth_per_s": plan.bandwidth_per_s}
+    if specimen is None and pos.get("protect_force_n", 0.0) > 0.0:
+        # a free piston: protect still brings the speed to zero as |force| nears its level, but its
+        # gain is set so that at zero force it allows the experiment's speed (the installation's
+        # stiff-specimen gain would hold a free piston to ~1 mm/s and leave the mass unexcited)
+        pos["protect_stiffness_n_m"] = min(pos.get("protect_stiffness_n_m", 1e8),
+                                           plan.bandwidth_per_s * pos["protect_force_n"] / plan.max_speed_m_s)
+    cfg = replace(cfg, position=pos)
     out = Path(out)
     base = out / "identify"
     if any(base.with_suffix(x).exists() for x in (".csv", ".json")) or (out / "report.json").exists():
