@@ -116,6 +116,16 @@ impl Probe {
         self.history[0].len()
     }
 
+    /// Drop all but the newest `keep` samples (a consumer that runs for hours: the virtual rig);
+    /// readings need the samples back to the longest delay.
+    pub fn keep_latest(&mut self, keep: usize) {
+        for h in &mut self.history {
+            if h.len() > keep {
+                h.drain(..h.len() - keep);
+            }
+        }
+    }
+
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }

@@ -1,10 +1,13 @@
 //! The virtual rig's plant: the machine with a specimen whose crack grows cycle by cycle from
 //! the force it actually sees (peaks and valleys found with a hysteresis), K_sp(a) fed back
-//! into the machine, and the plant-side faults (supply pressure, fracture).
+//! into the machine, and the plant-side faults (supply pressure, fracture). Its readings go
+//! through the measurement model of its parameters (`measure`: the EFFECTS sensor effects the
+//! identification simulates, one copy), so a virtual rig can carry hidden sensor effects.
 use crate::crack::Law;
 use crate::engine::measured_k;
 use crate::error::{Error, Result};
 use crate::machine::{Machine, Outputs};
+use crate::measure::{as_outputs, Probe, Sensor, Sensors};
 use crate::params::Params;
 use crate::specimen::{Material, Specimen};
 
@@ -102,6 +105,10 @@ pub struct RigPlant {
     /// supply pressure the relief valve is set to [Pa] and its time constant [s]
     pub supply_setpoint_pa: f64,
     pub supply_tau_s: f64,
+    /// the sensors when they are not ideal (offset, gain, delay or filter)
+    sensors: Option<Sensors>,
+    /// their history: the probe, the period it samples and how many samples it keeps
+    probe: Option<(Probe, f64, usize)>,
 }
 
 impl RigPlant {
@@ -120,11 +127,27 @@ impl RigPlant {
             p.specimen_stiffness_n_m = s.stiffness();
         }
         let ps = p.supply_pressure_pa;
-        Ok(RigPlant { machine: Machine::new(p)?, specimen, supply_setpoint_pa: ps, supply_tau_s: 0.05 })
+        let sensors = Sensors::from_params(&p);
+        let sensors = sensors.0.iter().any(|s| *s != Sensor::IDEAL).then_some(sensors);
+        Ok(RigPlant { machine: Machine::new(p)?, specimen, supply_setpoint_pa: ps, supply_tau_s: 0.05, sensors, probe: None })
     }
 
-    /// Hold valve command `u` [V] for `dt` [s]; returns the ideal sensor readings.
+    /// Hold valve command `u` [V] for `dt` [s]; returns the sensor readings (the true outputs
+    /// through the sensors of the parameters; the specimen sees the true force).
     pub fn step(&mut self, u: f64, dt: f64) -> Result<Outputs> {
+        let o = self.step_true(u, dt)?;
+        let Some(sensors) = self.sensors else { return Ok(o) };
+        if self.probe.as_ref().is_none_or(|(_, pdt, _)| *pdt != dt) {
+            let delay = sensors.0.iter().map(|s| s.delay_s).fold(0.0, f64::max);
+            self.probe = Some((Probe::new(sensors, dt, 64), dt, (delay / dt).ceil() as usize + 4));
+        }
+        let (probe, _, keep) = self.probe.as_mut().expect("set above");
+        probe.push(&o);
+        probe.keep_latest(*keep);
+        Ok(Outputs { spool: o.spool, ..as_outputs(&probe.read_latest()) })
+    }
+
+    fn step_true(&mut self, u: f64, dt: f64) -> Result<Outputs> {
         let p = &mut self.machine.plant.p;
         // the relief valve follows its setpoint with a first-order lag (never below tank + 1 bar)
         let target = self.supply_setpoint_pa.max(p.tank_pressure_pa + 1e5);

@@ -1,5 +1,6 @@
 """`htm rig serve CONFIG`: run the virtual rig as its own process on the configured bus and
-shared-memory DAQ, answering each SYNC with one plant period, until interrupted."""
+shared-memory DAQ, answering each SYNC with one plant period, until interrupted.
+`htm rig identify CONFIG --out DIR`: the identification experiment (`htm.control.identify`)."""
 from __future__ import annotations
 
 import argparse
@@ -33,6 +34,32 @@ def cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_identify(args: argparse.Namespace) -> int:
+    from htm.control.identify import Plan, identify
+
+    specimen = None
+    if args.specimen:
+        from htm.spec import load
+
+        specimen = load(args.specimen)
+    plan = Plan(amplitude_m=args.amplitude * 1e-3) if args.amplitude else Plan()
+    res = identify(args.config, args.out, specimen=specimen, plan=plan)
+    print(f"record: {res.record_base}.csv + .json ({res.samples} samples)")
+    if res.tripped:
+        print(f"experiment stopped safely (valve null, amplifier off, supply unloaded): {'; '.join(res.tripped)}; "
+              "the samples recorded up to the trip are kept; no diagnosis")
+        return 1
+    findings = (res.report or {}).get("findings") or []
+    for f in findings:
+        ch = f" on {f['channel']}" if f.get("channel") else ""
+        params = ", ".join(f"{k} = {v:.4g}" for k, v in f["params"].items())
+        print(f"finding: {f['effect']}{ch}: {params}")
+    if not findings:
+        print("no finding: the base model explains the rig")
+    print(f"report and model.json: {args.out}")
+    return 0
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     rig = sub.add_parser("rig", help="the virtual rig (serve it to another process)",
                          description="Virtual rig commands.")
@@ -44,3 +71,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--spec", help="test spec TOML whose specimen is gripped (default: none)")
     s.add_argument("--seconds", type=float, default=None, help="stop after this many seconds (default: run until interrupted)")
     s.set_defaults(func=cmd_serve)
+    i = rs.add_parser("identify", help="run an identification experiment on the rig and diagnose it",
+                      description="On the configured rig (a virtual rig's configuration starts that rig here): position "
+                                  "control's start-up, holds, ramps at several speeds and a sine sweep around the installed "
+                                  "position, every detector armed; the samples as a DATA_FORMAT.md record in OUT, then "
+                                  "htm diagnose's report and model.json there. A trip stops the experiment safely.")
+    i.add_argument("config", help="rig configuration TOML")
+    i.add_argument("--specimen", help="test spec TOML whose specimen is gripped (default: none, a free piston)")
+    i.add_argument("--amplitude", type=float, help="motion amplitude around the installed position [mm] (default 4)")
+    i.add_argument("--out", required=True, help="folder for the record, report.json and model.json")
+    i.set_defaults(func=cmd_identify)

@@ -25,6 +25,14 @@ PLAUS_WINDOW = 4  # periods over which the position is checked against the integ
 LOCKSTEP_REPLY_S = 0.05  # lock-step against a rig in another process: its answer to one SYNC
 
 
+def position_settings(cfg: RigConfig, params: core.Params) -> dict[str, float]:
+    """The controller's position-mode settings: the configuration's `[position]` with the plant
+    data the hydraulic start-up needs (working and tank pressure, piston area, moving weight)."""
+    return {"supply_pa": params["supply_pressure_pa"], "tank_pa": params["tank_pressure_pa"],
+            "area_m2": max(params["area_a_m2"], params["area_b_m2"]),
+            "weight_n": params["moving_mass_kg"] * params["gravity_m_s2"], **cfg.position}
+
+
 class ControlLoop:
     """One control period at a time (`period()`), or `run_realtime` on a thread."""
 
@@ -33,7 +41,8 @@ class ControlLoop:
         self.cfg, self.master, self.io, self.pump_rig = cfg, master, io, pump_rig
         self.rate_hz = cfg.loop.rate_hz
         self.dt = 1.0 / self.rate_hz
-        self.ctrl = core.CyclicController(self.rate_hz, cfg.position or None)
+        self.position_settings = position_settings(cfg, params)
+        self.ctrl = core.CyclicController(self.rate_hz, self.position_settings)
         self.log = log or EventLog()
         self.safety = Safety(cfg, self.log)
         self.timing = Timing()
@@ -66,14 +75,24 @@ class ControlLoop:
         self.max_abs_u_after_trip = 0.0
         self.trip_period: int | None = None
         self.stop_requested = False
+        self._supply_written = 0.0
         io.write_valve(0.0)
         io.set_amplifier(False)
-        io.write_supply(self.supply_pa)
+        io.write_supply(0.0)  # hydraulics off until a motion or a test: position control starts them low
 
     # -- outputs ----------------------------------------------------------------------------------
+    def supply_demand_pa(self) -> float:
+        """The supply pressure to ask for now [Pa]: the position start-up's while it runs."""
+        c = self.ctrl
+        return c.supply_demand_pa if c.starting_up else self.supply_pa
+
+    def write_supply(self, pa: float) -> None:
+        self._supply_written = pa
+        self.io.write_supply(pa)
+
     def energise(self) -> None:
         if not self.powered:
-            self.io.write_supply(self.supply_pa)
+            self.write_supply(self.supply_demand_pa())
             self.io.set_amplifier(True)
             self.powered = True
             self.log.add(self.k, "amplifier", "amplifier enabled")
@@ -82,7 +101,7 @@ class ControlLoop:
         self.ctrl.idle()
         self.io.write_valve(0.0)
         self.io.set_amplifier(False)
-        self.io.write_supply(0.0)
+        self.write_supply(0.0)
         if self.powered:
             self.log.add(self.k, "amplifier", f"valve null, amplifier disabled, supply unloaded ({why})")
         self.powered = False
@@ -131,7 +150,9 @@ class ControlLoop:
         val[CH["force_n"]] = f
         val[CH["p_a_pa"]] = p_a
         val[CH["p_b_pa"]] = p_b
-        val[CH["p_s_pa"]] = p_s if self.powered else self.supply_pa
+        # the supply against what is asked of it: during the start-up, scaled to the working pressure
+        demand = self.supply_demand_pa()
+        val[CH["p_s_pa"]] = (p_s * self.supply_pa / demand if demand > 0.0 else p_s) if self.powered else self.supply_pa
         val[CH["following_error_m"]] = c.reference_m - y if st == "position" and not c.protecting else 0.0
         band = 0.0
         if st in ("running", "holding") and c.targets is not None:
@@ -186,6 +207,8 @@ class ControlLoop:
         else:
             lim = c.command_limit_v
             u = max(-lim, min(lim, u))
+            if demand != self._supply_written:
+                self.write_supply(demand)
         self.io.write_valve(u)
         if self.trip_period is not None:
             self.max_abs_u_after_trip = max(self.max_abs_u_after_trip, abs(u))

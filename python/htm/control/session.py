@@ -247,28 +247,67 @@ class Session:
         """The lowest supply pressure the detectors accept [Pa] (0 without a supply limit)."""
         return max((lim.lo for lim in self.cfg.limits if lim.channel == "p_s_pa" and lim.action != "indicate"), default=0.0)
 
-    def _load_supply(self) -> None:
-        """Load the supply and wait until its pressure is within its detector's range, before
-        anything is energised: after a stop, a trip or an e-stop the supply is unloaded, and
-        energising at once would trip the supply detector. Waits at most SUPPLY_TIMEOUT_S."""
+    def _wait(self, done: Callable[[], bool], seconds: float) -> bool:
+        """Run (thread=False) or wait for the loop until `done()`, at most `seconds` of loop time
+        (and ten times that on the wall clock: a loaded host runs late periods); returns whether it came."""
         lp = self.loop
-        need = self._supply_min_pa()
-        if lp.powered or lp.meas["p_s"] >= need:
-            return
-        self._do(lambda: lp.io.write_supply(lp.supply_pa), "load supply")
         k0, t0 = lp.k, time.monotonic()
-        while not lp.meas["p_s"] >= need:
-            waited = (lp.k - k0) * lp.dt
-            if waited > SUPPLY_TIMEOUT_S or time.monotonic() - t0 > 3 * SUPPLY_TIMEOUT_S + 1.0:
-                p = lp.meas["p_s"]
-                self._do(lambda: lp.io.write_supply(0.0), "unload supply (it did not come up)")
-                raise DeviceError(f"the supply pressure did not come up: p_s = {p / 1e5:.1f} bar after {SUPPLY_TIMEOUT_S:g} s, "
-                                  f"the supply_pressure limit needs ≥ {need / 1e5:.1f} bar — check the pump and the relief "
-                                  "valve; nothing was energised")
+        while not done():
+            if (lp.k - k0) * lp.dt > seconds or time.monotonic() - t0 > 10 * seconds + 1.0:
+                return False
             if self._thread is None:
                 lp.period()
             else:
                 time.sleep(0.005)
+        return True
+
+    def _load_supply(self, low: bool = False) -> None:
+        """Load the supply and wait until its pressure is within its detector's range, before
+        anything is energised: after a stop, a trip or an e-stop the supply is unloaded, and
+        energising at once would trip the supply detector. Waits at most SUPPLY_TIMEOUT_S.
+        `low`: position control's start-up pressure instead (the controller's), reached from
+        above or below."""
+        lp = self.loop
+        if lp.powered:
+            return
+        if low:
+            target = self._low_supply_pa()
+
+            def ok() -> bool:
+                return abs(lp.meas["p_s"] - target) <= 0.2 * target + 0.5e5
+            what, need = f"{target / 1e5:.1f} bar (start-up)", target
+        else:
+            need = self._supply_min_pa()
+            target = lp.supply_pa
+
+            def ok() -> bool:
+                return lp.meas["p_s"] >= need
+            what = f"≥ {need / 1e5:.1f} bar (the supply_pressure limit)"
+        if ok() and lp._supply_written == target:
+            return
+        self._do(lambda: lp.write_supply(target), "load supply")
+        if not self._wait(ok, SUPPLY_TIMEOUT_S):
+            p = lp.meas["p_s"]
+            self._do(lambda: lp.write_supply(0.0), "unload supply (it did not come up)")
+            raise DeviceError(f"the supply pressure did not come up: p_s = {p / 1e5:.1f} bar after {SUPPLY_TIMEOUT_S:g} s, "
+                              f"needed {what} — check the pump and the relief valve; nothing was energised")
+
+    def _low_supply_pa(self) -> float:
+        """Position control's start-up supply pressure [Pa] (the controller's choice)."""
+        probe = core.CyclicController(self.loop.rate_hz, self.loop.position_settings)
+        probe.position(0.1, 0.0)
+        return probe.supply_demand_pa
+
+    def _started_up(self) -> None:
+        """Wait until position control's hydraulic start-up has reached the working pressure."""
+        lp = self.loop
+        g = lp.position_settings
+        budget = g.get("startup_low_s", 1.0) + g.get("startup_ramp_s", 1.0) + 2.0  # + the unload (≤ 1 s)
+        if not self._wait(lambda: not lp.ctrl.starting_up or not lp.powered, budget):
+            raise DeviceError(f"position control's start-up did not finish in {budget:g} s (state {lp.ctrl.state})")
+        if not lp.powered:
+            raise InterlockTripped("position control's start-up was stopped: " +
+                                   "; ".join(e["message"] for e in self.log.since(0)[-3:]))
 
     def _reading(self, key: str, what: str) -> float:
         v = self.loop.meas[key]
@@ -277,29 +316,35 @@ class Session:
         return v
 
     def position(self) -> None:
-        """Position control holding where the piston is (installation), amplifier on."""
+        """Position control holding where the piston is (installation), amplifier on. From the
+        amplifier off, the hydraulics start at low pressure: the controller learns the valve's
+        null with the specimen carrying only the piston's weight, ramps to the working pressure
+        and takes the weight off (the specimen is then at zero load); returns once done."""
+        self._enter_position(None, "position control")
+
+    def _enter_position(self, fn: Callable[[], None] | None, what: str) -> None:
         self._motion_allowed()
-        self._load_supply()
+        lp = self.loop
+        cold = not lp.powered
+        self._load_supply(low=cold)
 
         def f() -> None:
             self._motion_allowed()
-            lp = self.loop
-            lp.ctrl.position(self._reading("y", "position control"), 0.0)
+            if lp.ctrl.state != "position" or fn is None:
+                # bumpless from the present command when powered; from cold the controller's start-up
+                lp.ctrl.position(self._reading("y", what), lp.ctrl.u_last_v if lp.powered else 0.0)
             lp.energise()
-        self._do(f, "position control")
+        if fn is None or lp.ctrl.state != "position" or not lp.powered:
+            self._do(f, "position control")
+        self._started_up()
+        if fn is not None:
+            def g() -> None:
+                self._motion_allowed()
+                fn()
+            self._do(g, what)
 
     def _in_position(self, fn: Callable[[], None], what: str) -> None:
-        self._motion_allowed()
-        self._load_supply()
-
-        def f() -> None:
-            self._motion_allowed()
-            lp = self.loop
-            if lp.ctrl.state != "position":
-                lp.ctrl.position(self._reading("y", what), 0.0)
-            lp.energise()
-            fn()
-        self._do(f, what)
+        self._enter_position(fn, what)
 
     def jog(self, rate_m_s: float) -> None:
         """Move at `rate_m_s` [m/s] (0 stops) in position control with specimen protect."""
@@ -332,7 +377,7 @@ class Session:
         cfg = spec.to_config()
         cfg["params"] = with_overrides(core.Params(self.cfg.rig_preset), self.cfg.rig_overrides)
         lp = self.loop
-        ctrl = core.CyclicController(lp.rate_hz, self.cfg.position or None)
+        ctrl = core.CyclicController(lp.rate_hz, lp.position_settings)
         f0 = lp.meas["f"] if f0_n is None else f0_n
         ctrl.start_test(cfg, 0.0 if math.isnan(f0) else f0)
 
@@ -393,7 +438,7 @@ class Session:
             if not still:
                 lp.ctrl.command_limit_v = math.inf
                 lp.trip_period = None
-                lp.io.write_supply(lp.supply_pa)
+                lp.write_supply(lp.supply_pa)
             return still
         return self._do(f, "reset interlocks")
 

@@ -132,6 +132,11 @@ class RigConfig:
     # the virtual rig's machine: preset and parameter overrides (SI)
     rig_preset: str = "thesis"
     rig_overrides: dict[str, float] = field(default_factory=dict)
+    # `[virtual.effects]`: the virtual rig's hidden effects (EFFECTS.md id -> its parameters, SI,
+    # and `channel` for a sensor effect). None = the preset's machine as it is; a table (even an
+    # empty one) = the EFFECTS.md base model of the rig with exactly these effects (nothing but
+    # the virtual rig's plant knows them: not the controller, the spec nor the session)
+    virtual_effects: dict[str, dict[str, Any]] | None = None
 
     def detector_specs(self) -> list[dict[str, Any]]:
         """The limits as `htm.core.Detectors` items."""
@@ -191,7 +196,7 @@ def _channel_map(channels: dict[str, Any]) -> dict[str, str]:
 def parse_config(doc: dict[str, Any], base: Path | None = None) -> RigConfig:
     """Validate a parsed TOML document into a `RigConfig` (raises DeviceError)."""
     base = base or Path.cwd()
-    _keys(doc, {"bus", "transducer", "analog", "loop", "limits", "position", "rig"}, "config")
+    _keys(doc, {"bus", "transducer", "analog", "loop", "limits", "position", "rig", "virtual"}, "config")
     b = doc.get("bus", {})
     _keys(b, {"interface", "channel", "options"}, "bus")
     interface = str(b.get("interface", "virtual"))
@@ -250,11 +255,47 @@ def parse_config(doc: dict[str, Any], base: Path | None = None) -> RigConfig:
 
     pos = doc.get("position", {})
     _keys(pos, {"bandwidth_per_s", "velocity_gain_m_s_per_v", "integral_time_s", "max_speed_m_s", "protect_force_n",
-                "protect_stiffness_n_m", "y_min_m", "y_max_m", "u_max_v"}, "position")
+                "protect_stiffness_n_m", "y_min_m", "y_max_m", "u_max_v", "low_supply_pa", "startup_low_s", "startup_ramp_s"},
+          "position")
     rig = doc.get("rig", {})
     _keys(rig, {"preset", "overrides"}, "rig")
+    virt = doc.get("virtual", {})
+    _keys(virt, {"effects"}, "virtual")
+    effects = _effects(virt["effects"]) if "effects" in virt else None
     return RigConfig(bus, tr, analog, loop, tuple(limits), {k: float(v) for k, v in pos.items()},
-                     str(rig.get("preset", "thesis")), {k: float(v) for k, v in rig.get("overrides", {}).items()})
+                     str(rig.get("preset", "thesis")), {k: float(v) for k, v in rig.get("overrides", {}).items()}, effects)
+
+
+def _effects(table: Any) -> dict[str, dict[str, Any]]:
+    """Validate `[virtual.effects]`: each key an EFFECTS.md id, its value a table of that effect's
+    parameters (SI; `channel` for sensor effects), each switched on once on the base model so that
+    an unknown id, parameter or channel and an out-of-range value are refused here."""
+    from htm.core import Params
+    from htm.ident.sim import effect_fields, with_effect
+
+    if not isinstance(table, dict):
+        raise _err("[virtual.effects] must be a table: one key per EFFECTS.md id, e.g. valve_null_bias = { bias_v = 0.1 }")
+    out: dict[str, dict[str, Any]] = {}
+    for eid, spec in table.items():
+        where = f"virtual.effects.{eid}"
+        if not isinstance(spec, dict):
+            raise _err(f"{where} = {spec!r}: give the effect's parameters as a table, e.g. {{ bias_v = 0.1 }}")
+        values = {k: v for k, v in spec.items() if k != "channel"}
+        bad = [k for k, v in values.items() if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)]
+        if bad:
+            raise _err(f"{where}.{bad[0]} = {values[bad[0]]!r}: a finite number (SI) is needed")
+        channel = spec.get("channel")
+        try:
+            with_effect(Params("base"), eid, values, channel)
+            missing = [k for k in effect_fields(eid, channel) if k not in values]
+            if missing:
+                raise _err(f"{where}: needs {', '.join(missing)} (EFFECTS.md)")
+        except DeviceError:
+            raise
+        except Exception as e:  # InputError or ParameterError of the effect's parameters
+            raise _err(f"{where}: {e}") from None
+        out[eid] = {"channel": channel, "values": {k: float(v) for k, v in values.items()}}
+    return out
 
 
 def load_config(path: str | Path) -> RigConfig:

@@ -23,6 +23,26 @@ FAULTS = ("transducer_silent", "transducer_stuck", "transducer_nan", "heartbeat_
           "supply_loss", "valve_stuck", "load_drift", "fracture")
 
 
+def plant_params(cfg: RigConfig) -> core.Params:
+    """The virtual rig's machine: the preset with its overrides; with `[virtual.effects]`, the
+    EFFECTS.md base model of that rig (what `htm diagnose` starts from, built by the same
+    function) with exactly the configured effects switched on (`htm.ident.sim.with_effect`)."""
+    p = with_overrides(core.Params(cfg.rig_preset), cfg.rig_overrides)
+    if cfg.virtual_effects is None:
+        return p
+    from htm.ident.sim import params_from_meta, with_effect
+    from htm.params import rig_metadata
+
+    rig = {**rig_metadata(p), "valve_polarity": p["valve_polarity"], "valve_underlap_v": p["valve_underlap_v"],
+           **{k: p[k] for k in p.keys() if k.startswith("friction_")}}
+    base = params_from_meta({"rig": rig, "specimen": None})
+    # what the metadata does not carry stays the rig's (the specimen's zero-force position)
+    base["specimen_zero_force_position_m"] = p["specimen_zero_force_position_m"]
+    for eid, e in cfg.virtual_effects.items():
+        base = with_effect(base, eid, e["values"], e["channel"])
+    return base
+
+
 def _idx(ch: str) -> int:
     return int(ch.lstrip("airelyo"))
 
@@ -32,7 +52,7 @@ class VirtualRig:
 
     def __init__(self, cfg: RigConfig, specimen: dict | None = None, threaded: bool = True):
         self.cfg = cfg
-        self.params = with_overrides(core.Params(cfg.rig_preset), cfg.rig_overrides)
+        self.params = plant_params(cfg)
         self.plant = core.RigPlant(self.params, specimen)
         self.dt = 1.0 / cfg.loop.rate_hz
         ch = cfg.analog.channels

@@ -79,6 +79,33 @@ def cmd_fleet_add(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_fleet_identify(args: argparse.Namespace) -> int:
+    """`htm rig identify` on a machine, its record and identified parameters added to the fleet
+    catalogue under MACHINE and the date: re-identifying a rig trends it (`htm fleet trend`)."""
+    import datetime
+    import time
+
+    from htm.control.identify import identify
+    from htm.fleet import catalogue
+    from htm.ident.records import read_record
+
+    catalogue.check_name("--machine", args.machine)
+    date = catalogue.check_date(args.date or datetime.date.today().isoformat())
+    res = identify(args.config, args.out, store=args.store)
+    print(f"record: {res.record_base}.csv + .json ({res.samples} samples)")
+    if res.tripped:
+        print(f"experiment stopped safely: {'; '.join(res.tripped)}; the record is kept, nothing added to the fleet")
+        return 1
+    rec = read_record(f"{res.record_base}.csv")
+    name = f"identify-{time.strftime('%H%M%S', time.gmtime())}"
+    with open_store(args.store, must_exist=False) as store:
+        catalogue.put_record(store, rec, args.machine, date, name)
+        n = catalogue.add(store, args.machine, date, name, res.report)
+    found = ", ".join(f["effect"] for f in res.report.get("findings", [])) or "none"
+    print(f"fleet: {args.machine} {date} {name}: {n} parameters kept (findings: {found}); `htm fleet trend {args.machine}`")
+    return 0
+
+
 def cmd_fleet_diagnose(args: argparse.Namespace) -> int:
     from htm.fleet import catalogue
 
@@ -212,6 +239,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     d.add_argument("--work-s", type=float, default=20.0, help="search effort per record (diagnose's work_s, default 20)")
     add_json_flag(d)
     d.set_defaults(func=cmd_fleet_diagnose)
+    i = fs.add_parser("identify", help="identify a rig (`htm rig identify`) and add it to the fleet catalogue",
+                      description="Run `htm rig identify` on the rig of CONFIG, keep its record in the store for MACHINE "
+                                  "on DATE and its identified parameters in the fleet catalogue, so that each "
+                                  "re-identification of the machine is trended by `htm fleet trend`.")
+    i.add_argument("config", help="rig configuration TOML")
+    i.add_argument("--machine", required=True, help="the machine (frame) identified")
+    i.add_argument("--date", help="the date, YYYY-MM-DD (default today)")
+    i.add_argument("--out", required=True, help="folder for the record, report.json and model.json")
+    i.add_argument("--store", help="test store: a folder or postgresql://USER@HOST:PORT/DB")
+    i.set_defaults(func=cmd_fleet_identify)
     t = fs.add_parser("trend", help="a machine's identified parameters by date, flagging drift beyond their own scatter",
                       description="Print (and plot with --out) every identified parameter of MACHINE by date; the latest "
                                   "value is flagged DRIFT when it lies more than K σ from the mean of the earlier dates "

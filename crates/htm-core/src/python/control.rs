@@ -62,6 +62,13 @@ impl PyCyclic {
             y_min_m: opt_f(position, "y_min_m", d.y_min_m)?,
             y_max_m: opt_f(position, "y_max_m", d.y_max_m)?,
             u_max_v: opt_f(position, "u_max_v", d.u_max_v)?,
+            supply_pa: opt_f(position, "supply_pa", d.supply_pa)?,
+            tank_pa: opt_f(position, "tank_pa", d.tank_pa)?,
+            area_m2: opt_f(position, "area_m2", d.area_m2)?,
+            weight_n: opt_f(position, "weight_n", d.weight_n)?,
+            low_supply_pa: opt_f(position, "low_supply_pa", d.low_supply_pa)?,
+            startup_low_s: opt_f(position, "startup_low_s", d.startup_low_s)?,
+            startup_ramp_s: opt_f(position, "startup_ramp_s", d.startup_ramp_s)?,
         };
         Ok(PyCyclic { inner: Cyclic::new(rate_hz, g)? })
     }
@@ -144,6 +151,16 @@ impl PyCyclic {
     #[getter]
     fn protecting(&self) -> bool {
         self.inner.protecting()
+    }
+    /// True while position control's hydraulic start-up runs (low pressure, then the ramp).
+    #[getter]
+    fn starting_up(&self) -> bool {
+        self.inner.starting_up()
+    }
+    /// The supply pressure the controller asks for now [Pa] (0 without a known supply).
+    #[getter]
+    fn supply_demand_pa(&self) -> f64 {
+        self.inner.supply_demand_pa()
     }
     #[getter]
     fn reference_m(&self) -> f64 {

@@ -1,0 +1,91 @@
+"""Start-up that protects the specimen (issue 30, item 1), on the virtual rig over its real
+virtual CAN bus and simulated DAQ: from power-on (hydraulics off, amplifier off) through position
+control's low-pressure start-up to the working pressure, then jogs and moves into and out of the
+gripped specimen, the force of every control period stays inside specimen protect + 5 %, for the
+C(T) and the M(T) specimens of `examples/`. Before the fix, entering position control put about
+−12.9 kN on the C(T) and held it there."""
+from pathlib import Path
+
+import pytest
+
+from htm.control import Session
+from htm.control.session import specimen_of
+from htm.devices.config import virtual_config
+from htm.spec import load
+
+ROOT = Path(__file__).resolve().parents[1]
+PROTECT_N = 2000.0
+
+
+def _recording(s: Session) -> list[dict]:
+    """Every control period's measured force, supply pressure and controller state."""
+    lp = s.loop
+    rows: list[dict] = []
+    period = lp.period
+
+    def recorded() -> float:
+        u = period()
+        m = lp.meas
+        rows.append({"k": lp.k, "f": m["f"], "p_s": m["p_s"], "state": lp.ctrl.state, "starting": lp.ctrl.starting_up,
+                     "amplifier": lp.powered})
+        return u
+    lp.period = recorded
+    return rows
+
+
+@pytest.mark.parametrize("example", ["ct_constant_force.toml", "virkler_mt.toml"])
+def test_power_on_to_high_pressure_and_install_moves_stay_inside_protect(example):
+    spec = load(ROOT / "examples" / example)
+    cfg = virtual_config("lockstep", position={"protect_force_n": PROTECT_N})
+    s = Session().open(cfg, virtual=True, specimen=specimen_of(spec), thread=False)
+    try:
+        rows = _recording(s)
+        s.step(250)  # powered on, hydraulics off: the specimen takes the piston's weight
+        assert not s.snapshot()["amplifier"]
+        s.position()  # returns at the working pressure
+        start = [r for r in rows if r["starting"]]
+        low = min(r["p_s"] for r in start)
+        assert start and low < 0.1 * s.loop.supply_pa, f"the supply came up low: {low / 1e5:.1f} bar"
+        snap = s.snapshot()
+        assert snap["amplifier"] and not s.loop.ctrl.starting_up
+        assert snap["p_s"] == pytest.approx(s.loop.supply_pa, rel=0.03), "at the working pressure"
+        assert abs(snap["f"]) < 0.1 * PROTECT_N, f"the start-up leaves the specimen unloaded: {snap['f']:.0f} N"
+        s.tare()
+        y0 = snap["y"]
+        s.jog(0.01)  # far faster than a gripped specimen allows
+        s.step(1000)
+        assert s.snapshot()["protecting"] and s.snapshot()["f"] > 0.8 * PROTECT_N
+        s.jog(-0.01)
+        s.step(1500)
+        assert s.snapshot()["f"] < -0.8 * PROTECT_N
+        s.jog(0.0)
+        s.move_to(y0 + 1e-3)  # 1 mm into the specimen: ~100 kN on the C(T) unprotected
+        s.step(1000)
+        s.move_to(y0)
+        s.step(1000)
+        s.jog_step(-2e-4)
+        s.step(500)
+        worst = max(abs(r["f"]) for r in rows)
+        assert worst <= 1.05 * PROTECT_N, f"peak |f| {worst:.0f} N past protect + 5 %"
+        assert not [e for e in s.events_since(0) if e["kind"] == "trip"], "no detector tripped"
+        assert len(rows) > 5000
+    finally:
+        s.close()
+
+
+def test_protect_holds_when_position_control_is_entered_again_while_powered():
+    """Install pressed again (or after a hold trip): bumpless from the present command, no
+    second start-up, the learned null kept — the integrator is never reset to zero."""
+    spec = load(ROOT / "examples" / "ct_constant_force.toml")
+    s = Session().open(virtual_config("lockstep", position={"protect_force_n": PROTECT_N}), virtual=True,
+                       specimen=specimen_of(spec), thread=False)
+    try:
+        s.position()
+        rows = _recording(s)
+        s.step(100)
+        s.position()
+        s.step(500)
+        assert not any(r["starting"] for r in rows)
+        assert max(abs(r["f"]) for r in rows) < 0.25 * PROTECT_N
+    finally:
+        s.close()
