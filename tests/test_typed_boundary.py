@@ -126,6 +126,8 @@ def test_outcome_and_tables_are_typed_and_arrow():
     assert types["cycle"] == pa.uint64() and types["phase"] == pa.uint8() and types["events"] == pa.uint32()
     assert types["a_m"] == pa.float64() and types["delta_k_pa_sqrt_m"] == pa.float64()
     assert batch.num_rows == len(o.table) > 100
+    # the same schema as a table built from numpy columns (what cycles.parquet held before)
+    assert batch.schema == pa.table({k: o.table[k] for k in o.table.keys()}).schema
     np.testing.assert_array_equal(batch.column("a_m").to_numpy(), o.table["a_m"])
     assert batch.column("a_m").to_numpy()[-1] == pytest.approx(o.a_end_m, rel=1e-3)
     # the columns survive the batch that exported them (the core's buffers stay alive)

@@ -174,9 +174,11 @@ fn array(owner: &Arc<dyn Columns>, len: usize, buffers: Vec<*const c_void>, chil
     }
 }
 
-/// The schema of `t`: a struct of its columns (non-nullable), as an Arrow record batch is.
+/// The schema of `t`: a struct of its columns, as an Arrow record batch is. The columns are
+/// declared nullable (none holds a null: `null_count` 0), as pyarrow declares a numpy column, so
+/// a table written from the batch has the same Parquet schema as one written from numpy.
 fn struct_schema(t: &dyn Columns) -> ArrowSchema {
-    let children = t.columns().iter().map(|(name, c)| schema(c.format(), name, false, Vec::new())).collect();
+    let children = t.columns().iter().map(|(name, c)| schema(c.format(), name, true, Vec::new())).collect();
     schema(c"+s", "", false, children)
 }
 
