@@ -56,12 +56,13 @@ def short_spec(folder: Path, c_scale: float) -> Path:
 
 def reference(spec_path: Path) -> tuple[dict, np.ndarray]:
     spec = parse(tomllib.loads(spec_path.read_text()), spec_path.stem)
-    s = core.TestRun(spec.to_config(), "full", core.RAW_POLICY)
+    s = core.TestRun(spec.config, "full", core.RAW_POLICY)
     tables, raws = [], []
     while not s.finished:
         d = s.advance(max_seconds=60.0)
-        tables.append(d["table"])
-        raws.append(d["raw"])
+        tables.append(core.columns(d.table))
+        raw = core.columns(d.raw)
+        raws.append(np.column_stack([raw[k] for k in core.RAW_COLUMNS]))
     from htm.record.store import concat
 
     return concat(tables), np.concatenate(raws)

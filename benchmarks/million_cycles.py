@@ -52,7 +52,7 @@ FREQS = (1.0, 10.0, 20.0, 30.0, 40.0)
 
 def full_child(out: str) -> None:
     """(i) and (ii) in a fresh process (its peak RSS is the run's), with whatever htm it imports."""
-    cfg = parse(spec_doc()).to_config()
+    cfg = parse(spec_doc()).config
     t0, c0 = time.perf_counter(), time.process_time()
     o = core.run_test(cfg, "full")
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
@@ -62,10 +62,10 @@ def full_child(out: str) -> None:
         t0 = time.perf_counter()
         jump = core.run_test(cfg, "jump")
         walls.append(time.perf_counter() - t0)
-    Path(out).write_text(json.dumps({"cycles": o["cycles"], "a_end_m": o["a_end_m"], "wall_s": wall, "cpu_s": cpu, "end_reason": o["end_reason"],
-                                     "max_abs_df_err_pct": o["max_abs_df_err_pct"], "peak_rss_mb": rss,
-                                     "rows": len(o["table"]["cycle"]), "jump_cycles": jump["cycles"], "jump_a_end_m": jump["a_end_m"],
-                                     "jump_cycles_simulated": jump["cycles_simulated"], "jump_wall_s": min(walls)}))
+    Path(out).write_text(json.dumps({"cycles": o.cycles, "a_end_m": o.a_end_m, "wall_s": wall, "cpu_s": cpu, "end_reason": o.end_reason,
+                                     "max_abs_df_err_pct": o.max_abs_df_err_pct, "peak_rss_mb": rss,
+                                     "rows": len(o.table["cycle"]), "jump_cycles": jump.cycles, "jump_a_end_m": jump.a_end_m,
+                                     "jump_cycles_simulated": jump.cycles_simulated, "jump_wall_s": min(walls)}))
 
 
 def measure(tag: str, pythonpath: str | None = None) -> dict:
@@ -103,11 +103,11 @@ def first_cycles_table(ramp_cycles: float | None = None) -> tuple[list[dict], fl
             d["end"]["max_cycles"] = int(d["start"]["mean_cycles"] + ramp) + 40
             row: dict = {"waveform": wave, "frequency_hz": f}
             try:
-                o = core.run_test(parse(d).to_config(), "full")
+                o = core.run_test(parse(d).config, "full")
             except HtmError as e:  # refused before it runs: not feasible on this rig
                 rows.append({**row, "refused": str(e)})
                 continue
-            e = o["convergence"][0]
+            e = o.convergence[0]
             row.update(worst_first_20_df_pct=round(e["worst_first_df_pct"], 3), cycles_to_2pct=e["cycles_to_2pct"],
                        cycles_to_0p5pct=e["cycles_to_0p5pct"])
             worst = max(worst, e["worst_first_df_pct"])
@@ -127,14 +127,14 @@ def main() -> None:
         d = spec_doc()
         d["law"]["c"] *= 1.0 + 0.05 * i
         d["end"]["max_cycles"] = 3000
-        batch.append(parse(d).to_config())
+        batch.append(parse(d).config)
     t0 = time.perf_counter()
     one = core.run_batch(batch, "full", 1)
     t1 = time.perf_counter() - t0
     t0 = time.perf_counter()
     two = core.run_batch(batch, "full", 2)
     t2 = time.perf_counter() - t0
-    assert [o["a_end_m"] for o in one] == [o["a_end_m"] for o in two]
+    assert [o.a_end_m for o in one] == [o.a_end_m for o in two]
 
     out = {
         "scenario": "C(T) W 50.8 mm B 6.35 mm, dP 4.45 kN R 0.1, thesis rig, demodulation control, sine 10 Hz, 1 kHz control, a/W 0.30->0.60",

@@ -36,7 +36,7 @@ def case(wave: str, f: float, df: float, size: str, ramp_cycles: float | None) -
         spec = parse(d)
     except InfeasibleTest:
         return None
-    return core.run_test(spec.to_config(), "full")["convergence"][0]["worst_first_df_pct"]
+    return core.run_test(spec.config, "full").convergence[0]["worst_first_df_pct"]
 
 
 def grid(ramp_cycles: float | None) -> dict:

@@ -45,7 +45,7 @@ def main() -> None:
 
     spec = parse(tomllib.loads(text), "million")
     assert spec.law == parse(spec_doc(), "million").law
-    cfg = spec.to_config()
+    cfg = spec.config
 
     t0, c0 = time.perf_counter(), time.process_time()
     plain = core.run_test(cfg, "full")
@@ -59,9 +59,9 @@ def main() -> None:
             files = {p.name: p.stat().st_size for p in store.test_dir(tid).iterdir() if p.is_file()}
             catalogue = store.path.stat().st_size
             rows = len(rec["table"]["cycle"])
-    same = bool((rec["table"]["a_m"] == plain["table"]["a_m"]).all()) and rows == len(plain["table"]["cycle"])
+    same = bool((rec["table"]["a_m"] == plain.table["a_m"]).all()) and rows == len(plain.table["cycle"])
     total_mb = (sum(files.values()) + catalogue) / 1e6
-    cycles = int(plain["cycles"])
+    cycles = int(plain.cycles)
     out = {
         "scenario": "C(T) W 50.8 mm B 6.35 mm, dP 4.45 kN R 0.1, thesis rig, demodulation control, sine 10 Hz, "
                     "1 kHz control, a/W 0.30->0.60, Paris C/10, full fidelity",

@@ -74,8 +74,8 @@ def test_in_process_campaign_writes_one_row_per_test_and_resumes(tmp_path):
     from htm import core
     from htm import spec as test_spec
 
-    alone = core.run_test(test_spec.parse(c.docs[4], "x").to_config(), c.mode)
-    assert rows[4]["life_cycles"] == alone["cycles"]
+    alone = core.run_test(test_spec.parse(c.docs[4], "x").config, c.mode)
+    assert rows[4]["life_cycles"] == alone.cycles
 
 
 def htm(*args: str) -> subprocess.CompletedProcess:

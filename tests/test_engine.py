@@ -24,7 +24,7 @@ def base_doc() -> dict:
 
 
 def run(doc: dict, mode: str = "full") -> dict:
-    return core.run_test(parse(doc).to_config(), mode)
+    return core.run_test(parse(doc).config, mode)
 
 
 def in_test(t: dict) -> np.ndarray:
@@ -58,7 +58,7 @@ def test_fixed_gain_force_p_leaves_the_band_as_the_crack_grows(preset, kp):
     −1e-4 V/N is out of band from the first cycle (10.7 %, measured), so the fixed gain is
     −8e-4 V/N; that loop leaves the band at cycle ≈ 2,100 when K_sp has fallen to ≈ 57 %."""
     o = run(fig_4_8_doc({"type": "force_p", "kp_v_per_n": kp, "u_offset_v": -0.115}, preset))
-    t = o["table"]
+    t = o.table
     sel = in_test(t)
     err = worst(t, sel)
     ksp = t["k_sp_n_m"][sel] / t["k_sp_n_m"][sel][0]
@@ -71,8 +71,8 @@ def test_fixed_gain_force_p_leaves_the_band_as_the_crack_grows(preset, kp):
 @pytest.mark.parametrize("preset", ["base", "thesis"])
 def test_demod_holds_the_band_in_the_fig_4_8_scenario(preset):
     o = run(fig_4_8_doc({"type": "demodulation"}, preset))
-    t = o["table"]
-    assert o["end_reason"] == "target_crack_length"
+    t = o.table
+    assert o.end_reason == "target_crack_length"
     assert worst(t, in_test(t)).max() < 2.0
     assert t["k_sp_n_m"][-1] < 0.5 * t["k_sp_n_m"][0]
 
@@ -85,9 +85,9 @@ def test_demod_holds_two_percent_over_6e4_cycles_while_stiffness_falls():
     d["end"]["max_cycles"] = 60_000
     d["law"]["c"] *= 1.3
     o = run(d, "full")
-    t = o["table"]
+    t = o.table
     sel = in_test(t)
-    assert o["cycles"] == 60_000 and o["end_reason"] == "cycle_limit"
+    assert o.cycles == 60_000 and o.end_reason == "cycle_limit"
     assert worst(t, sel).max() < 2.0, f"max error {worst(t, sel).max():.3f} %"
     assert t["k_sp_n_m"][sel][-1] < 0.7 * t["k_sp_n_m"][sel][0], "K_sp must fall markedly"
 
@@ -105,7 +105,7 @@ def test_demod_recovers_from_stiffness_steps_to_80_60_50_percent():
     d["end"]["max_cycles"] = 800
     d["stiffness_steps"] = [[200, 0.8], [400, 0.6], [600, 0.5]]
     o = run(d)
-    t = o["table"]
+    t = o.table
     amp_err = ((t["fmax_n"] - t["fmin_n"]) / (t["fmax_target_n"] - t["fmin_target_n"]) - 1) * 100
     mean_err = ((t["fmax_n"] + t["fmin_n"]) / (t["fmax_target_n"] + t["fmin_target_n"]) - 1) * 100
     cyc = t["cycle"]
@@ -118,7 +118,7 @@ def test_demod_recovers_from_stiffness_steps_to_80_60_50_percent():
     assert abs(amp_err[judged]).max() < 2.0 and abs(mean_err[judged]).max() < 2.0
     assert t["k_sp_n_m"][-1] == pytest.approx(0.5 * t["k_sp_n_m"][0], rel=1e-6)
     # convergence is logged for the start and after every step, from the step's own cycle
-    conv = o["convergence"]
+    conv = o.convergence
     assert [e["cause"] for e in conv] == ["start", "stiffness_step", "stiffness_step", "stiffness_step"]
     assert [e["first_cycle"] for e in conv[1:]] == [200, 400, 600]
     for e in conv:
@@ -138,7 +138,7 @@ def test_delta_k_control_holds_the_schedule_within_two_percent(loading):
     d["law"]["c"] *= 20
     d["end"]["a_over_w"] = 0.45
     o = run(d)
-    t = o["table"]
+    t = o.table
     sel = in_test(t)
     dk, target = t["delta_k_pa_sqrt_m"][sel], t["delta_k_target_pa_sqrt_m"][sel]
     assert np.max(np.abs(dk / target - 1)) < 0.02
@@ -147,7 +147,7 @@ def test_delta_k_control_holds_the_schedule_within_two_percent(loading):
         expected = 20e6 * np.exp(-80.0 * (a - d["specimen"]["a0_m"]))
         assert np.allclose(target, expected, rtol=1e-9)
         assert target[-1] < 0.6 * target[0], "ΔK must fall along the schedule"
-    assert o["end_reason"] == "target_crack_length"
+    assert o.end_reason == "target_crack_length"
 
 
 def test_precrack_phase_then_test_phase():
@@ -155,7 +155,7 @@ def test_precrack_phase_then_test_phase():
     d["precrack"] = {"mode": "constant_force", "delta_f_n": 5000.0, "r_ratio": 0.1, "end_a_m": 0.0165}
     d["law"]["c"] *= 20
     d["end"]["a_over_w"] = 0.4
-    t = run(d)["table"]
+    t = run(d).table
     change = np.nonzero(t["events"] & EV["phase_change"])[0]
     assert len(change) == 1
     assert np.all(t["phase"][:change[0] + 1] == 0) and np.all(t["phase"][change[0] + 1:] == 1)
@@ -166,10 +166,10 @@ def test_jump_mode_matches_full_fidelity():
     d = base_doc()
     d["law"]["c"] *= 10
     full, jump = run(d, "full"), run(d, "jump")
-    assert jump["end_reason"] == full["end_reason"] == "target_crack_length"
-    assert jump["a_end_m"] == pytest.approx(full["a_end_m"], abs=0.05e-3)
-    assert abs(jump["cycles"] / full["cycles"] - 1) < 0.005
-    assert jump["cycles_simulated"] < full["cycles_simulated"] / 3
+    assert jump.end_reason == full.end_reason == "target_crack_length"
+    assert jump.a_end_m == pytest.approx(full.a_end_m, abs=0.05e-3)
+    assert abs(jump.cycles / full.cycles - 1) < 0.005
+    assert jump.cycles_simulated < full.cycles_simulated / 3
 
 
 def test_batch_returns_each_result_in_order():
@@ -177,11 +177,11 @@ def test_batch_returns_each_result_in_order():
     for scale in (5, 10):
         d = base_doc()
         d["law"]["c"] *= scale
-        docs.append(parse(d).to_config())
+        docs.append(parse(d).config)
     outs = core.run_batch(docs, "jump", 2)
     singles = [core.run_test(c, "jump") for c in docs]
-    assert [o["cycles"] for o in outs] == [s["cycles"] for s in singles]
-    assert outs[0]["cycles"] > outs[1]["cycles"]
+    assert [o.cycles for o in outs] == [s.cycles for s in singles]
+    assert outs[0].cycles > outs[1].cycles
 
 
 @pytest.mark.parametrize("edit, words", [
@@ -249,9 +249,9 @@ def test_every_waveform_holds_two_percent_after_ramp_in(wave, mode):
     d["loading"].update(waveform=wave, **WAVES[wave])
     d["law"]["c"] *= 10
     o = run(d, mode)
-    assert o["end_reason"] == "target_crack_length"
-    assert o["max_abs_df_err_pct"] < 2.0 and o["max_abs_peak_err_pct"] < 2.0, (o["max_abs_df_err_pct"], o["max_abs_peak_err_pct"])
-    t = o["table"]
+    assert o.end_reason == "target_crack_length"
+    assert o.max_abs_df_err_pct < 2.0 and o.max_abs_peak_err_pct < 2.0, (o.max_abs_df_err_pct, o.max_abs_peak_err_pct)
+    t = o.table
     assert worst(t, in_test(t)).max() < 2.0
 
 
@@ -266,10 +266,10 @@ def test_in_the_band_from_the_first_full_amplitude_cycle_at_high_frequency(wave,
     d["end"]["max_cycles"] = 5 + int(f_hz) + 25
     spec = parse(d)
     assert spec.feasibility().feasible
-    o = core.run_test(spec.to_config(), "full")
-    e = o["convergence"][0]
+    o = core.run_test(spec.config, "full")
+    e = o.convergence[0]
     assert e["worst_first_df_pct"] < 2.0 and e["cycles_to_2pct"] == 0, e
-    ramp = o["table"]["events"] & START != 0
+    ramp = o.table["events"] & START != 0
     assert ramp.sum() == 5 + int(f_hz), "5 mean cycles, then the amplitude over 1 s"
     assert core.start_amplitude_cycles(f_hz) == int(f_hz), "the core says the same ramp-in"
 
@@ -282,7 +282,7 @@ def test_a_waveform_beyond_the_valve_is_refused_while_a_sine_runs_in_band():
     d["rig"] = {"overrides": {"valve_rated_flow_m3_s": 2e-4}}
     d["law"]["c"] *= 10
     o = run(d, "jump")
-    assert o["end_reason"] == "target_crack_length" and max(o["max_abs_df_err_pct"], o["max_abs_peak_err_pct"]) < 2.0
+    assert o.end_reason == "target_crack_length" and max(o.max_abs_df_err_pct, o.max_abs_peak_err_pct) < 2.0
     d["loading"].update(waveform="trapezoid", rise_fraction=0.05, hold_fraction=0.4)
     with pytest.raises(SpecError) as e:
         parse(d)
@@ -335,9 +335,9 @@ def test_negative_r_runs_with_delta_k_equal_to_kmax():
     d["loading"]["r_ratio"] = -0.5
     d["law"]["c"] *= 10
     o = run(d, "jump")
-    t = o["table"]
+    t = o.table
     sel = in_test(t) & ((t["events"] & EV["jump"]) == 0)
-    assert o["end_reason"] == "target_crack_length" and o["max_abs_df_err_pct"] < 2.0
+    assert o.end_reason == "target_crack_length" and o.max_abs_df_err_pct < 2.0
     assert np.allclose(t["fmin_target_n"][sel], -0.5 * t["fmax_target_n"][sel])
     assert np.all(t["fmin_n"][sel] < 0), "the valley is compressive"
     assert np.allclose(t["delta_k_pa_sqrt_m"][sel], t["kmax_pa_sqrt_m"][sel])
@@ -350,7 +350,7 @@ def test_rig_overrides_in_the_spec_reach_the_plant():
         d = base_doc()
         d["rig"] = {"overrides": {"valve_null_bias_v": bias}}
         d["end"]["max_cycles"] = 100
-        return float(np.median(run(d)["table"]["ctrl_u2_v"][-20:]))
+        return float(np.median(run(d).table["ctrl_u2_v"][-20:]))
     assert u2(0.415) - u2(0.115) == pytest.approx(-0.3, abs=0.02)
     d = base_doc()
     d["loading"].update(frequency_hz=40.0)
@@ -374,8 +374,8 @@ def test_all_three_controllers_are_chosen_from_a_spec():
         d["controller"] = ctrl
         d["end"]["max_cycles"] = 300
         o = run(d)
-        assert o["end_reason"] == "cycle_limit"
-        return max(o["max_abs_df_err_pct"], o["max_abs_peak_err_pct"])
+        assert o.end_reason == "cycle_limit"
+        return max(o.max_abs_df_err_pct, o.max_abs_peak_err_pct)
     demod = worst_err({"type": "demodulation"})
     force_p = worst_err({"type": "force_p", "kp_v_per_n": -8e-4, "u_offset_v": -0.115})
     pff = worst_err({"type": "position_pff", "u_offset_v": -0.115})
@@ -391,8 +391,8 @@ def test_progress_bar_draws_its_last_line_once(capsys):
     spec = parse(base_doc())
     out, _ = run_spec(spec, "jump", progress=True)
     err = capsys.readouterr().err
-    last = f"  {int(out['cycles']):,} cycles"
+    last = f"  {int(out.cycles):,} cycles"
     assert err.count(last) == 1, err[-400:]
     # off a terminal: plain lines (no carriage return), the last complete with the end reason
     assert err.endswith("\n") and "\r" not in err
-    assert "100.0 %" in err.splitlines()[-1] and out["end_reason"] in err.splitlines()[-1]
+    assert "100.0 %" in err.splitlines()[-1] and out.end_reason in err.splitlines()[-1]

@@ -51,7 +51,7 @@ def _rig_table(spec) -> dict[str, np.ndarray]:
 def test_simulator_and_virtual_rig_give_the_same_cycle_table(waveform, frequency_hz):
     spec = _spec(waveform, frequency_hz)
     sim = run_test(spec, "full")
-    t = sim["table"]
+    t = sim.table
     counted = (t["events"] & EVENTS["stop"]) == 0  # not the smooth-stop rows
     sim_t = {k: np.asarray(t[k])[counted] for k in ("cycle", "fmax_n", "fmin_n", "a_m", "delta_k_pa_sqrt_m")}
     rig = _rig_table(spec)
@@ -70,4 +70,4 @@ def test_simulator_and_virtual_rig_give_the_same_cycle_table(waveform, frequency
     assert grown > 2e-4, "the crack must grow for the comparison to mean anything"
     assert np.abs(rig["a_m"] - sim_t["a_m"]).max() < 0.001 * grown
     # the rig's specimen grows its own crack from the force it sees, by the controller's rule
-    assert abs(rig["rig_a_m"] - sim["a_end_m"]) < 0.01 * grown
+    assert abs(rig["rig_a_m"] - sim.a_end_m) < 0.01 * grown

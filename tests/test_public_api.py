@@ -63,9 +63,9 @@ def test_import_htm_loads_nothing_heavy():
 
 def test_run_test_takes_a_spec_path_and_returns_the_table():
     out = htm.run_test(SPEC)
-    assert out["end_reason"] and out["cycles"] > 0
-    assert out["a_end_m"] > htm.load_spec(SPEC).a0_m
-    assert len(out["table"]["a_m"]) > 0
+    assert out.end_reason and out.cycles > 0
+    assert out.a_end_m > htm.load_spec(SPEC).a0_m
+    assert len(out.table["a_m"]) > 0
 
 
 def test_dir_shows_the_public_names_only():

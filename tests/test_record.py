@@ -39,11 +39,12 @@ def short_spec(tmp_path: Path, c_scale: float = 15.0) -> Path:
 def reference(spec_path: Path) -> tuple[dict, dict]:
     """The uninterrupted run of the engine (per-cycle table, raw windows) for comparison."""
     spec = parse(tomllib.loads(spec_path.read_text()), spec_path.stem)
-    table = core.run_test(spec.to_config(), "full")["table"]
-    s = core.TestRun(spec.to_config(), "full", core.RAW_POLICY)
+    table = core.columns(core.run_test(spec.config, "full").table)
+    s = core.TestRun(spec.config, "full", core.RAW_POLICY)
     raws = []
     while not s.finished:
-        raws.append(s.advance(max_seconds=60.0)["raw"])
+        raw = core.columns(s.advance(max_seconds=60.0).raw)
+        raws.append(np.column_stack([raw[k] for k in core.RAW_COLUMNS]))
     return table, np.concatenate(raws)
 
 
@@ -81,9 +82,9 @@ def test_corrupted_journal_is_a_clear_error_and_nothing_is_touched(tmp_path, cap
     # a simulated test stopped after three blocks, so its journal stays
     with Store(store) as s:
         w = TestWriter.create(s, "short", "simulated", "full", "toml", spec.read_text(), 10.0, recording=False)
-        sess = core.TestRun(parse(tomllib.loads(spec.read_text())).to_config(), "full", core.RAW_POLICY)
+        sess = core.TestRun(parse(tomllib.loads(spec.read_text())).config, "full", core.RAW_POLICY)
         for _ in range(3):
-            w.cycles(sess.advance(max_cycles=200)["table"], None, bytes(sess.snapshot()))
+            w.cycles(core.columns(sess.advance(max_cycles=200).table), None, bytes(sess.snapshot()))
         w.interrupt("interrupted")
         tid = w.id
         assert s.get(tid)["status"] == "stopped"

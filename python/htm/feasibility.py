@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from htm.core import RESONANCE_FRACTION
+from htm.core import RESONANCE_FRACTION, TestConfig
 from htm.core import feasibility as core_checks
 
 TITLES = {
@@ -100,12 +100,11 @@ def _largest(c: Check, r_ratio: float | None) -> str:
     return "; ".join(parts)
 
 
-def _sentence(d: dict[str, Any], config: dict[str, Any]) -> str:
+def _sentence(d: dict[str, Any], config: TestConfig) -> str:
     """The check's numbers in engineering units; refused and marginal checks add how far the
     test could go."""
     name, need, limit = d["name"], d["need"], d["limit"]
-    sequence = bool(config.get("blocks") or config.get("spectrum"))
-    r = None if sequence else config["phases"][d["phase"]]["r_ratio"]
+    r = None if config.variable_amplitude else config.r_ratios[d["phase"]]
     a_mm = d["a_m"] * 1e3
     if name == "force_tension":
         s = (f"peak force {_kn(need)}, the actuator gives {_kn(limit)} in tension "
@@ -113,7 +112,7 @@ def _sentence(d: dict[str, Any], config: dict[str, Any]) -> str:
     elif name == "force_compression":
         s = f"valley force {_kn(-need)}, the actuator gives {_kn(limit)} in compression (piston area × supply pressure)"
     elif name == "valve_flow":
-        s = (f"loading.frequency_hz = {config['frequency_hz']:g} Hz with a {config['waveform']} waveform needs a piston "
+        s = (f"loading.frequency_hz = {config.frequency_hz:g} Hz with a {config.waveform} waveform needs a piston "
              f"speed of {need * 1e3:.1f} mm/s at the end crack length, the valve gives {limit * 1e3:.1f} mm/s "
              "at half its rated flow")
     elif name == "frequency":
@@ -140,6 +139,6 @@ def _check(d: dict[str, Any], text: str) -> Check:
                  d["largest_delta_f_n"], d["largest_frequency_hz"], text)
 
 
-def assess(config: dict[str, Any]) -> Feasibility:
-    """Every feasibility check of a test config (`TestSpec.to_config()`), worded."""
+def assess(config: TestConfig) -> Feasibility:
+    """Every feasibility check of a test's configuration (`TestSpec.config`), worded."""
     return Feasibility([_check(d, _sentence(d, config)) for d in core_checks(config)])

@@ -20,15 +20,14 @@ from htm.spec import TestSpec, load, parse, stored_text
 from htm.terminal import Progress, add_json_flag, emit_json, path
 
 
-def run_spec(spec: TestSpec, mode: str | None = None, progress: bool = False) -> tuple[dict[str, Any], float]:
-    """Run `spec` in `mode` (default: the spec's); returns (engine result, wall seconds)."""
-    cfg = spec.to_config()
+def run_spec(spec: TestSpec, mode: str | None = None, progress: bool = False) -> tuple[core.Outcome, float]:
+    """Run `spec` in `mode` (default: the spec's); returns (the engine's outcome, wall seconds)."""
     prog = core.Progress()
     box: dict[str, Any] = {}
 
     def work() -> None:
         try:
-            box["out"] = core.run_test(cfg, mode or spec.mode, prog)
+            box["out"] = core.run_test(spec.config, mode or spec.mode, prog)
         except BaseException as e:  # re-raised in the caller's thread
             box["err"] = e
 
@@ -46,8 +45,8 @@ def run_spec(spec: TestSpec, mode: str | None = None, progress: bool = False) ->
     if bar:
         out = box.get("out")
         if out:
-            f, where = _crack_fraction(spec, int(out["cycles"]), float(out["a_end_m"]))
-            bar.close(f"{out['end_reason']}: {where}", f, int(out["cycles"]))
+            f, where = _crack_fraction(spec, int(out.cycles), float(out.a_end_m))
+            bar.close(f"{out.end_reason}: {where}", f, int(out.cycles))
         else:
             bar.close("failed")
     if "err" in box:
@@ -55,7 +54,7 @@ def run_spec(spec: TestSpec, mode: str | None = None, progress: bool = False) ->
     return box["out"], wall
 
 
-def run_test(spec: TestSpec | str | Path, mode: str | None = None, *, progress: bool = False) -> dict[str, Any]:
+def run_test(spec: TestSpec | str | Path, mode: str | None = None, *, progress: bool = False) -> core.Outcome:
     """Run a whole fatigue crack growth test on the simulated rig (plant, controller, specimen,
     crack growth in the Rust core), without recording it into the store.
 
@@ -70,9 +69,10 @@ def run_test(spec: TestSpec | str | Path, mode: str | None = None, *, progress: 
 
     Returns
     -------
-    dict
+    Outcome
         ``end_reason``, ``cycles``, final crack size ``a_end_m`` [m] and the per-cycle table
-        ``table`` (SI columns: ``a_m`` [m], ``delta_k_pa_sqrt_m`` [Pa·√m], measured peaks and
+        ``table`` (an Arrow record batch, ``pyarrow.record_batch(out.table)``; ``out.table["a_m"]``
+        one column; SI columns: ``a_m`` [m], ``delta_k_pa_sqrt_m`` [Pa·√m], measured peaks and
         valleys [N], errors [%], ``events``).
     """
     if not isinstance(spec, TestSpec):
@@ -88,24 +88,23 @@ RAW_POLICY = core.RAW_POLICY
 CHUNK_S = 0.25
 
 
-def drive(sess: Any, writer: Any, spec: TestSpec | None, progress: bool) -> tuple[dict[str, Any], float]:
+def drive(sess: core.TestRun, writer: Any, spec: TestSpec | None, progress: bool) -> tuple[dict[str, Any], float]:
     """Advance `sess` (a `core.TestRun`) chunk by chunk into `writer` (a `TestWriter`) to the
     end; returns (the run's summary, wall seconds). A recording error stops the test safely
     (the journal keeps what was written, `htm resume` continues)."""
     from htm.errors import RecordError
 
-    cols = core.RAW_COLUMNS
     t0 = time.perf_counter()
     engine_s = 0.0
     bar = progress_line(spec, sess.cycle) if progress and spec is not None else None
     try:
         while not sess.finished:
             te = time.perf_counter()
-            d = sess.advance(max_seconds=CHUNK_S)
+            chunk = sess.advance(max_seconds=CHUNK_S)
             engine_s += time.perf_counter() - te
-            raw = d["raw"]
-            rawd = {k: raw[:, i] for i, k in enumerate(cols)} if len(raw) else None
-            writer.cycles(d["table"], rawd, None if d["end_reason"] else bytes(sess.snapshot()))
+            # the chunk's tables are Arrow record batches: the writer takes their columns as they are
+            writer.cycles(core.columns(chunk.table), core.columns(chunk.raw) if len(chunk.raw) else None,
+                          None if chunk.end_reason else bytes(sess.snapshot()))
             if bar:
                 bar.update(sess.cycle, *_crack_fraction(spec, sess.cycle, sess.a_m))
     except RecordError as e:
@@ -123,8 +122,18 @@ def drive(sess: Any, writer: Any, spec: TestSpec | None, progress: bool) -> tupl
     outcome = sess.outcome()
     if bar:
         f, where = _crack_fraction(spec, sess.cycle, sess.a_m)
-        bar.close(f"{outcome['end_reason']}: {where}" if outcome else None, f, sess.cycle)
-    return dict(outcome, engine_wall_s=engine_s), wall
+        bar.close(f"{outcome.end_reason}: {where}" if outcome else None, f, sess.cycle)
+    return _result(outcome, engine_wall_s=engine_s), wall
+
+
+def _result(o: core.Outcome | None, **extra: Any) -> dict[str, Any]:
+    """A finished run's summary values by name (the record's result, with `extra`)."""
+    assert o is not None, "the run has finished"
+    return {"end_reason": o.end_reason, "cycles": o.cycles, "a_end_m": o.a_end_m, "max_abs_df_err_pct": o.max_abs_df_err_pct,
+            "max_abs_peak_err_pct": o.max_abs_peak_err_pct, "cycles_simulated": o.cycles_simulated,
+            "size_criterion_cycle": o.size_criterion_cycle, "velocity_gain_m_s_per_v": o.velocity_gain_m_s_per_v,
+            "demod_gains": o.demod_gains, "convergence": o.convergence, "worst_first_cycles_df_pct": o.worst_first_cycles_df_pct,
+            **extra}
 
 
 def run_recorded(spec: TestSpec, spec_text: str, mode: str, store: Any, progress: bool = False, *,
@@ -133,12 +142,11 @@ def run_recorded(spec: TestSpec, spec_text: str, mode: str, store: Any, progress
     per-cycle table, wall seconds)."""
     from htm.record.writer import TestWriter
 
-    cfg = spec.to_config()
-    core.validate_test(cfg)  # bad specs fail before anything is recorded
+    # a bad spec failed in `parse` (its TestConfig), before anything is recorded
     writer = TestWriter.create(store, spec.name, "simulated", mode, "toml", spec_text, spec.frequency_hz,
                                recording=recording, spawn=spawn, connect=connect)
     try:
-        sess = core.TestRun(cfg, mode, RAW_POLICY)
+        sess = core.TestRun(spec.config, mode, RAW_POLICY)
     except HtmError as e:
         writer.close("failed", "engine_error", {"error": str(e)})
         raise
@@ -191,9 +199,9 @@ def resume_recorded(store: Any, test_id: str, progress: bool = False, *, recordi
         writer.close(m.get("status", "finished"), m.get("end_reason", row["end_reason"]), m.get("results", {}))
         out = {"end_reason": row["end_reason"], "table": store.cycles(test_id)}
         return test_id, spec, mode, out, 0.0
-    cfg = spec.to_config()
     snaps = [r for r in chunks if r.blob]
     try:
+        cfg = spec.config
         sess = core.TestRun.restore(cfg, mode, snaps[-1].blob) if snaps else core.TestRun(cfg, mode, RAW_POLICY)
     except HtmError as e:
         writer.interrupt("resume_failed", str(e))
@@ -231,9 +239,12 @@ def _cycle_fraction(spec: TestSpec, cycles: int) -> tuple[float | None, str]:
     return cycles / limit, f"of at most {limit:,}"
 
 
-def summary(spec: TestSpec, out: dict[str, Any], wall: float, mode: str) -> dict[str, Any]:
+def summary(spec: TestSpec, out: core.Outcome | dict[str, Any], wall: float, mode: str) -> dict[str, Any]:
+    """summary.json's values; `out` the engine's outcome or a recorded run's result (`drive`)."""
     from htm.record import convergence
 
+    if isinstance(out, core.Outcome):
+        out = _result(out)
     return {
         "spec": spec.name, "mode": mode, "cycles": int(out["cycles"]), "end_reason": out["end_reason"],
         "final_a_m": float(out["a_end_m"]), "final_a_over_w": _a_over_w(spec, float(out["a_end_m"])),
@@ -254,14 +265,23 @@ def force_verdict(spec: TestSpec, out: dict[str, Any]) -> dict[str, Any]:
             "feasibility": spec.feasibility().verdict(), "override_limits": spec.override_limits}
 
 
-def write_outputs(out_dir: Path, spec: TestSpec, out: dict[str, Any], wall: float, mode: str) -> dict[str, Any]:
+def write_outputs(out_dir: Path, spec: TestSpec, out: core.Outcome | dict[str, Any], wall: float, mode: str) -> dict[str, Any]:
+    """summary.json, cycles.parquet, summary.txt and the report of a run (`out`: the engine's
+    outcome, or a recorded run's result with the store's table)."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
     out_dir.mkdir(parents=True, exist_ok=True)
     s = summary(spec, out, wall, mode)
-    table = out["table"]
-    pq.write_table(pa.table({k: np.asarray(v) for k, v in table.items()}), out_dir / "cycles.parquet")
+    # the engine's table is an Arrow record batch, the store's a dict of columns: each is written
+    # whole, column by column
+    if isinstance(out, core.Outcome):
+        batch = pa.record_batch(out.table)
+        pq.write_table(pa.Table.from_batches([batch]), out_dir / "cycles.parquet")
+        table = core.columns(out.table)
+    else:
+        table = out["table"]
+        pq.write_table(pa.table({k: np.asarray(v) for k, v in table.items()}), out_dir / "cycles.parquet")
     (out_dir / "summary.json").write_text(json.dumps(s, indent=2, default=float))
     text = summary_text(spec, s)
     (out_dir / "summary.txt").write_text(text + "\n")

@@ -1,7 +1,9 @@
-"""Fatigue test specifications: TOML in, validated dataclasses, the engine's config dict out.
+"""Fatigue test specifications: TOML in, a validated `TestSpec` and its one `core.TestConfig` out.
 
-Every value is SI (names carry units). Errors raise `SpecError` naming the field, the value and
-the allowed range, before anything runs; unknown keys are rejected.
+Every value is SI (names carry units). This module reads the document's structure (tables, unknown
+keys, types, the spectrum file); the core judges every value it runs on (`core.TestConfig`, built
+once per spec, naming a bad value by the spec's own path). Errors raise `SpecError` before
+anything runs; a value out of range raises `SpecParameterError` with `.field`, `.value`, `.allowed`.
 """
 from __future__ import annotations
 
@@ -12,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from htm import core
-from htm.errors import HtmError, InfeasibleTest, SpecError
+from htm.errors import HtmError, InfeasibleTest, ParameterError, SpecError, SpecParameterError
 from htm.feasibility import Feasibility, assess
 from htm.inputs import close_match, missing, read_text
 from htm.params import thesis_rig, with_overrides
@@ -94,45 +96,20 @@ class TestSpec:
     blocks: list[tuple[int, float, float]] = field(default_factory=list)
     spectrum: list[tuple[float, float]] = field(default_factory=list)
     override_limits: bool = False
+    # the core's configuration of this test, built once by `parse` (validated)
+    config: core.TestConfig = field(init=False, repr=False, compare=False)
+    _feasibility: Feasibility | None = field(default=None, init=False, repr=False, compare=False)
 
     def feasibility(self) -> Feasibility:
         """What the rig can do with this test (`htm.feasibility`): force, flow, frequency,
-        stroke and the E647 size criterion, each with its largest feasible value."""
-        return assess(self.to_config())
+        stroke and the E647 size criterion, each with its largest feasible value (assessed once)."""
+        if self._feasibility is None:
+            self._feasibility = assess(self.config)
+        return self._feasibility
 
     def params(self) -> core.Params:
-        try:
-            return with_overrides(core.Params(self.rig_preset), self.rig_overrides)
-        except HtmError as e:
-            raise SpecError(f"rig: {e}") from None
-
-    def to_config(self) -> dict[str, Any]:
-        """The engine's config dict (SI)."""
-        phases = []
-        for ph in self.phases:
-            d: dict[str, Any] = {"mode": ph.mode, "r_ratio": ph.r_ratio, "end_a_m": ph.end_a_m, "tolerance": ph.tolerance}
-            if ph.mode == "constant_force":
-                d["delta_f_n"] = ph.delta_f_n
-            else:
-                d["delta_k"] = ph.delta_k_pa_sqrt_m
-                d["k_gradient_per_m"] = ph.k_gradient_per_m
-            phases.append(d)
-        cfg: dict[str, Any] = {
-            "params": self.params(), "rtol": self.rtol, "geometry": self.geometry, "width_m": self.width_m,
-            "thickness_m": self.thickness_m, "a0_m": self.a0_m, **self.material, "law": dict(self.law),
-            "waveform": self.waveform, **self.waveform_shape, "frequency_hz": self.frequency_hz,
-            "control_rate_hz": self.control_rate_hz, "phases": phases, "controller": dict(self.controller),
-            "start_mean_cycles": self.start["mean_cycles"], "stop_cycles": self.start["stop_cycles"], "max_cycles": self.end["max_cycles"],
-            "size_criterion_action": self.end["size_criterion"], "tolerance_cycles": self.end["tolerance_cycles"],
-            "tolerance_action": self.end["tolerance_action"], "stiffness_steps": list(self.stiffness_steps),
-        }
-        if self.start["amplitude_cycles"] is not None:
-            cfg["start_amplitude_cycles"] = self.start["amplitude_cycles"]
-        if self.blocks:
-            cfg["blocks"] = list(self.blocks)
-        if self.spectrum:
-            cfg["spectrum"] = list(self.spectrum)
-        return cfg
+        """The rig the spec names (`[rig]` preset and overrides), validated."""
+        return self.config.params
 
     @property
     def variable_amplitude(self) -> bool:
@@ -178,7 +155,7 @@ def _num(d: dict, key: str, where: str, lo: float | None = None, hi: float | Non
         bad |= v >= hi if hi_open else v > hi
     if bad:
         rng = f"{'(' if lo_open else '['}{'-inf' if lo is None else f'{lo:g}'}, {'inf' if hi is None else f'{hi:g}'}{')' if hi_open or hi is None else ']'}"
-        raise SpecError(f"{where}.{key} = {v:g} is out of range: allowed {rng}{f' {unit}' if unit else ''}")
+        raise SpecParameterError(f"{where}.{key}", v, f"{rng}{f' {unit}' if unit else ''}")
     return v
 
 
@@ -200,20 +177,20 @@ def _choice(d: dict, key: str, where: str, choices: tuple[str, ...], default: st
 
 def _loading(d: dict, where: str, end_a_m: float, tolerance: float) -> Loading:
     _keys(d, {"mode", "r_ratio", "delta_f_n", "delta_k_pa_sqrt_m", "k_gradient_per_m", "end_a_m", "tolerance"}, where)
+    # the ranges of these values are the core's (`core.TestConfig`): only their presence and type here
     mode = _choice(d, "mode", where, MODES)
-    r = _num(d, "r_ratio", where, R_LO, R_HI, hi_open=True)
-    ph = Loading(mode=mode, r_ratio=r, end_a_m=_num(d, "end_a_m", where, 0.0, lo_open=True, default=end_a_m, unit="m"),
-                 tolerance=_num(d, "tolerance", where, 0.0, core.MAX_TOLERANCE, lo_open=True, default=tolerance))
+    ph = Loading(mode=mode, r_ratio=_num(d, "r_ratio", where), end_a_m=_num(d, "end_a_m", where, default=end_a_m),
+                 tolerance=_num(d, "tolerance", where, default=tolerance))
     if mode == "constant_force":
-        ph.delta_f_n = _num(d, "delta_f_n", where, 0.0, lo_open=True, unit="N")
+        ph.delta_f_n = _num(d, "delta_f_n", where)
         if "delta_k_pa_sqrt_m" in d or "k_gradient_per_m" in d:
             raise SpecError(f"{where}: mode constant_force takes delta_f_n, not delta_k_pa_sqrt_m / k_gradient_per_m")
     else:
-        ph.delta_k_pa_sqrt_m = _num(d, "delta_k_pa_sqrt_m", where, 0.0, lo_open=True, unit="Pa·√m")
+        ph.delta_k_pa_sqrt_m = _num(d, "delta_k_pa_sqrt_m", where)
         if "delta_f_n" in d:
             raise SpecError(f"{where}: mode {mode} takes delta_k_pa_sqrt_m, not delta_f_n")
         if mode == "k_gradient":
-            ph.k_gradient_per_m = _num(d, "k_gradient_per_m", where, core.E647_MIN_K_GRADIENT_PER_M, unit="1/m (ASTM E647: C ≥ −0.08 mm⁻¹)")
+            ph.k_gradient_per_m = _num(d, "k_gradient_per_m", where)
         elif "k_gradient_per_m" in d:
             raise SpecError(f"{where}: k_gradient_per_m needs mode = \"k_gradient\"")
     return ph
@@ -300,25 +277,16 @@ def parse(doc: dict, name: str = "test", base: Path | None = None, *, check: boo
     width = _num(sp, "width_m", "specimen", 0.0, 2.0, lo_open=True, unit="m")  # wider: likely mm
     thickness = _num(sp, "thickness_m", "specimen", 0.0, width, lo_open=True, unit="m")
     scale = 1.0 if geometry == "ct" else 2.0  # M(T): a is the half crack, a/W of the half width
-    try:
-        alo, ahi = (round(x * scale / width, 9) for x in core.a_range(geometry, width, thickness))
-    except HtmError as e:
-        raise SpecError(f"specimen: {e}") from None
-    a0 = _num(sp, "a0_m", "specimen", alo * width / scale, ahi * width / scale, unit=f"m (a/W in [{alo}, {ahi}])")
+    a0 = _num(sp, "a0_m", "specimen")
     mat = _table(doc, "material", "material")
     _keys(mat, {"youngs_modulus_pa", "poisson_ratio", "yield_strength_pa", "fracture_toughness_pa_sqrt_m"}, "material")
-    material = {
-        "youngs_modulus_pa": _num(mat, "youngs_modulus_pa", "material", *core.YOUNGS_MODULUS_RANGE_PA, lo_open=True, hi_open=True, unit="Pa"),
-        "poisson_ratio": _num(mat, "poisson_ratio", "material", *core.POISSON_RATIO_RANGE, hi_open=True),
-        "yield_strength_pa": _num(mat, "yield_strength_pa", "material", 0.0, lo_open=True, unit="Pa"),
-        "fracture_toughness_pa_sqrt_m": _num(mat, "fracture_toughness_pa_sqrt_m", "material", 0.0, lo_open=True, unit="Pa·√m"),
-    }
+    material = {k: _num(mat, k, "material") for k in ("youngs_modulus_pa", "poisson_ratio", "yield_strength_pa", "fracture_toughness_pa_sqrt_m")}
     law = _table(doc, "law", "law")
     _keys(law, {"law", "c", "m", "kc", "n", "p", "q", "dk_th", "k_crit", "f_open"}, "law")
     _choice(law, "law", "law", ("paris", "forman", "nasgro"))
     end = _table(doc, "end", "end")
     _keys(end, {"a_over_w", "max_cycles", "size_criterion", "tolerance_cycles", "tolerance_action"}, "end")
-    a_end = _num(end, "a_over_w", "end", alo, ahi, unit=f"(a/W in [{alo}, {ahi}])") * width / scale
+    a_end = _num(end, "a_over_w", "end") * width / scale
     end_d = {"max_cycles": _int(end, "max_cycles", "end", 1, DEFAULTS["max_cycles"]),
              "size_criterion": _choice(end, "size_criterion", "end", ("flag", "stop"), DEFAULTS["size_criterion_action"]),
              "tolerance_cycles": _int(end, "tolerance_cycles", "end", 0, DEFAULTS["tolerance_cycles"]),
@@ -329,15 +297,11 @@ def parse(doc: dict, name: str = "test", base: Path | None = None, *, check: boo
     waveform = _choice(ld, "waveform", "loading", WAVEFORMS, "sine")
     shape: dict[str, float] = {}
     if waveform == "trapezoid":
-        rise = _num(ld, "rise_fraction", "loading", 0.0, 0.5, lo_open=True)
-        shape = {"rise_fraction": rise, "hold_fraction": _num(ld, "hold_fraction", "loading", 0.0, 1.0 - 2.0 * rise)}
+        shape = {k: _num(ld, k, "loading") for k in ("rise_fraction", "hold_fraction")}
     elif "rise_fraction" in ld or "hold_fraction" in ld:
         raise SpecError("loading: rise_fraction / hold_fraction need waveform = \"trapezoid\"")
-    per_cycle, max_rate = core.MIN_SAMPLES_PER_CYCLE, core.MAX_CONTROL_RATE_HZ
-    freq = _num(ld, "frequency_hz", "loading", 0.0, max_rate / per_cycle, lo_open=True,
-                unit=f"Hz ({per_cycle:g} samples per cycle at a control rate ≤ {max_rate:g} Hz)")
-    rate = _num(ld, "control_rate_hz", "loading", per_cycle * freq, max_rate, default=DEFAULTS["control_rate_hz"],
-                unit=f"Hz (≥ {per_cycle:g} samples per cycle at {freq:g} Hz)")
+    freq = _num(ld, "frequency_hz", "loading")
+    rate = _num(ld, "control_rate_hz", "loading", default=DEFAULTS["control_rate_hz"])
     if "end_a_m" in ld_main:
         raise SpecError("loading.end_a_m: the test ends at [end] a_over_w")
     phases = []
@@ -347,12 +311,6 @@ def parse(doc: dict, name: str = "test", base: Path | None = None, *, check: boo
             raise SpecError("precrack.end_a_m is missing: the crack length at which precracking ends [m]")
         phases.append(_loading(pre, "precrack", math.nan, core.PRECRACK_TOLERANCE))
     phases.append(_loading(ld_main, "loading", a_end, core.TEST_TOLERANCE))
-    a_prev = a0
-    for ph, where in zip(phases, ["precrack", "loading"] if pre else ["loading"]):
-        if not (a_prev < ph.end_a_m <= ahi * width / scale):
-            raise SpecError(f"{where}: ends at a = {ph.end_a_m * 1e3:.3f} mm, which must lie in "
-                            f"({a_prev * 1e3:.3f}, {ahi * width / scale * 1e3:.3f}] mm")
-        a_prev = ph.end_a_m
     ctrl = _table(doc, "controller", "controller", required=False) or {"type": "demodulation"}
     # demodulation: the thesis 4.2 amplitude/mean controller (default); force_p: fixed-gain force P
     # (the thesis's comparison case); position_pff: position P + velocity feed-forward (thesis 4.1)
@@ -407,17 +365,13 @@ def parse(doc: dict, name: str = "test", base: Path | None = None, *, check: boo
         name=name, geometry=geometry, width_m=width, thickness_m=thickness, a0_m=a0, material=material, law=dict(law),
         waveform=waveform, waveform_shape=shape, frequency_hz=freq, control_rate_hz=rate, phases=phases,
         controller=controller, end=end_d, start=start, rig_overrides={k: float(v) for k, v in overrides.items()},
-        rig_preset=preset, rtol=_num(run, "rtol", "run", *core.RTOL_RANGE, default=DEFAULTS["rtol"]),
+        rig_preset=preset, rtol=_num(run, "rtol", "run", default=DEFAULTS["rtol"]),
         mode=_choice(run, "mode", "run", ("full", "jump"), "full" if va else "jump"),
         stiffness_steps=[(int(c), float(f)) for c, f in steps], blocks=blocks, spectrum=spectrum, override_limits=override,
     )
-    # what only the core can judge (rig limits, Kmax vs K_IC, law constants): checked now, not later
-    try:
-        core.validate_test(spec.to_config())
-    except SpecError:
-        raise
-    except HtmError as e:
-        raise SpecError(_explain(str(e))) from None
+    # the one configuration of the test: the core reads the spec, takes its defaults and checks
+    # every value (naming the spec's field), once
+    spec.config = _config(spec)
     if check and not spec.override_limits:
         feas = spec.feasibility()
         if not feas.feasible:
@@ -425,13 +379,17 @@ def parse(doc: dict, name: str = "test", base: Path | None = None, *, check: boo
     return spec
 
 
-def _explain(msg: str) -> str:
-    """Map the core's config field names back to the spec's."""
-    names = {"phases[0].": "first loading phase: ", "phases[1].": "loading: ", "start Kmax": "Kmax at the start of the phase",
-             "frequency_hz": "loading.frequency_hz", "a0_m": "specimen.a0_m", "sequence[": "variable_amplitude level ["}
-    for k, v in names.items():
-        msg = msg.replace(f"`{k}", f"`{v}")
-    return msg
+def _config(spec: TestSpec) -> core.TestConfig:
+    try:
+        params = with_overrides(core.Params(spec.rig_preset), spec.rig_overrides, validate=False)
+    except HtmError as e:
+        raise SpecError(f"rig.overrides: {e}") from None
+    try:
+        return core.TestConfig(spec, params)
+    except ParameterError as e:
+        raise SpecParameterError.of(e) from None
+    except HtmError as e:
+        raise SpecError(str(e)) from None
 
 
 def stored_text(path: str | Path, spec: TestSpec) -> str:

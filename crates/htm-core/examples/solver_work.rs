@@ -27,6 +27,7 @@ fn main() {
         stiffness_steps: vec![],
         jump: JumpConfig::default(),
         sequence: vec![],
+        sequence_from_spectrum: false,
     };
     let mut p = cfg.params.clone();
     p.specimen_stiffness_n_m = cfg.specimen.stiffness(cfg.a0_m, &cfg.material).unwrap();

@@ -20,18 +20,12 @@ pub const DEFAULT_U_MAX_V: f64 = 10.0;
 
 /// A controller as named parameters (DATA_FORMAT's `controller` table, SI): `type` is
 /// position_pff or force_p; the gains the type does not use are ignored.
-#[cfg_attr(feature = "python", derive(pyo3::FromPyObject), pyo3(from_item_all))]
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct ControllerArgs {
-    #[cfg_attr(feature = "python", pyo3(item("type")))]
     pub kind: String,
-    #[cfg_attr(feature = "python", pyo3(default))]
     pub kp_v_per_m: Option<f64>,
-    #[cfg_attr(feature = "python", pyo3(default))]
     pub kff_v_per_m_s: Option<f64>,
-    #[cfg_attr(feature = "python", pyo3(default))]
     pub kp_v_per_n: Option<f64>,
-    #[cfg_attr(feature = "python", pyo3(default))]
     pub u_max_v: Option<f64>,
 }
 

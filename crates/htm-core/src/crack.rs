@@ -28,27 +28,17 @@ pub const NASGRO_DEFAULTS: [(&str, f64); 5] = [("p", 0.0), ("q", 0.0), ("dk_th",
 
 /// A law as named parameters (the shape of a spec's `[law]` table, SI): `law` is paris, forman or
 /// nasgro; the parameters a law does not use are ignored.
-#[cfg_attr(feature = "python", derive(pyo3::FromPyObject), pyo3(from_item_all))]
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct LawSpec {
     pub law: String,
-    #[cfg_attr(feature = "python", pyo3(default))]
     pub c: Option<f64>,
-    #[cfg_attr(feature = "python", pyo3(default))]
     pub m: Option<f64>,
-    #[cfg_attr(feature = "python", pyo3(default))]
     pub kc: Option<f64>,
-    #[cfg_attr(feature = "python", pyo3(default))]
     pub n: Option<f64>,
-    #[cfg_attr(feature = "python", pyo3(default))]
     pub p: Option<f64>,
-    #[cfg_attr(feature = "python", pyo3(default))]
     pub q: Option<f64>,
-    #[cfg_attr(feature = "python", pyo3(default))]
     pub dk_th: Option<f64>,
-    #[cfg_attr(feature = "python", pyo3(default))]
     pub k_crit: Option<f64>,
-    #[cfg_attr(feature = "python", pyo3(default))]
     pub f_open: Option<f64>,
 }
 

@@ -19,10 +19,10 @@ impl Waveform {
     pub fn validate(&self) -> Result<()> {
         if let Waveform::Trapezoid { rise, hold } = *self {
             if !(rise.is_finite() && rise > 0.0 && rise <= 0.5) {
-                return Err(Error::Parameter { field: "waveform.rise_fraction".into(), value: rise, allowed: "(0, 0.5]".into() });
+                return Err(Error::Parameter { field: "rise_fraction".into(), value: rise, allowed: "(0, 0.5]".into() });
             }
             if !(hold.is_finite() && hold >= 0.0 && 2.0 * rise + hold <= 1.0 + 1e-12) {
-                return Err(Error::Parameter { field: "waveform.hold_fraction".into(), value: hold, allowed: format!("[0, {}] (1 − 2·rise)", 1.0 - 2.0 * rise) });
+                return Err(Error::Parameter { field: "hold_fraction".into(), value: hold, allowed: format!("[0, {}] (1 − 2·rise)", 1.0 - 2.0 * rise) });
             }
         }
         Ok(())

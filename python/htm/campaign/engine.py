@@ -26,18 +26,19 @@ RESULT_COLUMNS = ("life_cycles", "end_reason", "a_end_m", "max_abs_df_err_pct", 
                   "size_criterion_cycle", "valid", "error", "wall_s", "worker")
 
 
-def _row(idx: int, out: dict[str, Any] | None, error: str | None, wall_s: float, worker: str) -> dict[str, Any]:
+def _row(idx: int, out: Any, error: str | None, wall_s: float, worker: str) -> dict[str, Any]:
+    """The result row of test `idx`: `out` its `core.Outcome`, or None with the engine's `error`."""
     if out is None:
         return {"idx": idx, "life_cycles": None, "end_reason": "engine_error", "a_end_m": None, "max_abs_df_err_pct": None,
                 "max_abs_peak_err_pct": None, "size_criterion_cycle": None, "valid": False, "error": error,
                 "wall_s": wall_s, "worker": worker}
     # a valid test reached its target crack length inside the force band with the E647 size
     # criterion met throughout
-    valid = (out["end_reason"] == "target_crack_length" and out["size_criterion_cycle"] is None
-             and out["max_abs_df_err_pct"] <= FORCE_BAND_PCT and out["max_abs_peak_err_pct"] <= FORCE_BAND_PCT)
-    return {"idx": idx, "life_cycles": int(out["cycles"]), "end_reason": out["end_reason"], "a_end_m": float(out["a_end_m"]),
-            "max_abs_df_err_pct": float(out["max_abs_df_err_pct"]), "max_abs_peak_err_pct": float(out["max_abs_peak_err_pct"]),
-            "size_criterion_cycle": out["size_criterion_cycle"], "valid": bool(valid), "error": None,
+    valid = (out.end_reason == "target_crack_length" and out.size_criterion_cycle is None
+             and out.max_abs_df_err_pct <= FORCE_BAND_PCT and out.max_abs_peak_err_pct <= FORCE_BAND_PCT)
+    return {"idx": idx, "life_cycles": int(out.cycles), "end_reason": out.end_reason, "a_end_m": float(out.a_end_m),
+            "max_abs_df_err_pct": float(out.max_abs_df_err_pct), "max_abs_peak_err_pct": float(out.max_abs_peak_err_pct),
+            "size_criterion_cycle": out.size_criterion_cycle, "valid": bool(valid), "error": None,
             "wall_s": wall_s, "worker": worker}
 
 
@@ -51,23 +52,12 @@ def run_chunk(items: list[tuple[int, dict[str, Any]]], mode: str, threads: int =
     from htm import spec as test_spec
 
     worker = f"{socket.gethostname()}:{os.getpid()}"
-    cfgs = [test_spec.parse(doc, f"test-{i}").to_config() for i, doc in items]
+    cfgs = [test_spec.parse(doc, f"test-{i}").config for i, doc in items]
     t0 = time.perf_counter()
-    try:
-        outs = core.run_batch(cfgs, mode, threads)
-    except HtmError:
-        outs = None
-    if outs is not None:
-        wall = (time.perf_counter() - t0) / len(items)
-        return [_row(i, o, None, wall, worker) for (i, _), o in zip(items, outs)]
-    rows = []  # one test failed the batch: run them one by one to tell which
-    for (i, _), cfg in zip(items, cfgs):
-        t1 = time.perf_counter()
-        try:
-            rows.append(_row(i, core.run_batch([cfg], mode, 1)[0], None, time.perf_counter() - t1, worker))
-        except HtmError as e:
-            rows.append(_row(i, None, str(e), time.perf_counter() - t1, worker))
-    return rows
+    outs = core.run_batch(cfgs, mode, threads)  # each an Outcome, or the HtmError of a test that failed
+    wall = (time.perf_counter() - t0) / len(items)
+    return [_row(i, None, str(o), wall, worker) if isinstance(o, HtmError) else _row(i, o, None, wall, worker)
+            for (i, _), o in zip(items, outs, strict=True)]
 
 
 # ---- where chunks run --------------------------------------------------------------------------

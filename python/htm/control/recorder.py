@@ -39,10 +39,12 @@ def _columns(rows: list[dict[str, Any]], keys: dict[str, str] | None = None) -> 
 
 
 def cfg_for_store(spec) -> dict[str, Any]:
-    """The spec as plain data for the store's catalogue (the rig parameters by name)."""
-    cfg = spec.to_config()
-    cfg["params"] = cfg["params"].to_dict()
-    return cfg
+    """The spec as plain data for the store's catalogue (its fields as the spec names them, the
+    rig parameters by name)."""
+    import dataclasses
+
+    d = {f.name: getattr(spec, f.name) for f in dataclasses.fields(spec) if f.name not in ("config", "_feasibility")}
+    return {**d, "phases": [dataclasses.asdict(p) for p in spec.phases], "params": spec.params().to_dict()}
 
 class LiveRecorder:
     """Drains a `Session`'s loop into a new test of the store at `store_root` until the test ends

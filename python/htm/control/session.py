@@ -374,8 +374,7 @@ class Session:
         $HTM_STORE) with a rerun recording (`recording`), see `htm.control.recorder`."""
         self._motion_allowed()
         self._load_supply()
-        cfg = spec.to_config()
-        cfg["params"] = with_overrides(core.Params(self.cfg.rig_preset), self.cfg.rig_overrides)
+        cfg = spec.config.with_params(with_overrides(core.Params(self.cfg.rig_preset), self.cfg.rig_overrides))
         lp = self.loop
         ctrl = core.CyclicController(lp.rate_hz, lp.position_settings)
         f0 = lp.meas["f"] if f0_n is None else f0_n

@@ -65,20 +65,13 @@ pub enum ControllerSpec {
 
 /// A controller as named parameters (a spec's `[controller]` table, SI): `type` is
 /// demodulation, force_p or position_pff; the gains its type does not use are ignored.
-#[cfg_attr(feature = "python", derive(pyo3::FromPyObject), pyo3(from_item_all))]
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct ControllerSpecArgs {
-    #[cfg_attr(feature = "python", pyo3(item("type")))]
     pub kind: String,
-    #[cfg_attr(feature = "python", pyo3(default))]
     pub velocity_gain_m_s_per_v: Option<f64>,
-    #[cfg_attr(feature = "python", pyo3(default))]
     pub kp_v_per_n: Option<f64>,
-    #[cfg_attr(feature = "python", pyo3(default))]
     pub kp_v_per_m: Option<f64>,
-    #[cfg_attr(feature = "python", pyo3(default))]
     pub kff_v_per_m_s: Option<f64>,
-    #[cfg_attr(feature = "python", pyo3(default))]
     pub u_offset_v: Option<f64>,
 }
 
@@ -90,46 +83,43 @@ impl ControllerSpecArgs {
         match self.kind.as_str() {
             "demodulation" => Ok(ControllerSpec::Demod { velocity_gain_m_s_per_v: self.velocity_gain_m_s_per_v }),
             "force_p" => Ok(ControllerSpec::ForceP {
-                kp_v_per_n: self.kp_v_per_n.ok_or_else(|| Error::Input("test config needs `kp_v_per_n`".into()))?,
+                kp_v_per_n: self.kp_v_per_n.ok_or_else(|| Error::Input("controller.kp_v_per_n is missing".into()))?,
                 u_offset_v,
             }),
             "position_pff" => Ok(ControllerSpec::PositionPff {
                 velocity_gain_m_s_per_v: self.velocity_gain_m_s_per_v, kp_v_per_m: self.kp_v_per_m, kff_v_per_m_s: self.kff_v_per_m_s, u_offset_v,
             }),
-            other => Err(Error::Input(format!("controller type `{other}`: use demodulation, force_p or position_pff"))),
+            other => Err(Error::Input(format!("controller.type = `{other}`: use demodulation, force_p or position_pff"))),
         }
     }
 }
 
-/// A phase as named parameters (one item of a config's `phases`, SI): `mode` is
-/// constant_force (needs `delta_f_n`), constant_delta_k (`delta_k`) or k_gradient (`delta_k`,
-/// `k_gradient_per_m`).
-#[cfg_attr(feature = "python", derive(pyo3::FromPyObject), pyo3(from_item_all))]
+/// A phase as named parameters (a spec's `[precrack]` or `[loading]` table, SI, named as the
+/// spec names them): `mode` is constant_force (needs `delta_f_n`), constant_delta_k
+/// (`delta_k_pa_sqrt_m`) or k_gradient (`delta_k_pa_sqrt_m`, `k_gradient_per_m`).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct PhaseArgs {
     pub mode: String,
-    #[cfg_attr(feature = "python", pyo3(default))]
     pub r_ratio: Option<f64>,
-    #[cfg_attr(feature = "python", pyo3(default))]
     pub end_a_m: Option<f64>,
-    #[cfg_attr(feature = "python", pyo3(default))]
     pub tolerance: Option<f64>,
-    #[cfg_attr(feature = "python", pyo3(default))]
     pub delta_f_n: Option<f64>,
-    #[cfg_attr(feature = "python", pyo3(default))]
-    pub delta_k: Option<f64>,
-    #[cfg_attr(feature = "python", pyo3(default))]
+    pub delta_k_pa_sqrt_m: Option<f64>,
     pub k_gradient_per_m: Option<f64>,
 }
 
 impl PhaseArgs {
-    pub fn build(&self) -> Result<Phase> {
-        let need = |k: &str, v: Option<f64>| v.ok_or_else(|| Error::Input(format!("test config needs `{k}`")));
+    /// The phase; `section` (`precrack` or `loading`) names a missing value in the error.
+    pub fn build(&self, section: &str) -> Result<Phase> {
+        let need = |k: &str, v: Option<f64>| v.ok_or_else(|| Error::Input(format!("{section}.{k} is missing")));
         let mode = match self.mode.as_str() {
             "constant_force" => Mode::ConstantForce { delta_f_n: need("delta_f_n", self.delta_f_n)? },
-            "constant_delta_k" => Mode::ConstantDeltaK { delta_k: need("delta_k", self.delta_k)? },
-            "k_gradient" => Mode::KGradient { delta_k0: need("delta_k", self.delta_k)?, c_per_m: need("k_gradient_per_m", self.k_gradient_per_m)? },
-            other => return Err(Error::Input(format!("phase mode `{other}`: use constant_force, constant_delta_k or k_gradient"))),
+            "constant_delta_k" => Mode::ConstantDeltaK { delta_k: need("delta_k_pa_sqrt_m", self.delta_k_pa_sqrt_m)? },
+            "k_gradient" => Mode::KGradient {
+                delta_k0: need("delta_k_pa_sqrt_m", self.delta_k_pa_sqrt_m)?,
+                c_per_m: need("k_gradient_per_m", self.k_gradient_per_m)?,
+            },
+            other => return Err(Error::Input(format!("{section}.mode = `{other}`: use constant_force, constant_delta_k or k_gradient"))),
         };
         Ok(Phase { mode, r_ratio: need("r_ratio", self.r_ratio)?, end_a_m: need("end_a_m", self.end_a_m)?, tolerance: need("tolerance", self.tolerance)? })
     }
@@ -223,6 +213,9 @@ pub struct TestConfig {
     /// variable-amplitude loading (empty = constant amplitude from the phases): force levels
     /// applied in turn and repeated to the end; a level replaces the phase's force range
     pub sequence: Vec<Level>,
+    /// the sequence came from a spectrum (`[variable_amplitude] spectrum`, one cycle a level),
+    /// not from blocks: how an error names a level
+    pub sequence_from_spectrum: bool,
 }
 
 /// One level of a variable-amplitude sequence: peak and valley [N] for `cycles` cycles (a block;
@@ -370,28 +363,61 @@ pub fn measured_k(s: &Specimen, a: f64, fmax: f64, fmin: f64, r_nominal: f64) ->
     Ok((dk, kmax, if fmax != 0.0 { fmin / fmax } else { 0.0 }))
 }
 
+/// A sub-check's error with its field under the spec's `section` (`material` → `material.poisson_ratio`).
+pub fn within<T>(section: &str, r: Result<T>) -> Result<T> {
+    r.map_err(|e| match e {
+        Error::Parameter { field, value, allowed } => Error::Parameter { field: format!("{section}.{field}"), value, allowed },
+        other => other,
+    })
+}
+
 impl TestConfig {
-    /// Checks everything before anything runs; errors name the field, value and allowed range.
+    /// The spec's table of phase `i`: the last phase is the test proper (`[loading]`), the one
+    /// before it the precrack (`[precrack]`).
+    pub fn phase_section(&self, i: usize) -> String {
+        let n = self.phases.len();
+        match n - 1 - i.min(n - 1) {
+            0 => "loading".into(),
+            1 => "precrack".into(),
+            _ => format!("phases[{i}]"),
+        }
+    }
+
+    /// Crack length `a_m` as the spec states an end crack length: a/W (C(T)) or 2a/W (M(T)).
+    fn a_over_w(&self, a_m: f64) -> f64 {
+        match self.specimen.geometry {
+            crate::specimen::Geometry::CT => a_m / self.specimen.width_m,
+            crate::specimen::Geometry::MT => 2.0 * a_m / self.specimen.width_m,
+        }
+    }
+
+    /// Checks everything before anything runs; an error names the field by the spec's own path
+    /// (`loading.delta_k_pa_sqrt_m`, `end.a_over_w`, `rig.overrides.supply_pressure_pa`), its
+    /// value and the allowed range.
     pub fn validate(&self) -> Result<()> {
-        self.params.validate()?;
+        within("rig.overrides", self.params.validate())?;
         let (rlo, rhi) = RTOL_RANGE;
         if !(self.rtol >= rlo && self.rtol <= rhi) {
-            return Err(param("rtol", self.rtol, &format!("[{rlo:e}, {rhi:e}]")));
+            return Err(param("run.rtol", self.rtol, &format!("[{rlo:e}, {rhi:e}]")));
         }
-        self.specimen.validate()?;
-        self.material.validate()?;
-        self.law.validate()?;
-        self.waveform.validate()?;
+        within("specimen", self.specimen.validate())?;
+        within("material", self.material.validate())?;
+        within("law", self.law.validate())?;
+        within("loading", self.waveform.validate())?;
         let (alo, ahi) = self.specimen.a_range();
+        let (wlo, whi) = self.specimen.geometry.alpha_range();
+        let alpha = if self.specimen.geometry == crate::specimen::Geometry::CT { "a/W" } else { "2a/W" };
         if !(self.a0_m >= alo - 1e-12 && self.a0_m <= ahi) {
-            return Err(param("a0_m", self.a0_m, &format!("[{alo}, {ahi}] m (a/W in 0.2–0.975 for C(T))")));
+            return Err(param("specimen.a0_m", self.a0_m, &format!("[{alo}, {ahi}] m ({alpha} in [{wlo}, {whi}])")));
         }
-        if !(self.frequency_hz.is_finite() && self.frequency_hz > 0.0) {
-            return Err(param("frequency_hz", self.frequency_hz, "(0, inf) Hz"));
+        if !(self.frequency_hz.is_finite() && self.frequency_hz > 0.0 && self.frequency_hz * MIN_SAMPLES_PER_CYCLE <= MAX_CONTROL_RATE_HZ) {
+            return Err(param("loading.frequency_hz", self.frequency_hz,
+                &format!("(0, {}] Hz ({MIN_SAMPLES_PER_CYCLE} samples per cycle at a control rate ≤ {MAX_CONTROL_RATE_HZ} Hz)",
+                    MAX_CONTROL_RATE_HZ / MIN_SAMPLES_PER_CYCLE)));
         }
         let min_rate = MIN_SAMPLES_PER_CYCLE * self.frequency_hz;
         if !(self.control_rate_hz.is_finite() && self.control_rate_hz >= min_rate && self.control_rate_hz <= MAX_CONTROL_RATE_HZ) {
-            return Err(param("control_rate_hz", self.control_rate_hz,
+            return Err(param("loading.control_rate_hz", self.control_rate_hz,
                 &format!("[{min_rate}, {MAX_CONTROL_RATE_HZ}] Hz (≥ {MIN_SAMPLES_PER_CYCLE} samples per cycle)")));
         }
         if self.phases.is_empty() {
@@ -399,62 +425,87 @@ impl TestConfig {
         }
         let mut a_prev = self.a0_m;
         for (i, ph) in self.phases.iter().enumerate() {
-            let f = |n: &str| format!("phases[{i}].{n}");
+            let sec = self.phase_section(i);
+            let f = |n: &str| format!("{sec}.{n}");
             let (rlo, rhi) = TEST_R_RATIO_RANGE;
             if !(ph.r_ratio.is_finite() && ph.r_ratio >= rlo && ph.r_ratio < rhi) {
                 return Err(param(&f("r_ratio"), ph.r_ratio, &format!("[{rlo}, {rhi})")));
             }
             if !(ph.end_a_m > a_prev && ph.end_a_m <= ahi) {
-                return Err(param(&f("end_a_m"), ph.end_a_m, &format!("({a_prev}, {ahi}] m")));
+                return Err(if i + 1 == self.phases.len() {
+                    // the test proper ends where the spec's [end] a_over_w says
+                    param("end.a_over_w", self.a_over_w(ph.end_a_m), &format!("({}, {whi}] (beyond the crack at its start, {} m)",
+                        self.a_over_w(a_prev), a_prev))
+                } else {
+                    param(&f("end_a_m"), ph.end_a_m, &format!("({a_prev}, {ahi}] m"))
+                });
             }
             if !(ph.tolerance > 0.0 && ph.tolerance <= MAX_TOLERANCE) {
                 return Err(param(&f("tolerance"), ph.tolerance, &format!("(0, {MAX_TOLERANCE}]")));
             }
+            let (dk_name, dk_unit) = ("delta_k_pa_sqrt_m", "Pa·√m");
             match ph.mode {
                 Mode::ConstantForce { delta_f_n } if !(delta_f_n.is_finite() && delta_f_n > 0.0) => return Err(param(&f("delta_f_n"), delta_f_n, "(0, inf) N")),
-                Mode::ConstantDeltaK { delta_k } if !(delta_k.is_finite() && delta_k > 0.0) => return Err(param(&f("delta_k"), delta_k, "(0, inf) Pa·√m")),
+                Mode::ConstantDeltaK { delta_k } if !(delta_k.is_finite() && delta_k > 0.0) => return Err(param(&f(dk_name), delta_k, "(0, inf) Pa·√m")),
                 Mode::KGradient { delta_k0, c_per_m } => {
                     if !(delta_k0.is_finite() && delta_k0 > 0.0) {
-                        return Err(param(&f("delta_k0"), delta_k0, "(0, inf) Pa·√m"));
+                        return Err(param(&f(dk_name), delta_k0, "(0, inf) Pa·√m"));
                     }
                     if !(c_per_m.is_finite() && c_per_m >= E647_MIN_K_GRADIENT_PER_M) {
-                        return Err(param(&f("k_gradient_per_m"), c_per_m, "≥ −80 1/m (ASTM E647: C ≥ −0.08 mm⁻¹)"));
+                        return Err(param(&f("k_gradient_per_m"), c_per_m, "[-80, inf) 1/m (ASTM E647: C ≥ −0.08 mm⁻¹)"));
                     }
                 }
                 _ => {}
             }
-            let (fmax, _, dk) = targets(self, ph, a_prev, a_prev)?;
+            let (fmax, _, _) = targets(self, ph, a_prev, a_prev)?;
             let kmax = self.specimen.k(a_prev, fmax)?;
             let kic = self.material.fracture_toughness_pa_sqrt_m;
             if kmax >= kic && self.sequence.is_empty() {
-                return Err(param(&f("start Kmax"), kmax, &format!("< K_IC = {kic} Pa·√m (ΔK at start {dk} Pa·√m)")));
+                // the load the phase asks for, against the largest that keeps Kmax below K_IC
+                let (name, value, unit) = match ph.mode {
+                    Mode::ConstantForce { delta_f_n } => ("delta_f_n", delta_f_n, "N"),
+                    Mode::ConstantDeltaK { delta_k } => (dk_name, delta_k, dk_unit),
+                    Mode::KGradient { delta_k0, .. } => (dk_name, delta_k0, dk_unit),
+                };
+                return Err(param(&f(name), value, &format!(
+                    "(0, {:.6e}) {unit}: Kmax at the start of the phase (a = {a_prev} m) must stay below K_IC = {kic} Pa·√m, it is {kmax:.6e} Pa·√m",
+                    value * kic / kmax)));
             }
             a_prev = ph.end_a_m;
         }
         if self.limits.max_cycles == 0 {
-            return Err(param("limits.max_cycles", 0.0, "≥ 1"));
+            return Err(param("end.max_cycles", 0.0, "≥ 1"));
         }
         // what the rig can drive (resonance, valve flow, force, stroke, size criterion) is
         // `feasibility::assess`: a forced test runs past it
         for (i, l) in self.sequence.iter().enumerate() {
+            // a level by the spec's path: a spectrum's peak, or a block's force range (E647: the
+            // peak for R < 0)
+            let (field, value) = if self.sequence_from_spectrum {
+                (format!("variable_amplitude.spectrum[{i}].peak_n"), l.fmax_n)
+            } else {
+                (format!("variable_amplitude.blocks[{i}].delta_f_n"), if l.fmin_n >= 0.0 { l.fmax_n - l.fmin_n } else { l.fmax_n })
+            };
             if !(l.fmax_n.is_finite() && l.fmin_n.is_finite() && l.fmax_n > l.fmin_n) {
-                return Err(param(&format!("sequence[{i}].fmax_n"), l.fmax_n, &format!("finite, > the valley {} N", l.fmin_n)));
+                return Err(param(&field, value, &format!("finite, the peak above the valley {} N", l.fmin_n)));
             }
             if l.cycles == 0 {
-                return Err(param(&format!("sequence[{i}].cycles"), 0.0, "≥ 1"));
+                return Err(param(&format!("variable_amplitude.blocks[{i}].cycles"), 0.0, "≥ 1"));
             }
             let kmax = self.specimen.k(self.a0_m, l.fmax_n)?;
             let kic = self.material.fracture_toughness_pa_sqrt_m;
             if kmax >= kic {
-                return Err(param(&format!("sequence[{i}] start Kmax"), kmax, &format!("< K_IC = {kic} Pa·√m")));
+                return Err(param(&field, value, &format!(
+                    "(0, {:.6e}) N: Kmax at the start (a = {} m) must stay below K_IC = {kic} Pa·√m, it is {kmax:.6e} Pa·√m",
+                    value * kic / kmax, self.a0_m)));
             }
         }
         if !self.sequence.is_empty() && self.sequence.iter().map(|l| l.cycles).sum::<u64>() == 0 {
-            return Err(Error::Input("sequence: no cycles".into()));
+            return Err(Error::Input("variable_amplitude: no cycles".into()));
         }
-        for &(c, fac) in &self.stiffness_steps {
+        for (i, &(c, fac)) in self.stiffness_steps.iter().enumerate() {
             if !(fac > 0.0 && fac <= 1.0) {
-                return Err(param(&format!("stiffness_steps[cycle {c}]"), fac, "(0, 1]"));
+                return Err(param(&format!("stiffness_steps[{i}] (cycle {c}) factor"), fac, "(0, 1]"));
             }
         }
         if let ControllerSpec::PositionPff { velocity_gain_m_s_per_v, kp_v_per_m, kff_v_per_m_s, u_offset_v } = self.controller {

@@ -62,6 +62,7 @@ pub(crate) mod tests {
             stiffness_steps: vec![],
             jump: JumpConfig::default(),
             sequence: vec![],
+            sequence_from_spectrum: false,
         }
     }
 

@@ -3,8 +3,8 @@
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
-use super::engine::config_from;
-use super::fatigue::law_from;
+use super::convert::PyTestConfig;
+use super::convert::law_from;
 use super::{InputError, PyParams};
 use crate::control::limits::{Action, Detector, Detectors};
 use crate::cyclic::{Cyclic, CycleResult, PositionGains};
@@ -78,9 +78,9 @@ impl PyCyclic {
         self.inner.step(force_n, position_m).map_err(PyErr::from)
     }
 
-    /// Start a force test (config dict as `run_test`'s, SI) from the measured force `f0_n`.
-    fn start_test(&mut self, py: Python<'_>, config: &Bound<'_, PyDict>, f0_n: f64) -> PyResult<()> {
-        let cfg = config_from(config)?;
+    /// Start the force test `config` (as `run_test`'s) from the measured force `f0_n`.
+    fn start_test(&mut self, py: Python<'_>, config: PyRef<'_, PyTestConfig>, f0_n: f64) -> PyResult<()> {
+        let cfg = std::sync::Arc::clone(&config.inner);
         let inner = &mut self.inner;
         py.detach(|| inner.start_test(&cfg, f0_n)).map_err(PyErr::from)
     }
@@ -179,7 +179,7 @@ impl PyCyclic {
     /// Convergence of the loaded test so far (as `run_test`'s `convergence`); empty without one.
     fn convergence<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
         match self.inner.machine() {
-            Some(m) => super::engine::convergence_list(py, &m.convergence),
+            Some(m) => super::convert::convergence_list(py, &m.convergence),
             None => Ok(PyList::empty(py)),
         }
     }

@@ -3,8 +3,8 @@ use numpy::{PyArray1, PyReadonlyArray1};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use super::{InputError};
-use crate::crack::{self, Law, LawSpec, Load};
+use super::convert::law_from;
+use crate::crack::{self, Load};
 use crate::specimen::{self, Geometry, Material, Specimen};
 use crate::{Error, Result};
 
@@ -14,13 +14,6 @@ fn spec(geometry: &str, width_m: f64, thickness_m: f64) -> PyResult<Specimen> {
 
 fn elastic(youngs_modulus_pa: f64, poisson_ratio: f64) -> Material {
     Material { youngs_modulus_pa, poisson_ratio, ..Material::default() }
-}
-
-/// A law from its dict (`LawSpec`'s keys); extraction and validation errors are `InputError`s
-/// and `ParameterError`s.
-pub(super) fn law_from(d: &Bound<'_, PyAny>) -> PyResult<Law> {
-    let spec: LawSpec = d.extract().map_err(|e| InputError::new_err(format!("growth law: {e}")))?;
-    Ok(spec.build()?)
 }
 
 fn map_each(a: &[f64], f: impl Fn(f64) -> Result<f64>) -> Result<Vec<f64>> {

@@ -1,8 +1,8 @@
-//! Thin binding of `feasibility::assess`: a test config dict in, one dict per check out.
+//! Thin binding of `feasibility::assess`: a `TestConfig` in, one dict per check out.
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
-use super::engine::config_from;
+use super::convert::PyTestConfig;
 use crate::feasibility;
 
 /// Every feasibility check of a test config (SI): name, status ("ok", "marginal", "refused"),
@@ -10,8 +10,8 @@ use crate::feasibility;
 /// largest ΔF and frequency the limit allows (None when it does not bound them).
 #[pyfunction]
 #[pyo3(name = "feasibility")]
-fn assess<'py>(py: Python<'py>, config: &Bound<'py, PyDict>) -> PyResult<Bound<'py, PyList>> {
-    let cfg = config_from(config)?;
+fn assess<'py>(py: Python<'py>, config: PyRef<'py, PyTestConfig>) -> PyResult<Bound<'py, PyList>> {
+    let cfg = std::sync::Arc::clone(&config.inner);
     let checks = py.detach(|| feasibility::assess(&cfg))?;
     let finite = |v: f64| v.is_finite().then_some(v);
     let out = PyList::empty(py);

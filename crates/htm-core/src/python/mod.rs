@@ -1,18 +1,19 @@
 //! Thin pyo3 bindings: convert, release the GIL, map errors. No numerics here.
 use numpy::{PyArray1, PyReadonlyArray1};
 use pyo3::create_exception;
-use pyo3::exceptions::{PyException, PyKeyError};
+use pyo3::exceptions::PyException;
 use pyo3::prelude::*;
-use pyo3::types::{PyDict, PyList};
+use pyo3::types::PyDict;
 
-use crate::control::{Controller, ControllerArgs};
 use crate::machine::{Machine, Outputs, NX};
-use crate::params::{Field, Params, FIELDS};
+use crate::params::Params;
+use convert::controller_from;
 use crate::run::{self, Trace};
 use crate::solver::Stats;
-use crate::Error;
 
+mod arrow;
 mod control;
+mod convert;
 mod engine;
 mod fatigue;
 mod feasibility;
@@ -23,6 +24,7 @@ mod replay;
 
 // Submodules add their own classes and functions here.
 pub(crate) fn register_extensions(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    convert::register(m)?;
     fatigue::register(m)?;
     feasibility::register(m)?;
     control::register(m)?;
@@ -39,43 +41,6 @@ create_exception!(htm._core, ParameterError, HtmError, "A parameter is outside i
 create_exception!(htm._core, InputError, HtmError, "An input signal or argument is unusable.");
 create_exception!(htm._core, SolverError, HtmError, "The integrator could not meet its tolerance.");
 
-/// Each core error as its `HtmError` subclass, so `?` carries it to Python.
-impl From<Error> for PyErr {
-    fn from(e: Error) -> PyErr {
-        match e {
-            Error::Parameter { .. } => ParameterError::new_err(e.to_string()),
-            Error::Input(_) => InputError::new_err(e.to_string()),
-            Error::Solver(_) => SolverError::new_err(e.to_string()),
-        }
-    }
-}
-
-/// `{name: value}` of a parameter set's fields (both parameter bindings).
-pub(crate) fn values_dict<'py>(py: Python<'py>, fields: &[Field], get: impl Fn(&str) -> Option<f64>) -> PyResult<Bound<'py, PyDict>> {
-    let d = PyDict::new(py);
-    for f in fields {
-        d.set_item(f.name, get(f.name))?;
-    }
-    Ok(d)
-}
-
-/// Name, unit, documentation and allowed range of each field (both parameter bindings).
-pub(crate) fn field_table<'py>(py: Python<'py>, fields: &[Field]) -> PyResult<Bound<'py, PyList>> {
-    let out = PyList::empty(py);
-    for f in fields {
-        let d = PyDict::new(py);
-        d.set_item("name", f.name)?;
-        d.set_item("unit", f.unit)?;
-        d.set_item("doc", f.doc.trim())?;
-        d.set_item("min", f.min)?;
-        d.set_item("max", f.max)?;
-        d.set_item("min_open", f.min_open)?;
-        d.set_item("allowed", f.allowed())?;
-        out.append(d)?;
-    }
-    Ok(out)
-}
-
 /// Machine parameters (SI); `Params()` is the thesis rig, `Params("base")` the same rig with
 /// a linear valve characteristic.
 #[pyclass(name = "Params", module = "htm._core", from_py_object)]
@@ -84,8 +49,7 @@ pub struct PyParams {
     pub inner: Params,
 }
 
-#[pymethods]
-impl PyParams {
+convert::param_set_class!(PyParams, Params, {
     #[new]
     #[pyo3(signature = (preset = "thesis"))]
     fn new(preset: &str) -> PyResult<Self> {
@@ -95,44 +59,6 @@ impl PyParams {
             other => return Err(InputError::new_err(format!("unknown preset `{other}`: use \"thesis\" or \"base\""))),
         };
         Ok(PyParams { inner })
-    }
-
-    fn __getitem__(&self, name: &str) -> PyResult<f64> {
-        self.inner.get(name).ok_or_else(|| PyKeyError::new_err(format!("unknown parameter `{name}`")))
-    }
-
-    fn __setitem__(&mut self, name: &str, value: f64) -> PyResult<()> {
-        if self.inner.get(name).is_none() {
-            return Err(PyKeyError::new_err(format!("unknown parameter `{name}`")));
-        }
-        self.inner.set(name, value).map_err(PyErr::from)
-    }
-
-    fn __contains__(&self, name: &str) -> bool {
-        self.inner.get(name).is_some()
-    }
-
-    fn keys(&self) -> Vec<&'static str> {
-        FIELDS.iter().map(|f| f.name).collect()
-    }
-
-    /// Raise ParameterError naming the first field out of range.
-    fn validate(&self) -> PyResult<()> {
-        self.inner.validate().map_err(PyErr::from)
-    }
-
-    fn copy(&self) -> Self {
-        self.clone()
-    }
-
-    fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        values_dict(py, FIELDS, |name| self.inner.get(name))
-    }
-
-    /// Name, unit, documentation and allowed range of every scalar field.
-    #[staticmethod]
-    fn fields<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
-        field_table(py, FIELDS)
     }
 
     /// Command-to-spool knots (command after bias [V], spool [V]); empty lists = linear.
@@ -151,7 +77,7 @@ impl PyParams {
         format!("Params(supply_pressure_pa={}, moving_mass_kg={}, specimen_stiffness_n_m={}, ...)",
             self.inner.supply_pressure_pa, self.inner.moving_mass_kg, self.inner.specimen_stiffness_n_m)
     }
-}
+});
 
 fn outputs_dict<'py>(py: Python<'py>, o: &Outputs) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
@@ -182,11 +108,6 @@ fn trace_dict<'py>(py: Python<'py>, tr: Trace) -> PyResult<Bound<'py, PyDict>> {
     Ok(d)
 }
 
-/// A controller from its dict (`ControllerArgs`' keys); a malformed dict is an `InputError`.
-fn controller_from(d: &Bound<'_, PyAny>) -> PyResult<Controller> {
-    let args: ControllerArgs = d.extract().map_err(|e| InputError::new_err(format!("controller: {e}")))?;
-    Ok(args.build()?)
-}
 
 /// The plant with its state and integrator; step it one held command at a time.
 #[pyclass(name = "Machine", module = "htm._core")]

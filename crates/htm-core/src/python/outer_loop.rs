@@ -1,12 +1,11 @@
 //! Bindings of the displacement-loop model (`outer_loop`): its parameter set and batched
 //! simulation with the GIL released.
 use numpy::{PyArray1, PyReadonlyArray1};
-use pyo3::exceptions::PyKeyError;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
-use super::{field_table, values_dict, InputError};
-use crate::outer_loop::{simulate_batch, validate_input, LoopOutput, LoopParams, LOOP_FIELDS, STALL_FORCE_KEY};
+use super::InputError;
+use crate::outer_loop::{simulate_batch, validate_input, LoopOutput, LoopParams, STALL_FORCE_KEY};
 
 /// Parameters of a machine's closed displacement loop (SI); `LoopParams()` has every effect off.
 #[pyclass(name = "LoopParams", module = "htm._core", from_py_object)]
@@ -15,50 +14,10 @@ pub struct PyLoopParams {
     pub inner: LoopParams,
 }
 
-#[pymethods]
-impl PyLoopParams {
+super::convert::param_set_class!(PyLoopParams, LoopParams, {
     #[new]
     fn new() -> Self {
         PyLoopParams { inner: LoopParams::default() }
-    }
-
-    fn __getitem__(&self, name: &str) -> PyResult<f64> {
-        self.inner.get(name).ok_or_else(|| PyKeyError::new_err(format!("unknown displacement-loop parameter `{name}`")))
-    }
-
-    fn __setitem__(&mut self, name: &str, value: f64) -> PyResult<()> {
-        if self.inner.get(name).is_none() {
-            return Err(PyKeyError::new_err(format!("unknown displacement-loop parameter `{name}`")));
-        }
-        self.inner.set(name, value).map_err(PyErr::from)
-    }
-
-    fn __contains__(&self, name: &str) -> bool {
-        self.inner.get(name).is_some()
-    }
-
-    /// Names of the fields (the derived `load_stall_force_n` is readable too).
-    fn keys(&self) -> Vec<&'static str> {
-        LOOP_FIELDS.iter().map(|f| f.name).collect()
-    }
-
-    /// Raise ParameterError naming the first field out of range.
-    fn validate(&self) -> PyResult<()> {
-        self.inner.validate().map_err(PyErr::from)
-    }
-
-    fn copy(&self) -> Self {
-        self.clone()
-    }
-
-    fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        values_dict(py, LOOP_FIELDS, |name| self.inner.get(name))
-    }
-
-    /// Name, unit, documentation and allowed range of every field.
-    #[staticmethod]
-    fn fields<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
-        field_table(py, LOOP_FIELDS)
     }
 
     #[classattr]
@@ -70,7 +29,7 @@ impl PyLoopParams {
         let p = &self.inner;
         format!("LoopParams(gain={}, bandwidth_hz={}, delay_s={}, feedforward={}, ...)", p.gain, p.bandwidth_hz, p.delay_s, p.feedforward)
     }
-}
+});
 
 fn output_dict<'py>(py: Python<'py>, r: crate::Result<LoopOutput>, n: usize) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
