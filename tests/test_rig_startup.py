@@ -89,3 +89,31 @@ def test_protect_holds_when_position_control_is_entered_again_while_powered():
         assert max(abs(r["f"]) for r in rows) < 0.25 * PROTECT_N
     finally:
         s.close()
+
+
+def test_a_test_started_during_the_start_up_waits_for_the_working_pressure():
+    """The console sends `start` while position control's start-up is still at its low pressure
+    (its Install key runs `position()` on a worker thread): the test waits for the working
+    pressure and runs, instead of tripping the supply limit at the start-up's few bar."""
+    import threading
+    import time
+
+    spec = load(ROOT / "examples" / "ct_constant_force.toml")
+    cfg = virtual_config("lockstep", position={"protect_force_n": PROTECT_N})
+    s = Session().open(cfg, virtual=True, specimen=specimen_of(spec), paced=True)
+    try:
+        t = threading.Thread(target=s.position)
+        t.start()
+        deadline = time.monotonic() + 5.0
+        while not s.loop.ctrl.starting_up and time.monotonic() < deadline:
+            time.sleep(0.005)
+        assert s.loop.ctrl.starting_up and s.loop.meas["p_s"] < 0.1 * s.loop.supply_pa, "caught inside the start-up"
+        s.start(spec, record=False)
+        t.join(10.0)
+        time.sleep(0.5)
+        snap = s.snapshot()
+        assert snap["interlock"] is None and snap["amplifier"], [e["message"] for e in s.log.since(0)][-4:]
+        assert snap["test"] == 1 and snap["cycles"] > 0
+        assert not any(e["kind"] == "trip" for e in s.log.since(0))
+    finally:
+        s.close()

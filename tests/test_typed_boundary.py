@@ -152,6 +152,23 @@ def test_batch_failures_are_per_item_exceptions():
     assert outs[0].cycles == outs[2].cycles
 
 
+def test_replay_and_loop_batches_follow_the_same_convention():
+    """Every batch call returns one item per input: its result, or the HtmError of the input the
+    core could not carry (no NaN arrays with an error string beside them)."""
+    good, bad = core.Params(), core.Params()
+    bad["tank_pressure_pa"] = bad["supply_pressure_pa"] + 1e5
+    n = 200
+    out = core.replay([good, bad, good], 1e-3, np.zeros(n), threads=2)
+    assert isinstance(out[0], dict) and "error" not in out[0] and len(out[0]["y"]) == n and np.all(np.isfinite(out[0]["y"]))
+    assert isinstance(out[1], core.ParameterError) and out[1].field == "tank_pressure_pa"
+    assert np.array_equal(out[0]["y"], out[2]["y"])
+    lp = core.LoopParams()
+    lbad = core.LoopParams()
+    lbad["asymmetry"] = 1.5
+    lout = core.loop_simulate([lbad, lp], 1e-3, np.zeros(n))
+    assert isinstance(lout[0], core.ParameterError) and isinstance(lout[1], dict) and "error" not in lout[1]
+
+
 def test_a_config_is_not_a_dict_and_is_built_from_the_spec_once():
     spec = parse(doc(), "ct")
     cfg = spec.config

@@ -315,14 +315,14 @@ class LoopParams:
     @staticmethod
     def fields() -> list[_FieldInfo]: ...
 
-# one parameter set's run: y [m], v [m/s], f [N] per sample; a failed set: NaN arrays and its message
+# one parameter set's run: y [m], v [m/s], f [N] per sample; a failed set is its HtmError, as
+# the item (every batch call's convention, run_batch's too)
 class _LoopOutput(TypedDict):
     y: npt.NDArray[np.float64]
     v: npt.NDArray[np.float64]
     f: npt.NDArray[np.float64]
-    error: str | None
 
-def loop_simulate(params: list[LoopParams], dt: float, y_ref: npt.NDArray[np.float64], load: npt.NDArray[np.float64] | None = None, threads: int = 0) -> list[_LoopOutput]: ...
+def loop_simulate(params: list[LoopParams], dt: float, y_ref: npt.NDArray[np.float64], load: npt.NDArray[np.float64] | None = None, threads: int = 0) -> list[_LoopOutput | HtmError]: ...
 
 # --- real-time loop (crates/htm-core/src/cyclic.rs, control/limits.rs, rig.rs) ---
 # the last closed cycle of the real-time loop (the per-cycle table's row, with the stroke range)
@@ -488,7 +488,7 @@ class RigPlant:
 
 # --- record re-simulation (crates/htm-core/src/replay.rs, measure.rs); see htm.ident.sim ---
 # one parameter set's replay: the readings of each measured channel and the command u per sample,
-# the solver's steps; a failed set: NaN arrays and its message in `error`
+# the solver's steps; a failed set is its HtmError, as the item (every batch call's convention)
 class _Replayed(TypedDict, total=False):
     y: npt.NDArray[np.float64]
     v: npt.NDArray[np.float64]
@@ -498,14 +498,13 @@ class _Replayed(TypedDict, total=False):
     f: npt.NDArray[np.float64]
     u: npt.NDArray[np.float64]
     steps: int
-    error: str | None
 
 def replay(params: list[Params], dt: float, u: npt.NDArray[np.float64], measured: dict[str, npt.NDArray[np.float64]] | None = None,
            controller: _ControllerArgs | None = None, reference: npt.NDArray[np.float64] | None = None,
            horizon_s: float = ..., preroll_s: float = ..., rtol: float = ...,  # 0.5 s, 1.0 s, 1e-4 (replay.rs DEFAULT_*)
            noise: dict[str, npt.NDArray[np.float64]] | None = None, quantum: dict[str, float] | None = None,
            supply: npt.NDArray[np.float64] | None = None, active: npt.NDArray[np.bool_] | None = None,
-           threads: int = 0) -> list[_Replayed]: ...
+           threads: int = 0) -> list[_Replayed | HtmError]: ...
 
 # --- identification (crates/htm-core/src/python/ident.rs) ---
 

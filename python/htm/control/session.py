@@ -373,6 +373,10 @@ class Session:
         With `record` the test goes into the test store (`store`: root folder, default
         $HTM_STORE) with a rerun recording (`recording`), see `htm.control.recorder`."""
         self._motion_allowed()
+        if self.loop.powered and self.loop.ctrl.starting_up:
+            # position control's hydraulic start-up is still at its low pressure: the test starts on
+            # the working pressure, once the start-up is through (the supply limit would trip)
+            self._started_up()
         self._load_supply()
         cfg = spec.config.with_params(with_overrides(core.Params(self.cfg.rig_preset), self.cfg.rig_overrides))
         lp = self.loop

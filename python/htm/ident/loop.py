@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from htm.core import LoopParams, loop_simulate
-from htm.errors import InputError, RecordError
+from htm.errors import HtmError, InputError, RecordError
 from htm.ident.family import Family
 from htm.ident.features import smooth
 from htm.ident.model import Candidate, Free, lin, logf
@@ -97,7 +97,9 @@ def simulate(plist: list[LoopParams], rec: Record, *, threads: int = 0) -> list[
     dt = float(np.median(np.diff(t)))
     load = np.ascontiguousarray(rec.columns["f"], dtype=float) if "f" in rec.columns else None
     out = loop_simulate(list(plist), dt, np.ascontiguousarray(rec.columns["y_ref"], dtype=float), load=load, threads=threads)
-    return [{c: r[c] for c in CHANNELS} for r in out]
+    # a set the solver could not carry comes back as its error: NaN readings, a failed set to the fit
+    return [{c: np.full(len(t), np.nan) for c in CHANNELS} if isinstance(r, HtmError) else {c: r[c] for c in CHANNELS}
+            for r in out]
 
 
 class LoopFamily(Family):

@@ -33,7 +33,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from htm.core import Params, replay
-from htm.errors import InputError
+from htm.errors import HtmError, InputError
 from htm.ident.experiments import POSITION_LAW
 from htm.ident.records import FORMAT, MACHINE_POSITION, Record
 from htm.ident.sim import PREROLL_S, params_from_meta
@@ -217,8 +217,8 @@ def make_loop_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, 
         sensors = {c: {"resolution": QUANTUM[c], "noise_std": NOISE_STD[c]} for c in chans}
     out = replay([truth], dt, np.zeros(n), controller=controller, reference=seen, preroll_s=PREROLL_S, rtol=1e-6,
                  threads=1, **kw)[0]
-    if out["error"] is not None:
-        raise InputError(f"the simulated rig failed (seed {seed}, effects {sorted(resolved)}): {out['error']}")
+    if isinstance(out, HtmError):
+        raise InputError(f"the simulated rig failed (seed {seed}, effects {sorted(resolved)}): {out}")
     cols = {"t": dt * np.arange(n), "y_ref": ref, **{c: out[c] for c in chans}}
     meta = {"format": FORMAT, "sample_rate_hz": rate_hz, "rig": {"stroke_m": nominal["stroke_m"]},
             "specimen": {"stiffness_n_m": SPECIMEN_STIFFNESS_N_M, "zero_force_position_m": CENTRE_M} if with_specimen else None,

@@ -7,7 +7,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from htm.core import Params, replay
-from htm.errors import InputError
+from htm.errors import HtmError, InputError
 from htm.ident.experiments import POSITION_LAW
 from htm.ident.records import FORMAT, Record
 from htm.ident.sim import CHANNELS, PREROLL_S, SENSOR_EFFECTS, effect_fields, params_from_meta, with_effect
@@ -222,8 +222,8 @@ def make_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, seed:
         meta["sensors"] = {c: {"resolution": QUANTUM[c], "noise_std": NOISE_STD[c]} for c in chans}
     out = replay([truth], dt, np.zeros(n), controller=meta["controller"], reference=ref, preroll_s=PREROLL_S, rtol=1e-6,
                  supply=supply_profile(ref, rate_hz), threads=1, **kw)[0]
-    if out["error"] is not None:
-        raise InputError(f"the simulated rig failed (seed {seed}, effects {sorted(resolved)}): {out['error']}")
+    if isinstance(out, HtmError):
+        raise InputError(f"the simulated rig failed (seed {seed}, effects {sorted(resolved)}): {out}")
     cols = {"t": dt * np.arange(n), "u": out["u"], **{c: out[c] for c in chans}, ("f_ref" if experiment == "force" else "y_ref"): ref}
     name = ("proving_" + ("force_" if experiment == "force" else "") + ("_".join(sorted(resolved)) or "clean")
             + (f"_{effect_outside_table}" if effect_outside_table else "") + f"_s{seed}")

@@ -23,7 +23,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from htm.core import CHANNELS, Params, replay
-from htm.errors import InputError, RecordError, SolverError
+from htm.errors import HtmError, InputError, RecordError, SolverError
 from htm.ident.records import Record
 from htm.ident.family import SENSOR_EFFECTS
 
@@ -274,7 +274,10 @@ def predict(params: Params | list[Params], rec: Record, *, horizon_s: float | No
     out = replay(plist, horizon_s=DEFAULT_HORIZON_S if horizon_s is None else float(horizon_s),
                  preroll_s=PREROLL_S, rtol=rtol, threads=threads, **args)
     keep = list(args["measured"]) + (["u"] if with_command else [])
-    if single and out[0]["error"] is not None:
-        raise SolverError(f"record `{rec.name}`: {out[0]['error']}")
-    res = [{c: r[c] for c in keep} for r in out]
+    if single and isinstance(out[0], HtmError):
+        raise SolverError(f"record `{rec.name}`: {out[0]}")
+    # a set the solver could not carry comes back as its error: NaN readings, which the fit scores
+    # as a failed set
+    n = len(args["u"])
+    res = [{c: np.full(n, np.nan) for c in keep} if isinstance(r, HtmError) else {c: r[c] for c in keep} for r in out]
     return res[0] if single else res

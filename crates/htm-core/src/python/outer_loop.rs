@@ -31,30 +31,26 @@ super::convert::param_set_class!(PyLoopParams, LoopParams, {
     }
 });
 
-fn output_dict<'py>(py: Python<'py>, r: crate::Result<LoopOutput>, n: usize) -> PyResult<Bound<'py, PyDict>> {
-    let d = PyDict::new(py);
+/// One parameter set's result: `y`, `v`, `f`, or the `HtmError` of a set the solver could not
+/// carry, as the item (the batch convention of every batch call).
+fn output_item<'py>(py: Python<'py>, r: crate::Result<LoopOutput>) -> PyResult<Bound<'py, PyAny>> {
     match r {
         Ok(o) => {
+            let d = PyDict::new(py);
             d.set_item("y", PyArray1::from_vec(py, o.y))?;
             d.set_item("v", PyArray1::from_vec(py, o.v))?;
             d.set_item("f", PyArray1::from_vec(py, o.f))?;
-            d.set_item("error", py.None())?;
+            Ok(d.into_any())
         }
-        Err(e) => {
-            for c in ["y", "v", "f"] {
-                d.set_item(c, PyArray1::from_vec(py, vec![f64::NAN; n]))?;
-            }
-            d.set_item("error", e.to_string())?;
-        }
+        Err(e) => Ok(PyErr::from(e).into_value(py).into_bound(py).into_any()),
     }
-    Ok(d)
 }
 
 /// The displacement-loop model run with every parameter set in `params` (list of LoopParams)
 /// on the command `y_ref` [m] sampled every `dt` [s] (NaN = dropped, previous value held);
 /// `load`, the recorded load cell [N] if any, is the force that loads the loop.
-/// Returns one dict per parameter set: `y` [m], `v` [m/s], `f` [N] per sample and `error`
-/// (None, or the message with NaN arrays). The batch runs on `threads` threads (0 = all cores)
+/// Returns one item per parameter set: a dict of `y` [m], `v` [m/s], `f` [N] per sample, or the
+/// `HtmError` (`SolverError`) of a set the solver could not carry. The batch runs on `threads` threads (0 = all cores)
 /// with the GIL released. Bad arguments raise.
 #[pyfunction]
 #[pyo3(signature = (params, dt, y_ref, load = None, threads = 0))]
@@ -78,7 +74,7 @@ fn loop_simulate<'py>(py: Python<'py>, params: Vec<PyLoopParams>, dt: f64, y_ref
     let results = py.detach(|| simulate_batch(&ps, dt, r, f, threads));
     let out = PyList::empty(py);
     for res in results {
-        out.append(output_dict(py, res, r.len())?)?;
+        out.append(output_item(py, res)?)?;
     }
     Ok(out)
 }

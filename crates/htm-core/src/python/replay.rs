@@ -24,26 +24,21 @@ fn channel_arrays<'py>(d: Option<&Bound<'py, PyDict>>) -> PyResult<Vec<(usize, P
     Ok(out)
 }
 
-fn result_dict<'py>(py: Python<'py>, r: Result<Replayed, crate::Error>, n: usize) -> PyResult<Bound<'py, PyDict>> {
-    let d = PyDict::new(py);
+/// One parameter set's result: its readings by channel, or — the batch convention of every batch
+/// call (`run_batch` alike) — the `HtmError` of a set the solver could not carry, as the item.
+fn result_item<'py>(py: Python<'py>, r: Result<Replayed, crate::Error>) -> PyResult<Bound<'py, PyAny>> {
     match r {
         Ok(o) => {
+            let d = PyDict::new(py);
             for (c, v) in CHANNELS.iter().zip(o.readings) {
                 d.set_item(*c, PyArray1::from_vec(py, v))?;
             }
             d.set_item("u", PyArray1::from_vec(py, o.u))?;
             d.set_item("steps", o.stats.accepted)?;
-            d.set_item("error", py.None())?;
+            Ok(d.into_any())
         }
-        Err(e) => {
-            for c in CHANNELS.iter().chain(["u"].iter()) {
-                d.set_item(*c, PyArray1::from_vec(py, vec![f64::NAN; n]))?;
-            }
-            d.set_item("steps", 0)?;
-            d.set_item("error", e.to_string())?;
-        }
+        Err(e) => Ok(PyErr::from(e).into_value(py).into_bound(py).into_any()),
     }
-    Ok(d)
 }
 
 /// Re-simulate one record with every parameter set in `params` (list of Params).
@@ -53,8 +48,8 @@ fn result_dict<'py>(py: Python<'py>, r: Result<Replayed, crate::Error>, n: usize
 /// `reference` (m or N) selects the closed loop, else the open loop re-started every `horizon_s`.
 /// `noise` (per-channel arrays added to the readings) and `quantum` (per-channel steps) make a
 /// record's realistic sensors. `supply` (one factor per sample) scales the supply set-point
-/// `supply_pressure_pa` over time (a power unit switched between pressure levels). Returns one dict per parameter set: the readings per channel,
-/// `u`, `steps`, and `error` (None, or the solver's message with NaN arrays). Bad arguments raise.
+/// `supply_pressure_pa` over time (a power unit switched between pressure levels). Returns one item per parameter set: a dict of the readings per channel,
+/// `u` and `steps` — or, for a set the solver could not carry, its `HtmError` as the item (every batch call's convention). Bad arguments raise.
 #[pyfunction]
 #[pyo3(signature = (params, dt, u, measured = None, controller = None, reference = None, horizon_s = DEFAULT_HORIZON_S,
                     preroll_s = DEFAULT_PREROLL_S, rtol = DEFAULT_RTOL, noise = None, quantum = None, supply = None, active = None,
@@ -118,12 +113,11 @@ fn replay<'py>(
     }
     rp.validate()?;
     let ps: Vec<_> = params.into_iter().map(|p| p.inner).collect();
-    let n = u_s.len();
     let rp_ref = &rp;
     let results = py.detach(move || rp_ref.run_batch(&ps, threads));
     let out = PyList::empty(py);
     for r in results {
-        out.append(result_dict(py, r, n)?)?;
+        out.append(result_item(py, r)?)?;
     }
     Ok(out)
 }
