@@ -15,6 +15,7 @@ import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 import urllib.request
 from pathlib import Path
@@ -149,12 +150,15 @@ def served(tmp_path):
     try:
         first = read_line(proc, "watch the test in a browser:", 60, seen)
         read_line(proc, "keeps serving at", 120, seen)  # the test is over; its stream stays served
+        # go on reading what it prints, so that a full pipe never blocks it
+        threading.Thread(target=lambda: seen.extend(proc.stdout), daemon=True).start()
+        proc.seen = seen  # type: ignore[attr-defined]  # what it printed, for a failure's message
         yield port, first.split(": ", 1)[1].split()[0], proc, tmp_path
     finally:
         if proc.poll() is None:
             proc.send_signal(signal.SIGINT)
             try:
-                proc.wait(15)
+                proc.wait(60)
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait()
@@ -238,7 +242,12 @@ def test_the_web_viewer_loads_connects_and_serves_the_tests_stream(served):
 
     # stopping the server: Ctrl-C ends `htm run` cleanly, the test recorded as finished
     proc.send_signal(signal.SIGINT)
-    assert proc.wait(15) == 0
+    t_int = time.monotonic()
+    try:
+        rc = proc.wait(60)  # the viewer's server gets 5 s to stop, then is killed
+    except subprocess.TimeoutExpired:
+        raise AssertionError("htm run did not end within 60 s of Ctrl-C; it printed:\n" + "".join(proc.seen[-20:])) from None
+    assert rc == 0, f"exit {rc} after Ctrl-C ({time.monotonic() - t_int:.1f} s)"
     listed = subprocess.run([*HTM, "db", "list"], cwd=tmp, env=dict(os.environ, HTM_STORE=str(tmp / "store")),
                             capture_output=True, text=True, timeout=60)
     assert " finished " in listed.stdout, listed.stdout
