@@ -145,7 +145,10 @@ def served(tmp_path):
     env = dict(os.environ, HTM_STORE=str(tmp_path / "store"), PYTHONUNBUFFERED="1")
     proc = subprocess.Popen([*HTM, "run", str(ROOT / "examples/ct_constant_force.toml"), "--out", str(tmp_path / "out"),
                              "--quiet", "--serve-web", str(port)], cwd=tmp_path, env=env, text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            # as from a terminal: Ctrl-C delivered (a suite run as a background job inherits
+                            # SIGINT ignored, and Python then keeps it ignored)
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     seen: list[str] = []
     try:
         first = read_line(proc, "watch the test in a browser:", 60, seen)
