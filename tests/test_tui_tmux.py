@@ -31,11 +31,13 @@ class Tmux:
     def keys(self, *keys: str) -> None:
         self("send-keys", "-t", "tui", *keys)
 
-    def wait_for(self, text: str, timeout: float = 60.0) -> str:
+    def wait_for(self, text: str, timeout: float = 60.0, *, line: bool = False) -> str:
+        """Wait until `text` is on the screen (`line=True`: until a line starts with it, so a panel
+        drawn in parts is read only once the row itself is there)."""
         t0 = time.monotonic()
         while True:
             screen = self.screen()
-            if text in screen:
+            if (any(ln.lstrip().startswith(text) for ln in screen.splitlines()) if line else text in screen):
                 return screen
             if time.monotonic() - t0 > timeout:
                 raise AssertionError(f"`{text}` not on the screen after {timeout:g} s:\n{screen}")
@@ -118,7 +120,9 @@ def test_every_tab_by_keyboard_alone_in_tmux(tmp_path):
         assert "position" in screen and " mm" in screen and " kN" in screen, screen
         # Run: the limits panel in engineering units, each with its unit; start and stop
         t.keys("F4")
-        screen = t.wait_for("low limit")
+        t.wait_for("low limit")
+        t.wait_for("supply_pressure", line=True)
+        screen = t.wait_for("force_band", line=True)
         row = next(ln for ln in screen.splitlines() if ln.split()[:1] == ["supply_pressure"])
         assert row.split()[1:6] == ["supply", "pressure", "120.0", "250.0"] or "120.0" in row and "bar" in row, row
         band = next(ln for ln in screen.splitlines() if ln.split()[:1] == ["force_band"])
