@@ -89,6 +89,10 @@ def test_cli_measure_then_e647(tmp_path, capsys):
                  str(spec["thickness_m"]), "--pmax-n", str(case["fmax_n"]), "--r-ratio", str(case["r"]),
                  "--out", str(tmp_path / "e")]) == 0
     assert len(list(csv.DictReader(open(tmp_path / "e" / "reduced.csv")))) == len(rows)
+    capsys.readouterr()
+    assert main(["crack", "measure", str(rec), "--out", str(tmp_path / "j"), "--json"]) == 0
+    said = json.loads(capsys.readouterr().out)
+    assert said["method"] == "compliance" and said["rows"] == len(rows) and said["a_m"] == [a[0], a[-1]]
 
 
 def test_cli_bad_records_exit_2_with_one_line(tmp_path, capsys):
@@ -151,6 +155,10 @@ def test_db_correct_on_a_real_sqlite_store(tmp_path, capsys):
     # af below a0 is refused with one line
     assert main(["db", "correct", tid, "--a0-visual", "20", "--af-visual", "10", "--store", str(store)]) == 2
     assert "need 0 < a0 < af" in capsys.readouterr().err
+    # --json: the whole of stdout is the result (SI), for scripts
+    assert main(["db", "correct", tid, "--a0-visual", f"{a0 * 1e3}", "--af-visual", f"{af * 1e3}", "--store", str(store), "--json"]) == 0
+    said = json.loads(capsys.readouterr().out)
+    assert said["a0_visual_m"] == pytest.approx(a0) and said["af_visual_m"] == pytest.approx(af)
 
 
 def test_displacement_input_records_read_and_validate(tmp_path):

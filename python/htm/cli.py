@@ -170,7 +170,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _extensions() -> list[Callable[[argparse._SubParsersAction], None]]:
     """Subcommand groups that live with their packages (each adds its own parsers)."""
-    from htm import correct as correct_cli  # adds `htm db correct` to record_cli's group
+    from htm import correct as correct_cli  # `htm db correct`, an action of record_cli's group
     from htm import run as run_cli
     from htm.campaign import cli as campaign_cli
     from htm.campaign import lifeband_cli
@@ -181,8 +181,11 @@ def _extensions() -> list[Callable[[argparse._SubParsersAction], None]]:
     from htm.ident import cli as ident_cli
     from htm.record import cli as record_cli
 
-    return [run_cli.register, fatigue_cli.register, ident_cli.register, rig_cli.register, record_cli.register,
-            campaign_cli.register, lifeband_cli.register, fleet_cli.register, correct_cli.register, sn_cli.register]
+    def db(sub: argparse._SubParsersAction) -> None:
+        record_cli.register(sub, more=[correct_cli.add_db_action])
+
+    return [run_cli.register, fatigue_cli.register, ident_cli.register, rig_cli.register, db,
+            campaign_cli.register, lifeband_cli.register, fleet_cli.register, sn_cli.register]
 
 
 def main(argv: Sequence[str] | None = None) -> int:

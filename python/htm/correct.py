@@ -28,6 +28,7 @@ from htm.fatigue.data import CrackData, Setup
 from htm.fatigue.e647 import reduce
 from htm.fatigue.report import e647_report, write_reduced_csv
 from htm.record.store import Store
+from htm.terminal import add_json_flag, emit_json
 
 METHOD = "linear in the measured crack extension between the visual initial and final crack sizes (E647)"
 
@@ -106,6 +107,9 @@ def cmd_correct(args: argparse.Namespace) -> int:
     with Store(args.store) as store:
         r = correct_test(store, args.id, args.a0_visual * 1e-3, args.af_visual * 1e-3, n=args.n)
     vc = r["visual_correction"]
+    if args.json:
+        emit_json(r)
+        return 0
     print(f"test {args.id}: crack sizes corrected {METHOD}")
     print(f"  a0: measured {r['a0_measured_m'] * 1e3:8.3f} mm, visual {r['a0_visual_m'] * 1e3:8.3f} mm ({vc['offset_a0_m'] * 1e3:+.3f} mm)")
     print(f"  af: measured {r['af_measured_m'] * 1e3:8.3f} mm, visual {r['af_visual_m'] * 1e3:8.3f} mm ({vc['offset_af_m'] * 1e3:+.3f} mm)")
@@ -113,10 +117,9 @@ def cmd_correct(args: argparse.Namespace) -> int:
     return 0
 
 
-def register(sub: argparse._SubParsersAction) -> None:
-    """Add `correct` to the `htm db` group (registered by htm.record.cli)."""
-    db = sub.choices["db"]
-    dsub = next(a for a in db._actions if isinstance(a, argparse._SubParsersAction))
+def add_db_action(dsub: argparse._SubParsersAction) -> None:
+    """`htm db correct`: handed to `htm.record.cli.register` by the command line (this module sits
+    above the store's own commands)."""
     p = dsub.add_parser("correct", help="correct a test's crack sizes to the visual initial and final cracks; redo E647",
                         description=f"Correct the measured crack sizes of TEST {METHOD}, redo the E647 reduction and "
                                     "report from the corrected sizes, and keep both (files in the test's folder, "
@@ -126,4 +129,5 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--af-visual", type=float, required=True, metavar="MM", help="visual final crack size [mm]")
     p.add_argument("--n", type=int, default=3, help="E647 incremental polynomial half-width (default 3)")
     p.add_argument("--store", help="test store folder (default $HTM_STORE or ~/.local/share/htm/store)")
+    add_json_flag(p)
     p.set_defaults(func=cmd_correct)

@@ -229,6 +229,13 @@ def cmd_crack_measure(args: argparse.Namespace) -> int:
     path = write_a_n(m, Path(args.out))
     c = m.columns
     a = c["a_m"]
+    if args.json:
+        op = c["opening_force_n"]
+        emit_json({"method": m.method, "expression": m.expression, "rows": len(m), "resolution_m": m.resolution_m,
+                   "cycles": [int(c["cycles"][0]), int(c["cycles"][-1])], "a_m": [float(a[0]), float(a[-1])],
+                   "opening_force_n": [float(np.nanmin(op)), float(np.nanmax(op))] if np.isfinite(op).any() else None,
+                   "outputs": [str(path), str(path.parent / "measure.json")]})
+        return 0
     print(f"crack size from {m.method.replace('_', ' ')}: {m.expression}")
     print(f"{len(m)} rows, cycles {int(c['cycles'][0]):,}..{int(c['cycles'][-1]):,}, a {a[0] * 1e3:.3f} → {a[-1] * 1e3:.3f} mm "
           f"(resolution {m.resolution_m * 1e3:.3f} mm)")
@@ -255,4 +262,5 @@ def register_measure(csub: argparse._SubParsersAction) -> None:
     m.add_argument("--cycles-per-interval", type=int,
                    help="cycles pooled per row (default: one row per burst; 10 for a continuous record)")
     m.add_argument("--out", required=True, help="output directory")
+    add_json_flag(m)
     m.set_defaults(func=cmd_crack_measure)

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -115,7 +116,9 @@ def cmd_delete(args: argparse.Namespace) -> int:
     return 0
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction,
+             more: Sequence[Callable[[argparse._SubParsersAction], None]] = ()) -> None:
+    """`htm db` and its actions; `more` adds actions that live in packages above the store's."""
     db = sub.add_parser("db", help="the test store: list, show, export, delete tests",
                         description="Query the test store (SQLite catalogue + Parquet tables + rerun recordings).")
     dsub = db.add_subparsers(dest="db_command", required=True, metavar="ACTION")
@@ -141,3 +144,5 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_delete)
     for q in dsub.choices.values():
         q.add_argument("--store", help="test store folder (default $HTM_STORE or ~/.local/share/htm/store)")
+    for add in more:
+        add(dsub)
