@@ -8,8 +8,7 @@ use crate::error::{Error, Result};
 use crate::machine::{Machine, PA, PB, V, Y};
 use crate::measure::{as_outputs, corrupt, held, Corruption, Probe, Sensors, NC};
 use crate::params::Params;
-use crate::solver::{Stats, Tape, TapeMode};
-use std::sync::Arc;
+use crate::solver::Stats;
 
 /// What to re-simulate: the record's signals and how to drive the model with them.
 #[derive(Debug, Clone)]
@@ -143,52 +142,10 @@ impl<'a> Replay<'a> {
 
     /// Re-simulate the record with parameters `p`.
     pub fn run(&self, p: &Params) -> Result<Replayed> {
-        self.run_taped(p, TapeMode::Off).0
-    }
-
-    /// Re-simulate with every set in `ps`, each a small perturbation of `nominal` (the columns
-    /// of a forward-difference Jacobian): the nominal is simulated once with adaptive steps and
-    /// its steps kept ([`Tape`]); every perturbed set then takes exactly those steps, with the
-    /// nominal's Jacobians and no error control, spread over `threads` threads (0 = all cores).
-    /// A perturbed set's readings differ from the nominal's by its parameter's effect alone (the
-    /// same step sequence: no step-size noise in the difference), at about half the cost of its
-    /// own adaptive run. A set that leaves the tape (another spool form, a non-finite state)
-    /// runs with its own adaptive steps instead; so do all when the nominal fails. Every result
-    /// depends only on `nominal` and its own set, never on the thread count or the batch.
-    pub fn run_jacobian(&self, nominal: &Params, ps: &[Params], threads: usize) -> Vec<Result<Replayed>> {
-        let (nom, tape) = self.run_taped(nominal, TapeMode::Record(Tape::default()));
-        let Some(tape) = tape.filter(|_| nom.is_ok()).map(Arc::new) else {
-            return self.run_batch(ps, threads);
-        };
-        crate::batch::par_map(ps, threads, |p| match self.run_taped(p, TapeMode::Follow(Arc::clone(&tape), 0, 0)) {
-            (Ok(r), _) => Ok(r),
-            (Err(_), _) => self.run(p),
-        })
-    }
-
-    /// `run` with the solver in tape mode `mode`; returns the recorded tape when recording.
-    pub fn run_taped(&self, p: &Params, mode: TapeMode) -> (Result<Replayed>, Option<Tape>) {
-        let mut m = match Machine::new(p.clone()).and_then(|m| m.with_rtol(self.rtol)) {
-            Ok(m) => m,
-            Err(e) => return (Err(e), None),
-        };
-        let follow = matches!(mode, TapeMode::Follow(..));
-        m.solver.tape = mode;
-        let out = self.run_machine(p, &mut m);
-        // a follower must have used its whole tape (the same step calls as the nominal)
-        let out = match (&m.solver.tape, out) {
-            (TapeMode::Follow(t, call, _), Ok(_)) if follow && *call != t.calls.len() => {
-                Err(Error::Solver("the run left its tape (fewer steps than the nominal)".into()))
-            }
-            (_, out) => out,
-        };
-        (out, m.solver.take_tape())
-    }
-
-    fn run_machine(&self, p: &Params, m: &mut Machine) -> Result<Replayed> {
         self.validate()?;
         let n = self.n();
         let sensors = Sensors::from_params(p);
+        let mut m = Machine::new(p.clone())?.with_rtol(self.rtol)?;
         // The supply set-point per sample: the schedule is the supply read at rest (above tank,
         // so that the valve keeps a drop), as a factor of `supply_pressure_pa`.
         let setpoints: Option<Vec<f64>> = self.supply.map(|s| {
@@ -205,7 +162,7 @@ impl<'a> Replay<'a> {
         };
         let supply_at = |k: usize| setpoints.as_ref().map(|s| s[k]).unwrap_or(p.supply_pressure_pa) + ripple(k);
         m.plant.p.supply_pressure_pa = supply_at(0);
-        let y0 = self.start_position(m, &sensors);
+        let y0 = self.start_position(&m, &sensors);
         m.x = m.plant.rest_state(y0);
         let pre = match self.closed_loop {
             Some(_) => (self.preroll_s / self.dt).round() as usize,
@@ -256,17 +213,17 @@ impl<'a> Replay<'a> {
                     m.plant.p.supply_pressure_pa = supply_at(k);
                     if !simulated[k] {
                         // not simulated: the state follows the measurement, the valve the command
-                        self.restart(m, &sensors, k);
+                        self.restart(&mut m, &sensors, k);
                         probe.push(&m.outputs());
                         push(&mut out, &[f64::NAN; NC], u[k]);
                         m.step_valve(u[k], self.dt);
                         continue;
                     }
                     if k == 0 || !simulated[k - 1] {
-                        self.restart(m, &sensors, k);
+                        self.restart(&mut m, &sensors, k);
                         probe.restart();
                     } else if k % every == 0 {
-                        self.anchor(m, &sensors, k);
+                        self.anchor(&mut m, &sensors, k);
                     }
                     probe.push(&m.outputs());
                     let mut rd = probe.read_latest();
@@ -488,67 +445,5 @@ mod tests {
         let mut bad = p.clone();
         bad.moving_mass_kg = -1.0;
         assert!(ol.run_batch(&[bad], 1)[0].is_err());
-    }
-
-    fn open_loop_case(r: &[f64]) -> (Replayed, Params) {
-        let mut p = Params::base();
-        p.valve_natural_hz = 150.0;
-        let u0 = vec![0.0; r.len()];
-        let mut rp = Replay::new(2e-3, &u0);
-        rp.closed_loop = Some((PFF, r));
-        (rp.run(&p).unwrap(), p)
-    }
-
-    #[test]
-    fn jacobian_columns_follow_the_nominal_steps_and_match_their_own_runs() {
-        let r = ramp(1500);
-        let (truth, p) = open_loop_case(&r);
-        let mut ol = Replay::new(2e-3, &truth.u);
-        for c in 0..4 {
-            ol.measured[c] = Some(&truth.readings[c]);
-        }
-        ol.horizon_s = 0.2;
-        let mut q = p.clone();
-        q.moving_mass_kg *= 1.05;
-        let mut s = p.clone();
-        s.bulk_modulus_pa *= 1.05;
-        let cols = ol.run_jacobian(&p, &[p.clone(), q.clone(), s.clone()], 2);
-        // the nominal along its own tape is the nominal, bit for bit
-        assert_eq!(cols[0].as_ref().unwrap().readings, ol.run(&p).unwrap().readings);
-        let nom = ol.run(&p).unwrap();
-        for (col, own) in [(&cols[1], ol.run(&q).unwrap()), (&cols[2], ol.run(&s).unwrap())] {
-            let col = col.as_ref().unwrap();
-            for c in 0..4 {
-                // the column's difference from the nominal is its own run's, to the integrator's tolerance
-                let (mut dd, mut big) = (0.0f64, 0.0f64);
-                for k in 0..r.len() {
-                    dd = dd.max(((col.readings[c][k] - nom.readings[c][k]) - (own.readings[c][k] - nom.readings[c][k])).abs());
-                    big = big.max((own.readings[c][k] - nom.readings[c][k]).abs());
-                }
-                assert!(big > 0.0 && dd < 0.05 * big, "channel {c}: {dd} vs {big}");
-            }
-            assert!(col.stats.accepted == nom.stats.accepted);
-        }
-        // any thread count and batch give the same columns
-        let one = ol.run_jacobian(&p, &[s.clone()], 1);
-        assert_eq!(one[0].as_ref().unwrap().readings, cols[2].as_ref().unwrap().readings);
-    }
-
-    #[test]
-    fn a_set_that_cannot_follow_the_tape_runs_on_its_own_steps() {
-        let r = ramp(800);
-        let (truth, p) = open_loop_case(&r);
-        let mut ol = Replay::new(2e-3, &truth.u);
-        ol.measured[0] = Some(&truth.readings[0]);
-        let mut held = p.clone();
-        held.valve_natural_hz = 0.0; // a static spool: another state dimension than the nominal's
-        held.valve_tau_s = 0.0;
-        let cols = ol.run_jacobian(&p, &[held.clone()], 2);
-        assert_eq!(cols[0].as_ref().unwrap().readings, ol.run(&held).unwrap().readings);
-        let mut bad = p.clone();
-        bad.moving_mass_kg = -1.0;
-        assert!(ol.run_jacobian(&p, &[bad.clone()], 1)[0].is_err());
-        // a failed nominal: every set on its own steps
-        assert_eq!(ol.run_jacobian(&bad, &[p.clone()], 1)[0].as_ref().unwrap().readings, ol.run(&p).unwrap().readings);
     }
 }

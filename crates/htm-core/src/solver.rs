@@ -65,31 +65,6 @@ const C: [[f64; 5]; 6] = [
 ];
 // The solution is the last stage (M = A[5] + [..,1]); the error estimate is the last K.
 
-/// The accepted steps of one run, kept so that runs of nearby parameter sets can take the very
-/// same steps (a forward-difference Jacobian: each perturbed run then differs from the nominal by
-/// the parameter's effect, not by a different step sequence, and spends no error estimates,
-/// rejected steps or Jacobians of its own). Per `advance` call the number of its steps; per step
-/// its size and the system's Jacobian at its start (N x N, row-major).
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct Tape {
-    /// state dimension of the recorded system (0 before the first step)
-    pub n: usize,
-    pub calls: Vec<u32>,
-    pub steps: Vec<f64>,
-}
-
-/// What `advance` does with a [`Tape`].
-#[derive(Debug, Clone, Default)]
-pub enum TapeMode {
-    /// adaptive steps, nothing kept
-    #[default]
-    Off,
-    /// adaptive steps, each accepted one appended to the tape
-    Record(Tape),
-    /// the tape's steps, in order, with its Jacobians and no error control (call, step cursors)
-    Follow(std::sync::Arc<Tape>, usize, usize),
-}
-
 /// Work counters.
 #[derive(serde::Serialize, serde::Deserialize)] // engine snapshots (resume)
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -110,28 +85,15 @@ pub struct Rodas4 {
     /// when set, take steps of exactly this size without error control (for order tests)
     pub fixed_step: Option<f64>,
     pub stats: Stats,
-    /// record the accepted steps, or follow recorded ones (see [`Tape`]); not part of a snapshot
-    #[serde(skip)]
-    pub tape: TapeMode,
 }
 
 impl Rodas4 {
     pub fn new(rtol: f64) -> Self {
-        Rodas4 { rtol, h: 1e-5, h_min: 1e-14, h_max: 1e-2, fixed_step: None, stats: Stats::default(), tape: TapeMode::Off }
+        Rodas4 { rtol, h: 1e-5, h_min: 1e-14, h_max: 1e-2, fixed_step: None, stats: Stats::default() }
     }
 
     /// Integrate `x` forward by `dt` with the input held; ends exactly at dt.
     pub fn advance<const N: usize, S: OdeSystem<N>>(&mut self, sys: &S, x: &mut [f64; N], dt: f64) -> Result<()> {
-        if matches!(self.tape, TapeMode::Follow(..)) {
-            return self.follow(sys, x);
-        }
-        if let TapeMode::Record(tape) = &mut self.tape {
-            if tape.n != N && !tape.calls.is_empty() {
-                return Err(Error::Solver(format!("tape of a {}-state system cannot record a {N}-state one", tape.n)));
-            }
-            tape.n = N;
-            tape.calls.push(0);
-        }
         let (rel, scale) = sys.error_weights();
         let checked = sys.error_checked();
         let n_checked = sys.error_count().max(1) as f64;
@@ -173,10 +135,6 @@ impl Rodas4 {
             // err^(-1/4) by two square roots (a pow costs several times more, once per step)
             let fac = if finite { (0.9 / err_norm.max(1e-10).sqrt().sqrt()).clamp(0.2, 6.0) } else { 0.1 };
             if finite && err_norm <= 1.0 {
-                if let TapeMode::Record(tape) = &mut self.tape {
-                    *tape.calls.last_mut().expect("pushed at the call's start") += 1;
-                    tape.steps.push(h);
-                }
                 *x = xn;
                 t = if clipped || h == remaining { dt } else { t + h };
                 have_jac = false;
@@ -194,42 +152,6 @@ impl Rodas4 {
             }
         }
         Ok(())
-    }
-
-    /// One `advance` call along the tape: its recorded steps, each from this system's own state
-    /// and right-hand side with the recorded size and Jacobian (the Jacobian shapes only how a
-    /// step converges on the stiff components, not what it converges to). Fails where the tape
-    /// ends or is of another dimension, or the state turns non-finite (the caller then runs the
-    /// set with its own adaptive steps).
-    fn follow<const N: usize, S: OdeSystem<N>>(&mut self, sys: &S, x: &mut [f64; N]) -> Result<()> {
-        let TapeMode::Follow(tape, call, at) = &self.tape else { unreachable!("checked by advance") };
-        let (tape, call, mut at) = (std::sync::Arc::clone(tape), *call, *at);
-        let (Some(&count), true) = (tape.calls.get(call), tape.n == N) else {
-            return Err(Error::Solver("the run left its tape (another step sequence or state dimension)".into()));
-        };
-        let mut f0 = [0.0; N];
-        let mut jac = [[0.0; N]; N];
-        for &h in &tape.steps[at..at + count as usize] {
-            sys.rhs(x, &mut f0);
-            self.stats.rhs_evals += 1 + sys.jacobian(x, &f0, &mut jac);
-            let (xn, _) = self.step(sys, x, &f0, &jac, h);
-            if !xn.iter().all(|v| v.is_finite()) {
-                return Err(Error::Solver("non-finite state along the tape".into()));
-            }
-            *x = xn;
-            self.stats.accepted += 1;
-        }
-        at += count as usize;
-        self.tape = TapeMode::Follow(tape, call + 1, at);
-        Ok(())
-    }
-
-    /// The tape recorded so far (when recording), leaving the solver adaptive.
-    pub fn take_tape(&mut self) -> Option<Tape> {
-        match std::mem::take(&mut self.tape) {
-            TapeMode::Record(t) => Some(t),
-            _ => None,
-        }
     }
 
     pub(crate) fn step<const N: usize, S: OdeSystem<N>>(&mut self, sys: &S, x: &[f64; N], f0: &[f64; N], jac: &[[f64; N]; N], h: f64) -> ([f64; N], [f64; N]) {

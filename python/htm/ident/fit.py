@@ -4,8 +4,6 @@ whose Jacobians and trial steps are batches of simulations (run in parallel by t
 from __future__ import annotations
 
 import math
-import os
-import sys
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -13,7 +11,6 @@ from typing import Any, Callable
 
 import numpy as np
 
-from htm._core import Params
 from htm.ident import features as ft
 from htm.ident.model import Model
 from htm.ident.records import Record
@@ -26,15 +23,6 @@ RADIUS_MAX = DEFAULT.radius_max
 JACOBIAN_EVERY = DEFAULT.jacobian_every
 PRIOR_SHARE = DEFAULT.prior_share
 SIGNIFICANT = DEFAULT.significant
-
-# How a Jacobian's columns are simulated: "tape" (default) — every perturbed set takes the nominal
-# set's own integrator steps (`sim.predict(nominal=...)`, one call, the columns spread over the
-# cores); "resimulate" — each perturbed set on its own adaptive steps (the path before; kept for
-# benchmarks/diagnose.py's comparison). Read once from HTM_JACOBIAN.
-JACOBIAN_PATH = os.environ.get("HTM_JACOBIAN", "tape")
-if JACOBIAN_PATH not in ("tape", "resimulate"):
-    print(f"error: HTM_JACOBIAN={JACOBIAN_PATH!r}: use tape or resimulate", file=sys.stderr)
-    raise SystemExit(2)
 
 Predictor = Callable[..., list[dict[str, np.ndarray]]]
 # Problems are simulated from several threads at once (independent fits run side by side).
@@ -107,17 +95,6 @@ class Problem:
             opts["active"] = self.fit_mask
         out = self.simulate(plist, self.rec if whole else self.work, **opts)
         return [{c: np.asarray(pr[c], dtype=float) for c in self.channels} for pr in out]
-
-    def columns(self, plist: list[Any], nominal: Any) -> list[dict[str, np.ndarray]]:
-        """Sensor readings of parameter sets that are small perturbations of `nominal` (a
-        Jacobian's columns) over the working window: on the nominal's own integrator steps where
-        the simulator is the core's plant replay (the same readings to its tolerance, no step-size
-        noise in a difference), else as `predict`."""
-        if JACOBIAN_PATH == "tape" and isinstance(nominal, Params) and all(isinstance(p, Params) for p in plist):
-            with _COUNT:
-                self.simulations += 1  # the nominal's run that records the steps
-            return self.predict(plist, nominal=nominal)
-        return self.predict(plist)
 
     def whole(self, model: Model, work_pred: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         """The whole-record prediction of a model whose working-window prediction is known."""
@@ -299,7 +276,7 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, f
         if fresh == 0 or fresh >= st.jacobian_every:
             hs = np.where(x + steps <= hi, steps, -steps)  # step inwards at an upper bound
             idx = np.flatnonzero(moving)
-            preds = prob.columns([model.at(x + hs[i] * np.eye(len(x))[i]).params() for i in idx], model.at(x).params())
+            preds = prob.predict([model.at(x + hs[i] * np.eye(len(x))[i]).params() for i in idx])
             jac = np.zeros((n_data, len(x)))
             for i, pr in zip(idx, preds):
                 jac[:, i] = (prob.residual(pr, prob.fit_mask) - r[:n_data]) / hs[i]

@@ -50,14 +50,10 @@ fn result_item<'py>(py: Python<'py>, r: Result<Replayed, crate::Error>) -> PyRes
 /// record's realistic sensors. `supply` (one factor per sample) scales the supply set-point
 /// `supply_pressure_pa` over time (a power unit switched between pressure levels). Returns one item per parameter set: a dict of the readings per channel,
 /// `u` and `steps` — or, for a set the solver could not carry, its `HtmError` as the item (every batch call's convention). Bad arguments raise.
-/// `nominal` (Params): the sets are small perturbations of it (a forward-difference Jacobian's
-/// columns); each then takes the nominal's own integrator steps (`Replay::run_jacobian`): the
-/// same readings to the integrator's tolerance, no step-size noise in the difference, about half
-/// the cost.
 #[pyfunction]
 #[pyo3(signature = (params, dt, u, measured = None, controller = None, reference = None, horizon_s = DEFAULT_HORIZON_S,
                     preroll_s = DEFAULT_PREROLL_S, rtol = DEFAULT_RTOL, noise = None, quantum = None, supply = None, active = None,
-                    threads = 0, nominal = None))]
+                    threads = 0))]
 #[allow(clippy::too_many_arguments)]
 fn replay<'py>(
     py: Python<'py>,
@@ -75,7 +71,6 @@ fn replay<'py>(
     supply: Option<PyReadonlyArray1<'py, f64>>,
     active: Option<PyReadonlyArray1<'py, bool>>,
     threads: usize,
-    nominal: Option<PyParams>,
 ) -> PyResult<Bound<'py, PyList>> {
     let meas = channel_arrays(measured)?;
     let noise = channel_arrays(noise)?;
@@ -119,11 +114,7 @@ fn replay<'py>(
     rp.validate()?;
     let ps: Vec<_> = params.into_iter().map(|p| p.inner).collect();
     let rp_ref = &rp;
-    let nominal = nominal.map(|p| p.inner);
-    let results = py.detach(move || match &nominal {
-        Some(nom) => rp_ref.run_jacobian(nom, &ps, threads),
-        None => rp_ref.run_batch(&ps, threads),
-    });
+    let results = py.detach(move || rp_ref.run_batch(&ps, threads));
     let out = PyList::empty(py);
     for r in results {
         out.append(result_item(py, r)?)?;
