@@ -172,6 +172,7 @@ def _extensions() -> list[Callable[[argparse._SubParsersAction], None]]:
     """Subcommand groups that live with their packages (each adds its own parsers)."""
     from htm import correct as correct_cli  # adds `htm db correct` to record_cli's group
     from htm import run as run_cli
+    from htm import tune as tune_cli
     from htm.campaign import cli as campaign_cli
     from htm.campaign import lifeband_cli
     from htm.control import cli as rig_cli
@@ -182,7 +183,8 @@ def _extensions() -> list[Callable[[argparse._SubParsersAction], None]]:
     from htm.record import cli as record_cli
 
     return [run_cli.register, fatigue_cli.register, ident_cli.register, rig_cli.register, record_cli.register,
-            campaign_cli.register, lifeband_cli.register, fleet_cli.register, correct_cli.register, sn_cli.register]
+            campaign_cli.register, lifeband_cli.register, fleet_cli.register, correct_cli.register, sn_cli.register,
+            tune_cli.register]
 
 
 def main(argv: Sequence[str] | None = None) -> int:

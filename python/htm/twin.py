@@ -34,25 +34,42 @@ def _design_kp2(spec: specmod.TestSpec, params: core.Params, kv: float | None) -
     return info["velocity_gain_m_s_per_v"], info["demod_kp2"]
 
 
-def rig_velocity_gain(spec: specmod.TestSpec, twin: core.Params) -> float:
-    """The velocity gain that gives the controller on `twin` the gains the rig's own design
-    (on the spec's nominal rig) has: k_v·K_eff as designed there, over the twin's K_eff."""
-    _, kp2_rig = _design_kp2(spec, spec.params(), None)
-    _, kp2_unit = _design_kp2(spec, twin, 1.0)
-    return kp2_unit / kp2_rig
+def keff_ratio(spec: specmod.TestSpec, plant: core.Params) -> float:
+    """K_eff of the spec's nominal rig over K_eff of `plant` (the specimen at a0 in series with
+    the oil column): the rig's controller, designed on the nominal rig with a velocity gain k_v,
+    has on `plant` the gains a design there with k_v times this ratio would have."""
+    _, kp2_rig = _design_kp2(spec, spec.params(), 1.0)
+    _, kp2_plant = _design_kp2(spec, plant, 1.0)
+    return kp2_plant / kp2_rig
+
+
+def rig_velocity_gain(spec: specmod.TestSpec) -> float | None:
+    """The velocity gain the rig's controller uses for `spec`: the spec's, else measured on the
+    rig the spec names (as `Session.start` does); None for a controller without one."""
+    if spec.controller["type"] not in VELOCITY_DESIGNED:
+        return None
+    kv = spec.controller.get("velocity_gain_m_s_per_v")
+    return kv if kv is not None else _design_kp2(spec, spec.params(), None)[0]
+
+
+def twin_config(spec: specmod.TestSpec, plant: core.Params, kv_rig: float | None = None) -> core.TestConfig:
+    """The core configuration of `spec` on `plant` with the controller the rig would run:
+    its velocity gain `kv_rig` (default `rig_velocity_gain`) carried over to `plant`'s K_eff."""
+    kv = rig_velocity_gain(spec) if kv_rig is None else kv_rig
+    if kv is None:
+        return specmod._config(spec).with_params(plant)
+    ctrl = {**spec.controller, "velocity_gain_m_s_per_v": kv * keff_ratio(spec, plant)}
+    return specmod._config(dataclasses.replace(spec, controller=ctrl)).with_params(plant)
 
 
 def on_model(spec: specmod.TestSpec, model: str | Path, *, check: bool = True) -> specmod.TestSpec:
     """`spec` on the twin of `model` (a model.json path): its config's plant is the twin, its
-    controller the rig's design, `spec.twin` says which model. With `check` a test the twin cannot
-    run raises InfeasibleTest (unless the spec overrides its limits). ModelError for a model that
-    cannot drive a test."""
+    controller the rig's design (`twin_config`), `spec.twin` says which model. With `check` a
+    test the twin cannot run raises InfeasibleTest (unless the spec overrides its limits).
+    ModelError for a model that cannot drive a test."""
     twin, info = load_twin(str(model), spec.params())
-    ctrl = dict(spec.controller)
-    if ctrl["type"] in VELOCITY_DESIGNED and "velocity_gain_m_s_per_v" not in ctrl:
-        ctrl["velocity_gain_m_s_per_v"] = rig_velocity_gain(spec, twin)
-    out = dataclasses.replace(spec, controller=ctrl, twin=info)
-    out.config = specmod._config(out).with_params(twin)
+    out = dataclasses.replace(spec, twin=info)
+    out.config = twin_config(spec, twin)
     if check and not out.override_limits:
         feas = out.feasibility()
         if not feas.feasible:
