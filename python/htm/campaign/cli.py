@@ -51,7 +51,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
             client, runner, where = None, engine.local_runner(args.threads), "this machine"
         if not args.json:
             on = f" on the twin {args.model}" if args.model else ""
-        print(f"campaign {c.id}{on}: {len(c):,} tests ({c.mode} mode, {c.chunk_tests} per chunk) on {where}; "
+            print(f"campaign {c.id}{on}: {len(c):,} tests ({c.mode} mode, {c.chunk_tests} per chunk) on {where}; "
                   f"store {path(store.path) if '://' not in str(store.path) else store.path}")
         try:
             s = engine.run(c, store, runner, progress=not args.quiet)
