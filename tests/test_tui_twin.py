@@ -5,6 +5,7 @@ import asyncio
 import json
 import time
 
+from test_twin import write_model
 from textual.widgets import Input, Static
 
 from htm.control.identify import Plan
@@ -13,8 +14,6 @@ from htm.devices.config import virtual_config
 from htm.record.store import Store
 from htm.tui.app import HtmApp
 from htm.tui.identify import IdentifyPane
-
-from test_twin import write_model
 
 
 async def until(pilot, cond, timeout: float = 20.0, step: float = 0.1) -> None:
