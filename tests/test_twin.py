@@ -183,3 +183,18 @@ def test_a_campaign_on_the_twin_runs_each_test_as_htm_run_model_does_and_is_kept
         expect = core.run_test(on_model(parse(d, "t"), model).config, "full")
         assert row["max_abs_df_err_pct"] == pytest.approx(expect.max_abs_df_err_pct, rel=1e-9)
     assert all(abs(t["max_abs_df_err_pct"] - n["max_abs_df_err_pct"]) > 0.1 for t, n in zip(twin, nominal))
+
+
+def test_tune_refuses_bad_input_with_one_line(tmp_path, capsys):
+    model = write_model(tmp_path / "model.json")
+    spec = ROOT / "examples" / "ct_constant_force.toml"
+    (tmp_path / "bin.json").write_bytes(b"\x00\x01\xff" * 50)
+    (tmp_path / "nan.json").write_text(model.read_text().replace('"moving_mass_kg": 5', '"moving_mass_kg": NaN, "x": 5'))
+    cases = [(["--model", str(tmp_path / "bin.json")], "bin.json"), (["--model", str(tmp_path / "nan.json")], "moving_mass_kg"),
+             (["--model", str(model), "--target", "nan"], "--target"), (["--model", str(model), "--target", "5"], "--target"),
+             (["--model", str(model), "--uncertainty", "-0.1"], "--uncertainty")]
+    for extra, needle in cases:
+        assert main(["tune", str(spec), "--out", str(tmp_path / "t.toml"), *extra]) == 2, extra
+        err = capsys.readouterr().err
+        assert needle in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err, (extra, err)
+        assert not (tmp_path / "t.toml").exists()

@@ -187,8 +187,9 @@ def resume_recorded(store: Any, test_id: str, progress: bool = False, *, recordi
     row = store.get(test_id)
     if row["kind"] != "simulated":
         raise RecordError(f"test {test_id} is a {row['kind']} test; only simulated tests resume with `htm resume`")
-    spec = parse(tomllib.loads(row["spec"]), row["name"], check=False)
-    if row["spec"].startswith(TWIN_TAG):  # run on an identified model's twin: resumed on it
+    twin = row["spec"].startswith(TWIN_TAG)
+    spec = parse(tomllib.loads(row["spec"]), row["name"], check=not twin)  # a twin's run was checked on the twin
+    if twin:  # run on an identified model's twin: resumed on it
         from htm.twin import on_model
 
         spec = on_model(spec, row["spec"].splitlines()[0][len(TWIN_TAG):], check=False)
@@ -377,7 +378,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         with Store(args.store) as store:
             text = stored_text(args.spec, spec)
             if spec.twin:  # a resume runs on the same twin
-                text = f"{TWIN_TAG}{spec.twin['path']}\n" + text
+                text = f"{TWIN_TAG}{Path(spec.twin['path']).resolve()}\n" + text
             test_id, out, wall = run_recorded(spec, text, mode, store, progress=not args.quiet,
                                               recording=not args.no_recording, spawn=args.spawn, connect=args.connect)
             if not args.json:

@@ -184,6 +184,11 @@ def tuned_doc(doc: dict[str, Any], result: dict[str, Any]) -> dict[str, Any]:
 def cmd_tune(args: argparse.Namespace) -> int:
     src = Path(args.spec)
     spec = specmod.load(src)
+    tol = 100 * spec.phases[-1].tolerance
+    if not (math.isfinite(args.target) and 0.0 < args.target <= tol):
+        raise HtmError(f"--target {args.target!r}: a worst |ΔF| error in % within the test's band, (0, {tol:g}]")
+    if not (math.isfinite(args.uncertainty) and 0.0 <= args.uncertainty < 0.9):
+        raise HtmError(f"--uncertainty {args.uncertainty!r}: a share in [0, 0.9) (0.2 = ±20 % on each identified parameter)")
     out = Path(args.out) if args.out else src.with_name(f"{src.stem}_tuned.toml")
     if out.exists():
         raise HtmError(f"--out {out} exists; refusing to overwrite a spec (choose another --out)")
