@@ -198,3 +198,29 @@ def test_tune_refuses_bad_input_with_one_line(tmp_path, capsys):
         err = capsys.readouterr().err
         assert needle in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err, (extra, err)
         assert not (tmp_path / "t.toml").exists()
+
+
+def test_a_test_run_on_the_twin_resumes_on_the_twin(tmp_path):
+    """`htm run --model` into the store, cut after its first chunk: `htm resume` continues it on the
+    same model's plant (its stored spec names the model), not on the nominal rig."""
+    from htm import core as c
+    from htm.record.store import Store
+    from htm.record.writer import TestWriter
+    from htm.run import RAW_POLICY, TWIN_TAG, resume_recorded
+
+    model = write_model(tmp_path / "model.json")
+    doc, spec = example(10.0, 400)
+    twin = on_model(spec, model)
+    from htm.spec import dumps
+
+    text = f"{TWIN_TAG}{model.resolve()}\n" + dumps(doc)
+    with Store(tmp_path / "store") as st:
+        w = TestWriter.create(st, "ct", "simulated", "full", "toml", text, 10.0, recording=False)
+        run = c.TestRun(twin.config, "full", RAW_POLICY)
+        chunk = run.advance(max_cycles=50)
+        w.cycles(c.columns(chunk.table), None, bytes(run.snapshot()))
+        w.interrupt("interrupted", "by the test")
+        _, resumed, _, out, _ = resume_recorded(st, w.id, recording=False)
+    assert resumed.twin and resumed.twin["path"] == str(model.resolve())
+    assert resumed.config.params["valve_null_bias_v"] == pytest.approx(0.12 * 1.01)
+    assert out["end_reason"] == "cycle_limit" and out["table"]["cycle"][-1] >= 400
