@@ -2,7 +2,10 @@
 folder of records on the Dask cluster into PostgreSQL: tests/test_campaign_services.py)."""
 from __future__ import annotations
 
+import json
+
 import numpy as np
+import pytest
 
 from htm.fleet import catalogue, drift
 from htm.record.store import Store
@@ -191,3 +194,23 @@ def test_an_add_that_fails_writing_leaves_no_row_and_the_next_add_succeeds(tmp_p
         monkeypatch.setattr(catalogue.os, "replace", real)
         row = catalogue.put_record(s, rec, "frame-a", "2026-03-01", "run1")
         assert list(catalogue.stored(s)) == [("frame-a", "2026-03-01", "run1")] and row["bytes"] > 0
+
+
+def test_re_identifying_a_rig_adds_to_its_fleet_history(tmp_path, capsys):
+    """`htm fleet identify` (issue 30 item 6): each identification of a machine is kept in the fleet
+    catalogue under its date, so `htm fleet trend` follows the machine's own parameters — here a
+    virtual rig whose valve null drifted between two identifications (short experiments, ~15 s each)."""
+    from htm.cli import main
+
+    tag = f"fleetid-{tmp_path.name[-12:]}"
+    for date, bias in (("2026-11-01", 0.12), ("2026-11-20", 0.16)):
+        (tmp_path / "rig.toml").write_text(f'[bus]\ninterface = "virtual"\nchannel = "{tag}"\n[analog]\ndevice = "{tag}"\n'
+                                           f'[loop]\nmode = "lockstep"\nrate_hz = 500.0\n[virtual.effects]\n'
+                                           f'valve_null_bias = {{ bias_v = {bias} }}\n')
+        assert main(["fleet", "identify", str(tmp_path / "rig.toml"), "--machine", "frame-1", "--date", date,
+                     "--out", str(tmp_path / date), "--store", str(tmp_path / "st"), "--ramp-speeds", "5", "--sweep-s", "3"]) == 0
+        assert "findings: valve_null_bias" in capsys.readouterr().out
+    assert main(["fleet", "trend", "frame-1", "--store", str(tmp_path / "st"), "--json"]) == 0
+    hist = json.loads(capsys.readouterr().out)["params"]["valve_null_bias_v"]["history"]
+    assert [d for d, _ in hist] == ["2026-11-01", "2026-11-20"]
+    assert [v for _, v in hist] == [pytest.approx(0.12, rel=0.05), pytest.approx(0.16, rel=0.05)]

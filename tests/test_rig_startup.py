@@ -117,3 +117,28 @@ def test_a_test_started_during_the_start_up_waits_for_the_working_pressure():
         assert not any(e["kind"] == "trip" for e in s.log.since(0))
     finally:
         s.close()
+
+
+def test_a_test_started_cold_energises_at_the_working_pressure_and_holds_its_band():
+    """`Session.start` straight from power-on (no position control before it): the start-up
+    protection must not keep a test at the start-up's low pressure, nor trip it."""
+    spec = load(ROOT / "examples" / "ct_constant_force.toml")
+    s = Session().open(virtual_config("lockstep", position={"protect_force_n": PROTECT_N}), virtual=True,
+                       specimen=specimen_of(spec), thread=False)
+    try:
+        rows = _recording(s)
+        assert not s.loop.powered
+        s.start(spec, record=False)
+        cycles = []
+        while len(cycles) < 60:
+            s.step(200)
+            cycles += s.cycles_since(len(cycles))
+        powered = [r for r in rows if r["amplifier"]]
+        assert powered and {r["state"] for r in powered} <= {"starting", "running"} and not any(r["starting"] for r in powered), \
+            "energised for the test (its smooth start), not for position control's low-pressure start-up"
+        assert min(r["p_s"] for r in powered) >= 0.9 * s.loop.supply_pa, "at the working pressure from the first powered period"
+        assert not [e for e in s.log.since(0) if e["kind"] == "trip"]
+        judged = [c["df_err_pct"] for c in cycles if c["judged"]]
+        assert judged and max(abs(x) for x in judged) < 2.0
+    finally:
+        s.close()

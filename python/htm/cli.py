@@ -172,6 +172,7 @@ def _extensions() -> list[Callable[[argparse._SubParsersAction], None]]:
     """Subcommand groups that live with their packages (each adds its own parsers)."""
     from htm import correct as correct_cli  # `htm db correct`, an action of record_cli's group
     from htm import run as run_cli
+    from htm import tune as tune_cli
     from htm.campaign import cli as campaign_cli
     from htm.campaign import lifeband_cli
     from htm.control import cli as rig_cli
@@ -185,7 +186,8 @@ def _extensions() -> list[Callable[[argparse._SubParsersAction], None]]:
         record_cli.register(sub, more=[correct_cli.add_db_action])
 
     return [run_cli.register, fatigue_cli.register, ident_cli.register, rig_cli.register, db,
-            campaign_cli.register, lifeband_cli.register, fleet_cli.register, sn_cli.register]
+            campaign_cli.register, lifeband_cli.register, fleet_cli.register, sn_cli.register,
+            tune_cli.register]
 
 
 def main(argv: Sequence[str] | None = None) -> int:

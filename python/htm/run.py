@@ -81,6 +81,8 @@ def run_test(spec: TestSpec | str | Path, mode: str | None = None, *, progress: 
     return out
 
 
+# first line of a stored spec run on a twin (`--model`): the model's path, for `htm resume`
+TWIN_TAG = "# htm twin: "
 # raw high-rate windows of a simulated test: the core's policy (the first cycles, a few from each
 # decade, a few around each event)
 RAW_POLICY = core.RAW_POLICY
@@ -185,7 +187,12 @@ def resume_recorded(store: Any, test_id: str, progress: bool = False, *, recordi
     row = store.get(test_id)
     if row["kind"] != "simulated":
         raise RecordError(f"test {test_id} is a {row['kind']} test; only simulated tests resume with `htm resume`")
-    spec = parse(tomllib.loads(row["spec"]), row["name"])
+    twin = row["spec"].startswith(TWIN_TAG)
+    spec = parse(tomllib.loads(row["spec"]), row["name"], check=not twin)  # a twin's run was checked on the twin
+    if twin:  # run on an identified model's twin: resumed on it
+        from htm.twin import on_model
+
+        spec = on_model(spec, row["spec"].splitlines()[0][len(TWIN_TAG):], check=False)
     mode = row["mode"]
     writer, segs = TestWriter.reopen(store, test_id, recording=recording, spawn=spawn, connect=connect)
     records = [r for s in segs for r in s.records]
@@ -253,6 +260,8 @@ def summary(spec: TestSpec, out: core.Outcome | dict[str, Any], wall: float, mod
         "size_criterion_cycle": out["size_criterion_cycle"], "velocity_gain_m_s_per_v": out["velocity_gain_m_s_per_v"],
         "demod_gains": out.get("demod_gains"), **convergence.results(out.get("convergence", [])),
         **force_verdict(spec, out),
+        # which plant the test ran on: the spec's nominal rig, or an identified model's twin
+        "model": spec.twin,
     }
 
 
@@ -287,7 +296,8 @@ def write_outputs(out_dir: Path, spec: TestSpec, out: core.Outcome | dict[str, A
     (out_dir / "summary.txt").write_text(text + "\n")
     from htm.fatigue.report import spec_test_report
 
-    s["report"] = spec_test_report(out_dir, spec, table, f"Simulated test {spec.name}")
+    title = f"Simulated test {spec.name}" + (f" on the twin {spec.twin['path']}" if spec.twin else "")
+    s["report"] = spec_test_report(out_dir, spec, table, title)
     return s
 
 
@@ -301,6 +311,7 @@ def summary_text(spec: TestSpec, s: dict[str, Any]) -> str:
         ("crack", f"a = {spec.a0_m * 1e3:.2f} → {s['final_a_m'] * 1e3:.2f} mm (a/W {s['final_a_over_w']:.3f})"),
         ("force error", f"max |ΔF| {s['max_abs_df_err_pct']:.3f} %, max |peak| {s['max_abs_peak_err_pct']:.3f} %: "
                         f"{'inside' if s['force_in_band'] else 'OUTSIDE'} the ISO 12108 band ±{s['force_tolerance_pct']:g} %"),
+        ("rig model", _twin_label(spec)),
         ("rig limits", s["feasibility"] + (" (run anyway: override_limits)" if s["override_limits"] else "")),
         *(("convergence", convergence.describe(e)) for e in s.get("convergence", [])),
         ("size criterion", "met throughout" if s["size_criterion_cycle"] is None else f"violated from cycle {s['size_criterion_cycle']:,}"),
@@ -311,17 +322,32 @@ def summary_text(spec: TestSpec, s: dict[str, Any]) -> str:
     return "\n".join(f"{k:<{w}}  {v}" for k, v in rows)
 
 
+def _twin_label(spec: TestSpec) -> str:
+    from htm.twin import label
+
+    return label(spec.twin)
+
+
+def load_spec(args: argparse.Namespace, check: bool = True) -> TestSpec:
+    """The spec of `htm run`, on the twin of `--model` when given (ModelError: one line, exit 2)."""
+    if not getattr(args, "model", None):
+        return load(args.spec, check=check)
+    from htm.twin import on_model
+
+    return on_model(load(args.spec, check=False), args.model, check=check)
+
+
 def cmd_check(args: argparse.Namespace) -> int:
     """`htm run --check SPEC`: every feasibility check; exit 1 when the rig cannot run it."""
-    spec = load(args.spec, check=False)
+    spec = load_spec(args, check=False)
     feas = spec.feasibility()
     if args.json:
         from dataclasses import asdict
 
-        emit_json({"spec": spec.name, "feasible": feas.feasible, "verdict": feas.verdict(),
+        emit_json({"spec": spec.name, "feasible": feas.feasible, "verdict": feas.verdict(), "model": spec.twin,
                    "override_limits": spec.override_limits, "checks": [asdict(c) for c in feas.checks]})
         return 0 if feas.feasible else 1
-    print(f"{spec.name}: can the rig run this test?")
+    print(f"{spec.name}: can the rig run this test? ({_twin_label(spec)})")
     print(feas.table())
     if not feas.feasible and spec.override_limits:
         print("[run] override_limits = true: `htm run` runs it anyway and reports the force error it reaches")
@@ -333,7 +359,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         return cmd_check(args)
     if not args.out:
         raise HtmError("--out DIR is required (or --check to check the spec only)")
-    spec = load(args.spec)  # refuses a test the rig cannot run (InfeasibleTest)
+    spec = load_spec(args)  # refuses a test the rig (or its twin) cannot run (InfeasibleTest)
     for c in spec.feasibility().checks:
         if c.status != "ok":
             forced = " (override_limits: running anyway)" if c.status == "refused" else ""
@@ -350,7 +376,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         from htm.record.store import Store
 
         with Store(args.store) as store:
-            test_id, out, wall = run_recorded(spec, stored_text(args.spec, spec), mode, store, progress=not args.quiet,
+            text = stored_text(args.spec, spec)
+            if spec.twin:  # a resume runs on the same twin
+                text = f"{TWIN_TAG}{Path(spec.twin['path']).resolve()}\n" + text
+            test_id, out, wall = run_recorded(spec, text, mode, store, progress=not args.quiet,
                                               recording=not args.no_recording, spawn=args.spawn, connect=args.connect)
             if not args.json:
                 print(f"store: test {test_id} in {path(store.root)}"
@@ -397,6 +426,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="only check whether the rig can run the test (force, valve flow, frequency, stroke, E647 size "
                         "criterion) and print the largest feasible ΔF and frequency; exit 1 if it cannot")
     p.add_argument("--mode", choices=["full", "jump"], help="full fidelity or cycle-jump (default: the spec's [run] mode)")
+    p.add_argument("--model", metavar="MODEL.json",
+                   help="run (or --check) on the twin: an identified rig model (`htm rig identify` / `htm diagnose`'s "
+                        "model.json, its base parameters and every finding) instead of the spec's nominal rig")
     p.add_argument("--quiet", action="store_true", help="no progress line")
     add_json_flag(p)
     add_store_args(p)

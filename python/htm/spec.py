@@ -96,6 +96,9 @@ class TestSpec:
     blocks: list[tuple[int, float, float]] = field(default_factory=list)
     spectrum: list[tuple[float, float]] = field(default_factory=list)
     override_limits: bool = False
+    # the identified model the test runs on instead of the nominal rig (`htm run --model`):
+    # `htm.ident.plant.describe` of its model.json, None for the spec's own rig
+    twin: dict[str, Any] | None = None
     # the core's configuration of this test, built once by `parse` (validated)
     config: core.TestConfig = field(init=False, repr=False, compare=False)
     _feasibility: Feasibility | None = field(default=None, init=False, repr=False, compare=False)

@@ -40,6 +40,8 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     # everything that can be wrong is found before the first test: the file, every test's spec,
     # the store and the cluster
     c = campaign_spec.load(args.campaign)
+    if args.model:  # every test on the rig's identified twin
+        c = campaign_spec.on_model(c, args.model)
     out = Path(args.out or f"out/campaign-{c.id}")
     with Store(args.store) as store:
         if args.cluster:
@@ -48,7 +50,8 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         else:
             client, runner, where = None, engine.local_runner(args.threads), "this machine"
         if not args.json:
-            print(f"campaign {c.id}: {len(c):,} tests ({c.mode} mode, {c.chunk_tests} per chunk) on {where}; "
+            on = f" on the twin {args.model}" if args.model else ""
+            print(f"campaign {c.id}{on}: {len(c):,} tests ({c.mode} mode, {c.chunk_tests} per chunk) on {where}; "
                   f"store {path(store.path) if '://' not in str(store.path) else store.path}")
         try:
             s = engine.run(c, store, runner, progress=not args.quiet)
@@ -87,6 +90,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--store", help="test store: a folder, or postgresql://USER@HOST:PORT/DB (password from PGPASSWORD "
                                    "or ~/.pgpass); default $HTM_STORE or ~/.local/share/htm/store")
     p.add_argument("--out", help="folder for campaign.parquet and life.png (default out/campaign-ID)")
+    p.add_argument("--model", metavar="MODEL.json",
+                   help="run every test on the twin: an identified rig model (`htm rig identify`'s model.json) instead "
+                        "of the nominal rig (the store keeps it as a campaign of its own)")
     p.add_argument("--threads", type=int, default=0, help="local threads (default all cores)")
     p.add_argument("--quiet", action="store_true", help="no progress line")
     add_json_flag(p)

@@ -305,3 +305,36 @@ def load(path: str | Path) -> Campaign:
         return parse(text, p)
     except SpecError as e:  # the file named in front, once
         raise type(e)(str(e) if str(p) in str(e) else f"{p}: {e}") from None
+
+
+def on_model(c: Campaign, model: str | Path) -> Campaign:
+    """The campaign on the twin of `model` (`htm campaign --model`): every test's document runs on
+    the identified plant — the model's base parameters and findings as the `base` preset's
+    overrides, with what the test itself overrides of its rig (a swept supply pressure) on top —
+    and with the controller the rig would run (`htm.twin.twin_config`'s velocity gain). Its id
+    names the model, so the store keeps it apart from the campaign on the nominal rig."""
+    import dataclasses
+
+    from htm import spec as test_spec
+    from htm.ident.plant import load_twin
+    from htm.ident.predict import ModelError
+    from htm.params import with_overrides
+    from htm.twin import keff_ratio, rig_velocity_gain
+
+    docs = []
+    twin_hash = None
+    for i, d in enumerate(c.docs):
+        spec = test_spec.parse(d, f"{c.name}[{i}]", c.path.parent, check=False)
+        twin, info = load_twin(str(model), test_spec._config(dataclasses.replace(spec, rig_overrides={})).params)
+        if twin.valve_map[0]:
+            raise ModelError(f"model {info['path']} has a valve map (knots): a campaign's test documents carry scalar "
+                             "parameters only; run its tests one by one with `htm run --model`")
+        twin = with_overrides(twin, spec.rig_overrides)
+        doc = copy.deepcopy(d)
+        doc["rig"] = {"preset": "base", "overrides": twin.to_dict()}
+        kv = rig_velocity_gain(spec)
+        if kv is not None:
+            doc.setdefault("controller", {"type": spec.controller["type"]})["velocity_gain_m_s_per_v"] = kv * keff_ratio(spec, twin)
+        docs.append(doc)
+        twin_hash = twin_hash or _hash(info)[:8]
+    return dataclasses.replace(c, id=f"{c.id}-twin-{twin_hash}", docs=docs)

@@ -35,14 +35,14 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
 
 def cmd_identify(args: argparse.Namespace) -> int:
-    from htm.control.identify import Plan, identify
+    from htm.control.identify import identify, plan_of
 
     specimen = None
     if args.specimen:
         from htm.spec import load
 
         specimen = load(args.specimen)
-    plan = Plan(amplitude_m=args.amplitude * 1e-3) if args.amplitude else Plan()
+    plan = plan_of(args)
     res = identify(args.config, args.out, specimen=specimen, plan=plan)
     print(f"record: {res.record_base}.csv + .json ({res.samples} samples)")
     if res.tripped:
@@ -61,6 +61,8 @@ def cmd_identify(args: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from htm.control.identify import add_plan_args
+
     rig = sub.add_parser("rig", help="the virtual rig (serve it to another process)",
                          description="Virtual rig commands.")
     rs = rig.add_subparsers(dest="rig_command", required=True, metavar="RIG_COMMAND")
@@ -78,6 +80,6 @@ def register(sub: argparse._SubParsersAction) -> None:
                                   "htm diagnose's report and model.json there. A trip stops the experiment safely.")
     i.add_argument("config", help="rig configuration TOML")
     i.add_argument("--specimen", help="test spec TOML whose specimen is gripped (default: none, a free piston)")
-    i.add_argument("--amplitude", type=float, help="motion amplitude around the installed position [mm] (default 4)")
+    add_plan_args(i)
     i.add_argument("--out", required=True, help="folder for the record, report.json and model.json")
     i.set_defaults(func=cmd_identify)

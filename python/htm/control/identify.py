@@ -39,6 +39,34 @@ class Plan:
     bandwidth_per_s: float = 60.0
 
 
+def add_plan_args(p: Any) -> None:
+    """The experiment's command-line options (`htm rig identify`, `htm fleet identify`)."""
+    d = Plan()
+    p.add_argument("--amplitude", type=float, help=f"motion amplitude around the installed position [mm] (default {d.amplitude_m * 1e3:g})")
+    p.add_argument("--ramp-speeds", type=float, nargs="+", metavar="MM_S",
+                   help=f"ramp speeds [mm/s] (default {' '.join(f'{v * 1e3:g}' for v in d.ramp_speeds_m_s)})")
+    p.add_argument("--sweep-s", type=float, help=f"duration of the sine sweep [s] (default {d.sweep_s:g}; shorter: a quicker, "
+                                                 "less certain identification)")
+
+
+def plan_of(args: Any) -> Plan:
+    """The experiment the options of `add_plan_args` ask for; HtmError names a bad value."""
+    plan = Plan()
+    if args.amplitude is not None:
+        if not (math.isfinite(args.amplitude) and 0.0 < args.amplitude <= 50.0):
+            raise HtmError(f"--amplitude {args.amplitude!r}: give millimetres in (0, 50]")
+        plan = replace(plan, amplitude_m=args.amplitude * 1e-3)
+    if args.ramp_speeds:
+        if not all(math.isfinite(v) and 0.0 < v <= 1000.0 for v in args.ramp_speeds):
+            raise HtmError(f"--ramp-speeds {args.ramp_speeds!r}: give speeds in mm/s in (0, 1000]")
+        plan = replace(plan, ramp_speeds_m_s=tuple(v * 1e-3 for v in args.ramp_speeds))
+    if args.sweep_s is not None:
+        if not (math.isfinite(args.sweep_s) and 0.5 <= args.sweep_s <= 600.0):
+            raise HtmError(f"--sweep-s {args.sweep_s!r}: give seconds in [0.5, 600]")
+        plan = replace(plan, sweep_s=args.sweep_s)
+    return plan
+
+
 @dataclass
 class Outcome:
     record_base: Path
@@ -205,7 +233,12 @@ def identify(config: RigConfig | str | Path, out: str | Path, *, specimen: Any =
         if diagnose and not tripped:
             from htm.ident.diagnose import diagnose as run_diagnosis
 
-            res.report = run_diagnosis(rec, out_dir=out)
+            try:
+                res.report = run_diagnosis(rec, out_dir=out)
+            except HtmError as e:  # the diagnosis refuses the record: the rig is already safe, the record kept
+                kept = f"{base}.csv" + (f" and store test {test_id} (status failed)" if test_id else "")
+                raise HtmError(f"{e} — the experiment ended safely (valve null, amplifier off, supply unloaded); "
+                               f"its {res.samples:,} samples are kept: {kept}") from None
     finally:
         if test_id is not None:
             _store_close(store, test_id, out, res)

@@ -30,17 +30,16 @@ def plant_params(cfg: RigConfig) -> core.Params:
     p = with_overrides(core.Params(cfg.rig_preset), cfg.rig_overrides)
     if cfg.virtual_effects is None:
         return p
-    from htm.ident.sim import params_from_meta, with_effect
+    from htm.ident.plant import with_effects
+    from htm.ident.sim import params_from_meta
     from htm.params import rig_metadata
 
     rig = {**rig_metadata(p), "valve_polarity": p["valve_polarity"], "valve_underlap_v": p["valve_underlap_v"],
            **{k: p[k] for k in p.keys() if k.startswith("friction_")}}
     base = params_from_meta({"rig": rig, "specimen": None})
-    # what the metadata does not carry stays the rig's (the specimen's zero-force position)
-    base["specimen_zero_force_position_m"] = p["specimen_zero_force_position_m"]
-    for eid, e in cfg.virtual_effects.items():
-        base = with_effect(base, eid, e["values"], e["channel"])
-    return base
+    # what the metadata does not carry stays the rig's (the installation: the specimen's zero-force
+    # position); the same function builds an identified model's twin (`htm run --model`)
+    return with_effects(base, ((eid, e["values"], e["channel"]) for eid, e in cfg.virtual_effects.items()), p)
 
 
 def _idx(ch: str) -> int:

@@ -85,13 +85,13 @@ def cmd_fleet_identify(args: argparse.Namespace) -> int:
     import datetime
     import time
 
-    from htm.control.identify import identify
+    from htm.control.identify import identify, plan_of
     from htm.fleet import catalogue
     from htm.ident.records import read_record
 
     catalogue.check_name("--machine", args.machine)
     date = catalogue.check_date(args.date or datetime.date.today().isoformat())
-    res = identify(args.config, args.out, store=args.store)
+    res = identify(args.config, args.out, store=args.store, plan=plan_of(args))
     print(f"record: {res.record_base}.csv + .json ({res.samples} samples)")
     if res.tripped:
         print(f"experiment stopped safely: {'; '.join(res.tripped)}; the record is kept, nothing added to the fleet")
@@ -209,6 +209,8 @@ def _plot(path: Path, machine: str, hist: dict[str, list[tuple[str, float]]], ve
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from htm.control.identify import add_plan_args
+
     f = sub.add_parser("fleet", help="diagnose records of several machines into the catalogue; trend a machine's parameters",
                        description="Fleet diagnosis: identified parameters per machine and date, and their drift.")
     fs = f.add_subparsers(dest="fleet_command", required=True, metavar="SUBCOMMAND")
@@ -248,6 +250,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     i.add_argument("--date", help="the date, YYYY-MM-DD (default today)")
     i.add_argument("--out", required=True, help="folder for the record, report.json and model.json")
     i.add_argument("--store", help="test store: a folder or postgresql://USER@HOST:PORT/DB")
+    add_plan_args(i)
     i.set_defaults(func=cmd_fleet_identify)
     t = fs.add_parser("trend", help="a machine's identified parameters by date, flagging drift beyond their own scatter",
                       description="Print (and plot with --out) every identified parameter of MACHINE by date; the latest "

@@ -22,6 +22,7 @@ from textual.widgets import Footer, Header, Markdown, RichLog, Static, TabbedCon
 
 from htm.errors import HtmError, InterlockTripped
 from htm.tui.diagnose_pane import DiagnosePane
+from htm.tui.identify import IdentifyPane
 from htm.tui.install import InstallPane
 from htm.tui.results import ResultsPane
 from htm.tui.runpane import RunPane
@@ -51,9 +52,9 @@ Like a controller handset: the keys act on the tab you are in; E-stop works ever
 |---|---|---|
 | **F12** or **ctrl+e** | anywhere | **E-STOP**: valve null, amplifier off, supply unloaded; latched until reset |
 | F1 or ? | anywhere | this help |
-| F2 … F6 | anywhere | Setup, Install, Run, Results, Diagnose (the keys then act on that tab at once) |
+| F2 … F7 | anywhere | Setup, Install, Run, Results, Diagnose, Identify (the keys then act on that tab at once) |
 | Tab / shift+Tab | anywhere | next / previous field or button; enter presses a button |
-| ctrl+s | anywhere | simulate the Setup spec on the fast engine (predicted life, force errors) |
+| ctrl+s | anywhere | simulate the Setup spec on the fast engine (predicted life, force errors), on the twin when Setup names a model.json |
 | ↑ / ↓ | Install | jog up / down at the jog rate (position control, specimen protect on) |
 | space | Install | stop jogging |
 | [ / ] | Install | step down / up by the step size |
@@ -70,6 +71,7 @@ Like a controller handset: the keys act on the tab you are in; E-stop works ever
 | v | Results | open the selected test's rerun recording |
 | b | Results | the selected test's life band, updated from its own first points (blank set: Virkler 2024-T3) |
 | (fields) | Diagnose | record table and output folder, then Diagnose (enter) |
+| (fields) | Identify | output folder and amplitude, then Identify: the rig identifies itself (report, model.json) |
 | q | anywhere | quit (the loop stops safely: valve null, amplifier off) |
 
 Escape closes this screen.
@@ -96,6 +98,7 @@ class HtmApp(App[None]):
         Binding("f4", "tab('run')", "run", show=False),
         Binding("f5", "tab('results')", "results", show=False),
         Binding("f6", "tab('diagnose')", "diagnose", show=False),
+        Binding("f7", "tab('identify')", "identify", show=False),
         Binding("ctrl+s", "simulate", "simulate"),
         Binding("ctrl+w", "web", "web viewer", show=False),  # htm.record.web: tests from now on to a browser
         Binding("q", "quit", "quit"),
@@ -139,6 +142,8 @@ class HtmApp(App[None]):
                 yield ResultsPane(self.store_root, id="results-pane")
             with TabPane("Diagnose F6", id="diagnose"):
                 yield DiagnosePane(id="diagnose-pane")
+            with TabPane("Identify F7", id="identify"):
+                yield IdentifyPane(id="identify-pane")
         yield Static(EVENTS_HEADING, id="events-heading", markup=False)
         yield RichLog(id="events", markup=True, max_lines=500)
         yield Footer()
@@ -169,6 +174,26 @@ class HtmApp(App[None]):
             self.session = None
             self.log_event(f"[red]rig not available: {e}[/]")
             self.notify(f"rig not available: {e}", severity="error", timeout=10)
+
+    def rig_config(self) -> Any:
+        """The connected rig's configuration (the built-in virtual rig's when none was given)."""
+        from htm.devices.config import RigConfig, load_config
+
+        if self.config is None:
+            return virtual_rig_config()
+        return self.config if isinstance(self.config, RigConfig) else load_config(self.config)
+
+    def release_rig(self, why: str) -> None:
+        """Hand the rig over (the identification drives its own loop): the session closes safely."""
+        if self.session is not None:
+            self.session.close()
+            self.session = None
+        self._last_period = self._last_cycle = self._last_event = 0
+        self.log_event(f"[yellow]rig handed over to the {escape(why)}[/]")
+
+    def reconnect_rig(self) -> None:
+        if self.session is None:
+            self._open_session()
 
     def current_spec(self):
         return self.query_one(SetupPane).spec
@@ -282,7 +307,8 @@ class HtmApp(App[None]):
         """Keys act at once on the tab just entered: the handset panes take them, Results its list
         (↑/↓), Diagnose its record field."""
         target = {"install": lambda: self.query_one(InstallPane), "run": lambda: self.query_one(RunPane),
-                  "results": lambda: self.query_one("#results-table"), "diagnose": lambda: self.query_one("#diag-record")}.get(tab)
+                  "results": lambda: self.query_one("#results-table"), "diagnose": lambda: self.query_one("#diag-record"),
+                  "identify": lambda: self.query_one("#identify-out")}.get(tab)
         if target is not None:
             target().focus()
 

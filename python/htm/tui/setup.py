@@ -56,6 +56,9 @@ class SetupPane(Vertical):
     SetupPane #setup-bar Input { width: 1fr; }
     SetupPane #setup-bar Button { width: auto; min-width: 8; }
     SetupPane #sim-result { height: auto; padding: 0 1; }
+    SetupPane #setup-model-bar { height: 3; }
+    SetupPane #setup-model-bar Label { padding: 1 1 0 1; }
+    SetupPane #setup-model-bar Input { width: 1fr; }
     """
 
     class SpecChanged(Message):
@@ -78,6 +81,10 @@ class SetupPane(Vertical):
             yield Button("Load", id="load")
             yield Button("Save", id="save")
             yield Button("Simulate", id="simulate", variant="primary")
+        with Horizontal(id="setup-model-bar"):
+            yield Label("rig model")
+            yield Input(placeholder="model.json of `htm rig identify` (Identify F7): simulate on the rig's twin; "
+                                    "blank: the nominal rig", id="model-path")
         yield Static("", id="setup-status")
         yield Static("", id="setup-check")
         yield Static("", id="sim-result")
@@ -206,20 +213,25 @@ class SetupPane(Vertical):
         if self.spec is None:
             self.notify("fix the spec first", severity="error")
             return
-        self.query_one("#sim-result", Static).update("simulating on the fast engine (cycle-jump)…")
-        self._simulate(self.spec)
+        model = self.query_one("#model-path", Input).value.strip() or None
+        where = f"the twin {model}" if model else "the nominal rig"
+        self.query_one("#sim-result", Static).update(f"simulating on the fast engine (cycle-jump), on {escape(where)}…")
+        self._simulate(self.spec, model)
 
     @work(thread=True, exclusive=True, group="simulate")
-    def _simulate(self, spec: specmod.TestSpec) -> None:
+    def _simulate(self, spec: specmod.TestSpec, model: str | None = None) -> None:
         from htm.run import run_spec, summary
+        from htm.twin import label, on_model
 
         try:
+            if model:  # the identified plant (base parameters and every finding) instead of the nominal rig
+                spec = on_model(spec, model)
             out, wall = run_spec(spec, "jump")
             s = summary(spec, out, wall, "jump")
             text = (f"[b]predicted life[/] {s['cycles']:,} cycles → {s['end_reason']}, a = {s['final_a_m'] * 1e3:.2f} mm "
                     f"(a/W {s['final_a_over_w']:.3f})\n[b]force error[/] max |ΔF| {s['max_abs_df_err_pct']:.2f} %, "
                     f"max |peak| {s['max_abs_peak_err_pct']:.2f} %: {'inside' if s['force_in_band'] else '[b red]OUTSIDE[/]'} the band "
-                    f"±{s['force_tolerance_pct']:g} %   [dim]{wall:.2f} s wall[/]")
+                    f"±{s['force_tolerance_pct']:g} %   [dim]{wall:.2f} s wall[/]\n[b]plant[/] {escape(label(spec.twin))}")
         except HtmError as e:
-            text = f"[red]simulation refused: {e}[/]"
+            text = f"[red]simulation refused: {escape(str(e))}[/]"
         self.app.call_from_thread(self.query_one("#sim-result", Static).update, text)
