@@ -43,6 +43,10 @@ EFFECT_FIELDS: dict[str, dict[str, str]] = {
 # (a micrometre of noise differenced over one millisecond is a velocity of about a mm/s, the size
 # of a friction's build-up velocity) and is exact for the sines and rounded ramps of a test.
 VELOCITY_WINDOW_S = 0.02
+# Friction's build-up velocity starts at this share of the record's fast velocities (99th
+# percentile), and the screen tries these factors on it.
+FRICTION_VELOCITY_SHARE = 0.05
+FRICTION_VELOCITY_STARTS = (0.2, 1.0, 5.0)
 
 
 def displacement_record(rec: Record) -> Record:
@@ -133,7 +137,7 @@ class SpecimenFamily(Family):
         if not self.zero_declared:
             nominal["specimen_zero_force_position_m"] = float(np.median(y))
         nominal["velocity_window_s"] = max(VELOCITY_WINDOW_S, 2.0 * dt)
-        nominal["specimen_friction_velocity_m_s"] = 0.02 * self.v_max
+        nominal["specimen_friction_velocity_m_s"] = FRICTION_VELOCITY_SHARE * self.v_max
         self._start(nominal, y, v, f, stiffness_declared=nominal["specimen_stiffness_n_m"] > 0)
         self.nominal = nominal
         self.base_frees: list[Free] = self._base_frees()
@@ -185,11 +189,14 @@ class SpecimenFamily(Family):
         fmax = self.f_max
         out = [
             self.sensor_candidate("sensor_offset", "f", scales["f"], bound=1e4),
-            self.candidate("specimen_friction", "f", (lin("specimen_friction_n", 0.01 * fmax, 0.0, 1e4),
-                                                      logf("specimen_friction_velocity_m_s", 0.02, 50.0, step=0.1)),
-                           "sign(v)", starts=(0.0,)),
             self.candidate("load_train_backlash", "f", (lin("load_train_gap_m", 0.01 * self.y_span, 0.0, 50.0),), "sign(v)"),
         ]
+        # friction's build-up velocity is not smooth to find from far off (a tanh far too sharp
+        # chatters on the noise, far too soft is viscous damping): a few starts are screened
+        for factor in FRICTION_VELOCITY_STARTS:
+            out.append(self.candidate("specimen_friction", "f", (lin("specimen_friction_n", 0.01 * fmax, 0.0, 1e4),
+                                                                 logf("specimen_friction_velocity_m_s", 1e-3, 1e2, step=0.1)),
+                                      "sign(v)", starts=(float(np.log(factor)),)))
         k = max(self.nominal["specimen_stiffness_n_m"], fmax / self.y_span)
         out += self.closure_candidates(self.rec.columns["y"], self.nominal["specimen_zero_force_position_m"], k)
         return out

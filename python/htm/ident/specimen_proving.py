@@ -163,7 +163,9 @@ def specimen_matrix_record(case: str, seed_set: str = "A", **overrides: Any) -> 
 
 def judge(report: Mapping[str, Any], truth: Mapping[str, Any]) -> list[str]:
     """What is wrong with a diagnosis of a specimen record (empty: it passes): the findings must be
-    the true effects on `f`, every true parameter within 30 %, and `unexplained` false."""
+    the true effects on `f`, every true parameter within 30 % in the final model (what model.json
+    carries; a finding's own `params` are its values when it was added, and the later refits
+    with the other findings move them), and `unexplained` false."""
     found = sorted((f["effect"], f["channel"]) for f in report["findings"])
     want = sorted((e, "f") for e in truth["effects"])
     problems = []
@@ -171,10 +173,10 @@ def judge(report: Mapping[str, Any], truth: Mapping[str, Any]) -> list[str]:
         problems.append(f"findings {found}, truth {want}")
     if report["unexplained"]:
         problems.append("unexplained = true")
-    by_id = {f["effect"]: f for f in report["findings"]}
+    final = report["final"]["params"]
     for eid, t in truth["effects"].items():
         for name, true in t["params"].items():
-            est = by_id.get(eid, {}).get("params", {}).get(name)
+            est = final.get(EFFECT_FIELDS[eid][name]) if (eid, "f") in found else None
             if est is None or abs(est - true) > 0.3 * abs(true):
                 problems.append(f"{eid}.{name}: estimated {est}, true {true:.4g}")
     return problems
