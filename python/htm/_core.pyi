@@ -325,6 +325,7 @@ class _LoopOutput(TypedDict):
 def loop_simulate(params: list[LoopParams], dt: float, y_ref: npt.NDArray[np.float64], load: npt.NDArray[np.float64] | None = None, threads: int = 0) -> list[_LoopOutput | HtmError]: ...
 
 # --- specimen and load-train force model (crates/htm-core/src/specimen_force.rs) ---
+@final
 class SpecimenParams:
     """Parameters of a specimen and its load train (SI); `SpecimenParams()` has every effect off."""
     def __new__(cls) -> SpecimenParams: ...
