@@ -9,6 +9,7 @@
 //!   ẋ   = (x[k+m] − x[k−m]) / (2m·Δt)                the specimen's velocity (central difference, window 2m·Δt)
 //!   F   = k·(x − y_s) − k_cl·⌊y_s + y_cl − x⌋₊        spring, stiffer by k_cl below the closure position
 //!         + c·ẋ + F_c·tanh(ẋ/v_f)                     viscous damping, friction in the load path
+//!         + F_p·z,  z = clip(z + Δx/δ_p, −1, 1)        friction built up over a displacement (pre-sliding)
 //!   f   = F + f_0                                    the load cell's reading (EFFECTS sensor_offset on f)
 //! ```
 //!
@@ -81,6 +82,12 @@ define_specimen_params! {
     specimen_friction_n ["N"] = 0.0, closed 0.0, 1.0e8;
     /// Velocity v_f over which the friction builds up
     specimen_friction_velocity_m_s ["m/s"] = 1.0e-3, open 0.0, 10.0;
+    /// Friction F_p that builds up over a displacement (pre-sliding: an elasto-plastic element,
+    /// slope F_p/δ_p from each reversal until it slides at F_p; the project's
+    /// `presliding_friction`, beside EFFECTS specimen_friction's build-up over a velocity)
+    specimen_presliding_friction_n ["N"] = 0.0, closed 0.0, 1.0e8;
+    /// Displacement δ_p over which the pre-sliding friction builds up
+    specimen_presliding_m ["m"] = 1.0e-3, open 0.0, 1.0;
     /// Closure stiffness k_cl added below the closure position (EFFECTS specimen_nonlinearity)
     specimen_closure_stiffness_n_m ["N/m"] = 0.0, closed 0.0, 1.0e12;
     /// Closure position relative to the zero-force position: k_cl acts for x < y_s + this
@@ -122,7 +129,7 @@ impl SpecimenParams {
     /// closure `fit` describes, for a specimen at zero-force position `zero_force_position_m`
     /// (the load cell offset and the other terms kept).
     pub fn from_closure_fit(&self, fit: &ClosureFit) -> Result<SpecimenParams> {
-        if !(fit.c_open.is_finite() && fit.c_open > 0.0) || !(0.0..1.0).contains(&fit.depth) {
+        if !(fit.c_open.is_finite() && fit.c_open > 0.0 && (0.0..1.0).contains(&fit.depth)) {
             return Err(Error::Input(format!(
                 "a closure fit needs C_open > 0 and a depth in [0, 1) (got C_open = {}, depth = {})",
                 fit.c_open, fit.depth
@@ -189,6 +196,7 @@ pub fn force(p: &SpecimenParams, dt: f64, y: &[f64]) -> Result<Vec<f64>> {
     let n = y.len();
     let x = if p.load_train_gap_m > 0.0 { play(&y, 0.5 * p.load_train_gap_m, y[0]) } else { y };
     let m = ((p.velocity_window_s / (2.0 * dt)).round() as usize).clamp(1, (n - 1).max(1));
+    let mut z = 0.0;
     let out = (0..n)
         .map(|k| {
             let (a, b) = (k.saturating_sub(m), (k + m).min(n - 1));
@@ -198,6 +206,11 @@ pub fn force(p: &SpecimenParams, dt: f64, y: &[f64]) -> Result<Vec<f64>> {
                 + p.specimen_damping_n_s_m * v;
             if p.specimen_friction_n > 0.0 {
                 f += p.specimen_friction_n * (v / p.specimen_friction_velocity_m_s).tanh();
+            }
+            if p.specimen_presliding_friction_n > 0.0 {
+                let dx = if k > 0 { x[k] - x[k - 1] } else { 0.0 };
+                z = (z + dx / p.specimen_presliding_m).clamp(-1.0, 1.0);
+                f += p.specimen_presliding_friction_n * z;
             }
             f + p.sensor_offset_f
         })
@@ -239,6 +252,17 @@ mod tests {
         let f = force(&p, dt, &y).unwrap();
         // rising at k = 0 (v = 2π mm/s), falling at k = 500
         assert!((f[1] - 300.0).abs() < 1.0 && (f[500] + 300.0).abs() < 1.0, "{} {}", f[1], f[500]);
+    }
+
+    #[test]
+    fn presliding_friction_builds_up_over_its_displacement_after_each_reversal() {
+        let p = SpecimenParams { specimen_presliding_friction_n: 200.0, specimen_presliding_m: 1e-4, ..Default::default() };
+        // up 1 mm in 1 µm steps, then back
+        let y: Vec<f64> = (0..2001).map(|i| 1e-6 * (1000.0 - (i as f64 - 1000.0).abs())).collect();
+        let f = force(&p, 1e-3, &y).unwrap();
+        assert!((f[50] - 100.0).abs() < 1e-6 && (f[1000] - 200.0).abs() < 1e-9, "{} {}", f[50], f[1000]);
+        // back by its displacement: no friction; by twice it: sliding the other way
+        assert!(f[1100].abs() < 1e-6 && (f[1200] + 200.0).abs() < 1e-9, "{} {}", f[1100], f[1200]);
     }
 
     #[test]

@@ -8,7 +8,10 @@ zero-force position identified unless the metadata declares it, which DATA_FORMA
 the geometry) with viscous damping. Its effects are EFFECTS.md's "Specimen and load train" ids:
 `specimen_nonlinearity` (crack closure: a stiffer spring below a closure position),
 `specimen_friction`, `load_train_backlash` and `sensor_offset` on `f`. The search, its stages and
-its rules are the engine's own (`search.py`); this module only says what the model is.
+its rules are the engine's own (`search.py`); this module only says what the model is. One effect
+is the project's own id (EFFECTS.md allows it): `presliding_friction`, a friction that builds up
+over a displacement after each reversal (an elasto-plastic element) where `specimen_friction`
+builds up over a velocity.
 
 The displacement is the model's input: its prediction is the record's own reading (an error of
 zero, reported as such), and every finding shows in the force.
@@ -35,6 +38,10 @@ EFFECT_FIELDS: dict[str, dict[str, str]] = {
     "sensor_offset": {"offset_n": "sensor_offset_f"},
     "specimen_friction": {"friction_n": "specimen_friction_n", "velocity_m_s": "specimen_friction_velocity_m_s"},
     "load_train_backlash": {"gap_m": "load_train_gap_m"},
+    # the project's own id (EFFECTS.md lets a tool propose its own): friction that builds up over a
+    # displacement after each reversal (pre-sliding, an elasto-plastic element) rather than over a
+    # velocity — a dry friction damper's band, a bolted joint
+    "presliding_friction": {"friction_n": "specimen_presliding_friction_n", "presliding_m": "specimen_presliding_m"},
     "specimen_nonlinearity": {"closure_stiffness_n_m": "specimen_closure_stiffness_n_m",
                               "closure_offset_m": "specimen_closure_offset_m"},
 }
@@ -47,6 +54,9 @@ VELOCITY_WINDOW_S = 0.02
 # percentile), and the screen tries these factors on it.
 FRICTION_VELOCITY_SHARE = 0.05
 FRICTION_VELOCITY_STARTS = (0.2, 1.0, 5.0)
+# Pre-sliding displacement: nominal share of the travel, and the shares the screen starts from.
+PRESLIDING_SHARE = 0.01
+PRESLIDING_STARTS = (0.002, 0.01, 0.05)
 
 
 def displacement_record(rec: Record) -> Record:
@@ -138,6 +148,7 @@ class SpecimenFamily(Family):
             nominal["specimen_zero_force_position_m"] = float(np.median(y))
         nominal["velocity_window_s"] = max(VELOCITY_WINDOW_S, 2.0 * dt)
         nominal["specimen_friction_velocity_m_s"] = FRICTION_VELOCITY_SHARE * self.v_max
+        nominal["specimen_presliding_m"] = PRESLIDING_SHARE * self.y_span
         self._start(nominal, y, v, f, stiffness_declared=nominal["specimen_stiffness_n_m"] > 0)
         self.nominal = nominal
         self.base_frees: list[Free] = self._base_frees()
@@ -197,6 +208,11 @@ class SpecimenFamily(Family):
             out.append(self.candidate("specimen_friction", "f", (lin("specimen_friction_n", 0.01 * fmax, 0.0, 1e4),
                                                                  logf("specimen_friction_velocity_m_s", 1e-3, 1e2, step=0.1)),
                                       "sign(v)", starts=(float(np.log(factor)),)))
+        for share in PRESLIDING_STARTS:
+            out.append(self.candidate("presliding_friction", "f",
+                                      (lin("specimen_presliding_friction_n", 0.01 * fmax, 0.0, 1e4),
+                                       logf("specimen_presliding_m", 1e-3, 1e2, step=0.1)),
+                                      "sign(v)", starts=(float(np.log(share / PRESLIDING_SHARE)),)))
         k = max(self.nominal["specimen_stiffness_n_m"], fmax / self.y_span)
         out += self.closure_candidates(self.rec.columns["y"], self.nominal["specimen_zero_force_position_m"], k)
         return out
