@@ -2,7 +2,7 @@
 matrix (`specimen_proving.SPECIMEN_MATRIX`) on seed sets A (built against), B and C (run once,
 afterwards), judged as the tests judge set A; `htm predict` of a second record of the same
 specimen (RMS force error against the noise the force carries); and the real ARTS friction-damper
-records (/work/shared/data/arts_friction_damper, or --arts DIR): what each diagnosis finds, the
+records (data/arts_friction_damper, CC BY-SA 4.0, or --arts DIR): what each diagnosis finds, the
 force error before and after, and each model predicting the other two records. One JSON line per
 item and a JSON summary.
 
@@ -23,7 +23,7 @@ from htm.ident.predict import predict, read_model
 from htm.ident.records import read_record
 from htm.ident.specimen_proving import NOISE_STD, QUANTUM, SPECIMEN_MATRIX, judge, make_specimen_record, specimen_matrix_record
 
-ARTS = Path("/work/shared/data/arts_friction_damper")
+ARTS = Path(__file__).resolve().parent.parent / "data" / "arts_friction_damper"
 ARTS_RECORDS = ("arts_30lb_0p5hz_1in", "arts_30lb_1hz_0p5in", "arts_30lb_0p25hz_1p5in")
 PREDICT_EFFECTS = {"specimen_friction": {}, "load_train_backlash": {}, "specimen_nonlinearity": {}}
 

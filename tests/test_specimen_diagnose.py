@@ -6,6 +6,7 @@ refused in one line (exit 2), and the core's specimen force model is the one law
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,7 +14,7 @@ import pytest
 from htm import core
 from htm.cli import main
 from htm.ident.diagnose import diagnose
-from htm.ident.records import write_record
+from htm.ident.records import read_record, write_record
 from htm.ident.specimen_proving import NOISE_STD, QUANTUM, SPECIMEN_MATRIX, judge, make_specimen_record, specimen_matrix_record
 
 
@@ -128,3 +129,17 @@ def test_the_core_specimen_model_and_its_binding():
         core.specimen_force([], 1e-3, y)
     with pytest.raises(core.InputError):
         core.specimen_force([p], 0.0, y)
+
+
+def test_the_real_friction_damper_is_diagnosed_as_friction_and_its_model_carries_to_another_run():
+    # ARTS Lab's banded friction damper (data/arts_friction_damper, CC BY-SA 4.0): a dry friction of
+    # about 10 kN that builds up over millimetres after each reversal
+    root = Path(__file__).resolve().parent.parent / "data" / "arts_friction_damper"
+    rec = read_record(root / "arts_30lb_1hz_0p5in.csv.gz")
+    report = diagnose(rec)
+    found = {f["effect"]: f["params"] for f in report["findings"]}
+    assert "presliding_friction" in found and 5e3 < found["presliding_friction"]["friction_n"] < 15e3
+    assert report["final"]["rmse"]["f"] < 0.75 * report["baseline"]["rmse"]["f"]
+    assert set(found) <= {"presliding_friction", "specimen_friction", "load_train_backlash", "sensor_offset"}
+    # what remains (the damper's ringing while it slides) is said, not forced onto an effect
+    assert report["unexplained"] is True
