@@ -1,6 +1,7 @@
 """`htm diagnose` on specimen and load-train records (`displacement_input`): the specimen effect
 matrix (`specimen_proving.SPECIMEN_MATRIX`) on seed sets A (built against), B and C (run once,
-afterwards), judged as the tests judge set A; `htm predict` of a second record of the same
+afterwards) and D (run once, last), and the same cases at 500 Hz and 2 kHz on other specimens
+and histories, judged as the tests judge set A; `htm predict` of a second record of the same
 specimen (RMS force error against the noise the force carries); and the real ARTS friction-damper
 records (data/arts_friction_damper, CC BY-SA 4.0, or --arts DIR): what each diagnosis finds, the
 force error before and after, and each model predicting the other two records. One JSON line per
@@ -52,6 +53,18 @@ def main() -> int:
                               "final_params": report["final"]["params"], "rmse_f_n": report["final"]["rmse"]["f"],
                               "unexplained": report["unexplained"], "seconds": round(time.perf_counter() - t1, 2)}), flush=True)
         summary["matrix"][s] = {"cases": len(SPECIMEN_MATRIX), "passed": passed, "failures": failures}
+    # the same cases at other sample rates, on other specimens and displacement histories
+    for rate in (500, 2000):
+        passed, failures = 0, []
+        for j in range(5):
+            for i, (case, effects, kw) in enumerate(SPECIMEN_MATRIX):
+                rec, truth = make_specimen_record(effects, seed=30000 + 100 * j + i, rate_hz=rate, variant=j % 3, **kw)
+                problems = judge(diagnose(rec), truth)
+                passed += not problems
+                if problems:
+                    failures.append(f"{case} (seed {30000 + 100 * j + i})")
+                    print(json.dumps({"case": case, "rate_hz": rate, "seed": 30000 + 100 * j + i, "problems": problems}), flush=True)
+        summary[f"rate_{rate}_hz"] = {"cases": 5 * len(SPECIMEN_MATRIX), "passed": passed, "failures": failures}
     # a second record of the same specimen: another displacement history, other noise
     preds = []
     for seed in (77, 78, 79):
