@@ -143,3 +143,17 @@ def test_the_real_friction_damper_is_diagnosed_as_friction_and_its_model_carries
     assert set(found) <= {"presliding_friction", "specimen_friction", "load_train_backlash", "sensor_offset"}
     # what remains (the damper's ringing while it slides) is said, not forced onto an effect
     assert report["unexplained"] is True
+
+
+def test_a_clip_gauge_record_is_diagnosed_and_predicted_on_its_cod(tmp_path):
+    tables = []
+    for v in (0, 2):
+        rec, truth = make_specimen_record({"specimen_nonlinearity": {}}, seed=21, variant=v, column="cod")
+        assert "y" not in rec.columns
+        tables.append(write_record(rec, tmp_path / f"cod_v{v}")[0])
+    assert main(["diagnose", str(tables[0]), "--out", str(tmp_path / "d")]) == 0
+    report = json.loads((tmp_path / "d" / "report.json").read_text())
+    assert [f["effect"] for f in report["findings"]] == ["specimen_nonlinearity"]
+    assert main(["predict", str(tmp_path / "d" / "model.json"), str(tables[1]), "--out", str(tmp_path / "p")]) == 0
+    noise = float(np.sqrt(NOISE_STD["f"] ** 2 + (truth["params"]["specimen_stiffness_n_m"] * NOISE_STD["y"]) ** 2))
+    assert json.loads((tmp_path / "p" / "report.json").read_text())["rmse"]["f"] < 1.15 * noise
