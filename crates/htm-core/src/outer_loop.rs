@@ -37,6 +37,7 @@
 use crate::error::{Error, Result};
 use crate::measure::held;
 use crate::params::Field;
+use crate::specimen_force::{damping_friction_force, spring_force};
 
 macro_rules! define_loop_params {
     ($( $(#[doc = $doc:literal])+ $name:ident [$unit:literal] = $default:expr, $lo:tt $min:expr, $max:expr; )*) => {
@@ -263,13 +264,9 @@ impl Law<'_> {
     #[inline]
     fn specimen(&self, y: f64, v: f64) -> f64 {
         let p = self.p;
-        let mut f = crate::specimen_force::spring_force(p.specimen_stiffness_n_m, p.specimen_zero_force_position_m,
-                                                        p.specimen_closure_stiffness_n_m, p.specimen_closure_offset_m, y)
-            + p.specimen_damping_n_s_m * v;
-        if p.specimen_friction_n > 0.0 {
-            f += p.specimen_friction_n * (v / p.specimen_friction_velocity_m_s).tanh();
-        }
-        f
+        spring_force(p.specimen_stiffness_n_m, p.specimen_zero_force_position_m, p.specimen_closure_stiffness_n_m,
+                     p.specimen_closure_offset_m, y)
+            + damping_friction_force(p.specimen_damping_n_s_m, p.specimen_friction_n, p.specimen_friction_velocity_m_s, v)
     }
 
     /// Velocity the valve opening `zv` gives against the load `force`, and its derivative with

@@ -17,7 +17,7 @@
 //! the specimen at rest (no force change) before it is loaded again; it starts centred. ⌊·⌋₊ is
 //! max(·, 0) with its corner smoothed over `CLOSURE_SMOOTHING_M` (the same bilinear spring as the
 //! plant's specimen, `machine.rs`, and the displacement loop's, `outer_loop.rs`: all three call
-//! `spring_force`).
+//! `spring_force`; the loop's damping and friction are `damping_friction_force`, as here).
 //!
 //! **The same physics as `crack_measure`.** Its closure fit describes the loading branch as the
 //! opening against the force, compliance C_open above the opening force and C_open·(1 − d)
@@ -157,6 +157,18 @@ pub fn spring_force(k: f64, y0: f64, k_cl: f64, closure_offset: f64, x: f64) -> 
     f
 }
 
+/// The velocity-dependent force of a specimen [N] at velocity `v`: viscous damping `c` and a
+/// friction `fc` that builds up over the velocity `vf` (`fc`·tanh(v/`vf`); off at `fc` = 0). The
+/// one copy of that law (the displacement loop's specimen, this model).
+#[inline]
+pub fn damping_friction_force(c: f64, fc: f64, vf: f64, v: f64) -> f64 {
+    let mut f = c * v;
+    if fc > 0.0 {
+        f += fc * (v / vf).tanh();
+    }
+    f
+}
+
 /// The backlash (play) operator: the output follows the input at `half` behind it, and rests
 /// while the input travels back across the gap 2·`half`; it starts at `start`.
 pub fn play(y: &[f64], half: f64, start: f64) -> Vec<f64> {
@@ -203,10 +215,7 @@ pub fn force(p: &SpecimenParams, dt: f64, y: &[f64]) -> Result<Vec<f64>> {
             let v = (x[b] - x[a]) / ((b - a) as f64 * dt);
             let mut f = spring_force(p.specimen_stiffness_n_m, p.specimen_zero_force_position_m, p.specimen_closure_stiffness_n_m,
                                      p.specimen_closure_offset_m, x[k])
-                + p.specimen_damping_n_s_m * v;
-            if p.specimen_friction_n > 0.0 {
-                f += p.specimen_friction_n * (v / p.specimen_friction_velocity_m_s).tanh();
-            }
+                + damping_friction_force(p.specimen_damping_n_s_m, p.specimen_friction_n, p.specimen_friction_velocity_m_s, v);
             if p.specimen_presliding_friction_n > 0.0 {
                 let dx = if k > 0 { x[k] - x[k - 1] } else { 0.0 };
                 z = (z + dx / p.specimen_presliding_m).clamp(-1.0, 1.0);
