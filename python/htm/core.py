@@ -107,3 +107,8 @@ def columns(table: Table) -> dict[str, np.ndarray]:
 
     batch = pa.record_batch(table)
     return {name: col.to_numpy(zero_copy_only=True) for name, col in zip(batch.schema.names, batch.columns, strict=True)}
+
+# the specimen and load-train force model of displacement_input records (specimen_force.rs)
+from htm._core import SpecimenParams, specimen_force  # noqa: E402
+
+__all__ += ["SpecimenParams", "specimen_force"]

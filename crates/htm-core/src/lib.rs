@@ -20,6 +20,7 @@ pub mod rig;
 pub mod run;
 pub mod solver;
 pub mod specimen;
+pub mod specimen_force;
 pub mod waveform;
 
 #[cfg(feature = "python")]

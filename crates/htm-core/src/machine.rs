@@ -139,12 +139,8 @@ impl Plant {
     #[inline]
     pub fn specimen_force(&self, y: f64) -> f64 {
         let p = &self.p;
-        let mut f = p.specimen_stiffness_n_m * (y - p.specimen_zero_force_position_m);
-        if p.specimen_closure_stiffness_n_m > 0.0 {
-            let closed = smooth_opening(p.specimen_zero_force_position_m + p.specimen_closure_offset_m - y, CLOSURE_SMOOTHING_M);
-            f -= p.specimen_closure_stiffness_n_m * closed;
-        }
-        f
+        crate::specimen_force::spring_force(p.specimen_stiffness_n_m, p.specimen_zero_force_position_m,
+                                            p.specimen_closure_stiffness_n_m, p.specimen_closure_offset_m, y)
     }
 
     /// The band of positions of the bumps: Gaussian weight at `y` and its derivative in y.

@@ -35,10 +35,9 @@
 //! RK4 on the position with enough sub-steps per sample for the loop's rate; the valve lag is
 //! solved exactly over each step (any time constant, down to the static valve).
 use crate::error::{Error, Result};
-use crate::hydraulics::smooth_opening;
-use crate::machine::CLOSURE_SMOOTHING_M;
 use crate::measure::held;
 use crate::params::Field;
+use crate::specimen_force::{damping_friction_force, spring_force};
 
 macro_rules! define_loop_params {
     ($( $(#[doc = $doc:literal])+ $name:ident [$unit:literal] = $default:expr, $lo:tt $min:expr, $max:expr; )*) => {
@@ -265,15 +264,9 @@ impl Law<'_> {
     #[inline]
     fn specimen(&self, y: f64, v: f64) -> f64 {
         let p = self.p;
-        let mut f = p.specimen_stiffness_n_m * (y - p.specimen_zero_force_position_m) + p.specimen_damping_n_s_m * v;
-        if p.specimen_friction_n > 0.0 {
-            f += p.specimen_friction_n * (v / p.specimen_friction_velocity_m_s).tanh();
-        }
-        if p.specimen_closure_stiffness_n_m > 0.0 {
-            let closed = smooth_opening(p.specimen_zero_force_position_m + p.specimen_closure_offset_m - y, CLOSURE_SMOOTHING_M);
-            f -= p.specimen_closure_stiffness_n_m * closed;
-        }
-        f
+        spring_force(p.specimen_stiffness_n_m, p.specimen_zero_force_position_m, p.specimen_closure_stiffness_n_m,
+                     p.specimen_closure_offset_m, y)
+            + damping_friction_force(p.specimen_damping_n_s_m, p.specimen_friction_n, p.specimen_friction_velocity_m_s, v)
     }
 
     /// Velocity the valve opening `zv` gives against the load `force`, and its derivative with

@@ -184,7 +184,7 @@ RMSE_UNITS = {"y": lambda v: f"{v * 1e3:.4g} mm", "v": lambda v: f"{v * 1e3:.4g}
 def _register_predict(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("predict", help="re-simulate a record with a model identified by `htm diagnose`",
                        description="Re-simulate another DATA_FORMAT.md record of the same rig with the model.json that "
-                                   "`htm diagnose` wrote (valve-level or machine_position); write predictions.csv "
+                                   "`htm diagnose` wrote (valve-level, machine_position or displacement_input); write predictions.csv "
                                    "(c_pred per measured channel) and report.json (RMS error per channel).")
     p.add_argument("model", help="model.json written by htm diagnose")
     p.add_argument("record", help="record table (NAME.csv, NAME.csv.gz or NAME.parquet)")

@@ -20,6 +20,7 @@ from htm.ident.records import Record, clean_record, validate_record
 from htm.ident.search import Finding, Result, probe, search
 from htm.ident.settings import DEFAULT, SearchSettings
 from htm.ident.sim import DEFAULT_HORIZON_S
+from htm.ident.specimen import displacement_record
 from htm.ident.trace import Progress, Stages, Trace
 
 FORMAT = "htm-diagnosis/1"
@@ -79,7 +80,7 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
         st = dataclasses.replace(st, **over)
     trace = Trace()
     stages = Stages(progress, t_start)
-    rec, warnings = clean_record(rec)
+    rec, warnings = clean_record(displacement_record(rec))  # a clip gauge's `cod` drives a specimen like `y`
     try:
         warnings += validate_record(rec, min_samples=st.min_samples)
     except RecordError as e:

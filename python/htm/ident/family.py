@@ -12,7 +12,7 @@ from typing import Any, Callable
 import numpy as np
 
 from htm.ident.model import Candidate, Free, Model, lin
-from htm.ident.records import Record, machine_position
+from htm.ident.records import Record, displacement_input, machine_position
 from htm.ident.settings import DEFAULT, SearchSettings
 
 # Effects that are faults of one sensor's reading (EFFECTS.md's sensor effects): a family names
@@ -110,6 +110,10 @@ def for_record(rec: Record, channels: list[str], horizon_s: float | None = None,
                settings: SearchSettings = DEFAULT) -> Family:
     """The family that models `rec`: a machine's displacement loop for a `machine_position`
     record, else the valve-level plant."""
+    if displacement_input(rec):  # a specimen and its load train: displacement in, force out
+        from htm.ident.specimen import SpecimenFamily
+
+        return SpecimenFamily(rec, channels, settings)
     if machine_position(rec):
         from htm.ident.loop import LoopFamily
 

@@ -10,16 +10,16 @@ from typing import Any
 
 import numpy as np
 
-from htm.core import LoopParams, Params
+from htm.core import LoopParams, Params, SpecimenParams
 from htm.errors import RecordError
 from htm.ident import features as ft
-from htm.ident.records import Record, clean_record, machine_position, validate_record
+from htm.ident.records import Record, clean_record, displacement_input, machine_position, validate_record
 from htm.ident.search import Result
 from htm.inputs import missing, read_text
 
 FORMAT = "htm-model/1"
 PREDICTION_FORMAT = "htm-prediction/1"
-FAMILIES = ("valve", "machine_position")
+FAMILIES = ("valve", "machine_position", "displacement_input")
 # A record rests during its tare window when its command and position move (low-passed) by at
 # most this many noise floors, or this share of the record's own travel.
 REST_NOISE, REST_SHARE = 20.0, 0.02
@@ -100,7 +100,7 @@ def read_model(path: str | Path) -> Model:
     raw = d.get("params")
     if not isinstance(raw, dict) or not raw:
         raise ModelError(f"model {path}: `params` must be an object of parameter values")
-    p: Any = Params("base") if family == "valve" else LoopParams()
+    p: Any = Params("base") if family == "valve" else LoopParams() if family == "machine_position" else SpecimenParams()
     for k, v in raw.items():
         if k not in p:
             raise ModelError(f"model {path}: unknown {family} parameter `{k}`")
@@ -141,8 +141,17 @@ def predict(model: Model, rec: Record, *, tare_s: float | None = None) -> dict[s
     """Re-simulate `rec` with `model`: per predicted channel the readings `pred` and the RMS
     error, SI. `tare_s`: each channel's zero from the record's first `tare_s` seconds, which must
     be at rest (the model's prediction is shifted to the record's level there)."""
-    rec, warnings = clean_record(rec)
+    from htm.ident.specimen import displacement_record
+
+    rec, warnings = clean_record(displacement_record(rec))
     warnings += validate_record(rec)
+    if (model.family == "displacement_input") != displacement_input(rec):
+        what = {"displacement_input": "a specimen and load-train model (family displacement_input)",
+                "machine_position": "a machine's displacement loop (family machine_position)", "valve": "a valve-level model"}
+        raise ModelError(f"model {model.path} is {what[model.family]}; record `{rec.name}` "
+                         + ("is a displacement_input record (displacement in, force out): predict it with a model diagnosed "
+                            "from such a record" if displacement_input(rec) else
+                            "is not a displacement_input record: predict it with a model of its own kind"))
     if model.family == "machine_position" and not machine_position(rec):
         raise ModelError(f"model {model.path} is a machine's displacement loop (family machine_position); record "
                          f"`{rec.name}` is a valve-level record: predict it with a model diagnosed from a valve-level record")
@@ -153,7 +162,13 @@ def predict(model: Model, rec: Record, *, tare_s: float | None = None) -> dict[s
     if not channels:
         raise ModelError(f"record `{rec.name}` measures none of the channels the model predicts ({', '.join(model.channels)})")
     p = _specimen_for(model, rec)
-    if model.family == "machine_position":
+    if model.family == "displacement_input":
+        from htm.ident.specimen import simulate as specimen_simulate
+
+        pred = specimen_simulate([p], rec)[0]
+        if not np.all(np.isfinite(pred["f"])):
+            raise ModelError(f"the specimen model's force for `{rec.name}` is not finite")
+    elif model.family == "machine_position":
         from htm.ident.loop import simulate
 
         pred = simulate([p], rec)[0]

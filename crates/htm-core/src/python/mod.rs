@@ -21,6 +21,7 @@ mod ident;
 mod measure;
 mod outer_loop;
 mod replay;
+mod specimen_force;
 
 // Submodules add their own classes and functions here.
 pub(crate) fn register_extensions(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -33,6 +34,7 @@ pub(crate) fn register_extensions(m: &Bound<'_, PyModule>) -> PyResult<()> {
     measure::register(m)?;
     outer_loop::register(m)?;
     replay::register(m)?;
+    specimen_force::register(m)?;
     Ok(())
 }
 
