@@ -6,7 +6,6 @@ expressions). The record's metadata (DATA_FORMAT.md, `specimen`) names the metho
 from __future__ import annotations
 
 import csv
-import gzip
 import json
 import math
 from dataclasses import dataclass
@@ -15,10 +14,10 @@ from typing import Any
 
 import numpy as np
 
-from htm import core
+from htm import core, recordfile
 from htm.errors import InputError, ParameterError, RecordError
+from htm.recordfile import locate, read_meta
 
-FORMAT = "htm-record/1"
 METHODS = ("compliance", "potential_drop")
 
 # extra columns of a_n.csv after `cycles`, `a_m`, `opening_force_n` (core names → file names)
@@ -42,64 +41,12 @@ class Measurement:
         return len(self.columns["a_m"])
 
 
-def _base(path: Path) -> tuple[Path, str]:
-    name = path.name
-    for suffix in (".csv.gz", ".csv", ".parquet", ".json"):
-        if name.endswith(suffix):
-            return path.with_name(name[: -len(suffix)]), name[: -len(suffix)]
-    return path, name
-
-
 def read_table(path: str | Path, meta: str | Path | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-    """The columns (SI arrays) and metadata of a record; RecordError names what is wrong."""
-    p = Path(path)
-    base, name = _base(p)
-    table = p if p.exists() and not p.name.endswith(".json") else None
-    if table is None:
-        for s in (".csv", ".csv.gz", ".parquet"):
-            if base.with_name(name + s).exists():
-                table = base.with_name(name + s)
-                break
-    if table is None:
-        raise RecordError(f"{path}: no such record table (looked for .csv, .csv.gz, .parquet)")
-    mpath = Path(meta) if meta else base.with_name(name + ".json")
-    if not mpath.exists():
-        raise RecordError(f"no metadata file {mpath} for record {table} (give it with --meta)")
-    try:
-        md = json.loads(mpath.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise RecordError(f"metadata {mpath} is not valid JSON: {e}") from None
-    if not isinstance(md, dict) or md.get("format") != FORMAT:
-        raise RecordError(f"metadata {mpath}: format is {md.get('format') if isinstance(md, dict) else md!r}, expected {FORMAT!r}")
-    if table.name.endswith(".parquet"):
-        try:
-            import pyarrow.parquet as pq
-
-            t = pq.read_table(table)
-        except Exception as e:  # pyarrow raises several types for a damaged file
-            raise RecordError(f"table {table} is not a readable Parquet file: {e}") from None
-        return {c: np.asarray(t.column(c).to_numpy(zero_copy_only=False), dtype=float) for c in t.column_names}, md
-    opener = gzip.open if table.name.endswith(".gz") else open
-    try:
-        with opener(table, "rt", newline="") as fh:  # type: ignore[operator]
-            reader = csv.reader(fh)
-            header = [h.strip() for h in next(reader, [])]
-            rows = [r for r in reader if r]
-    except (UnicodeDecodeError, OSError, csv.Error) as e:
-        raise RecordError(f"table {table} is not a readable CSV file: {e}") from None
-    if not header or not rows:
-        raise RecordError(f"table {table} has no data rows")
-    data = np.full((len(rows), len(header)), np.nan)
-    for i, r in enumerate(rows):
-        if len(r) != len(header):
-            raise RecordError(f"table {table}: row {i + 2} has {len(r)} fields, the header {len(header)}")
-        for j, x in enumerate(r):
-            if x.strip():
-                try:
-                    data[i, j] = float(x)
-                except ValueError:
-                    raise RecordError(f"table {table}: row {i + 2}, column `{header[j]}`: {x!r} is not a number") from None
-    return {h: np.ascontiguousarray(data[:, j]) for j, h in enumerate(header)}, md
+    """The columns (SI arrays) and metadata of a record (`htm.recordfile`, the one reader);
+    RecordError names what is wrong."""
+    table, meta_path, _ = locate(path, meta)
+    md = read_meta(meta_path)
+    return recordfile.read_table(table), md
 
 
 def _num(spec: dict[str, Any], key: str, where: str, required: bool = True) -> float | None:
