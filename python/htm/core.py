@@ -107,3 +107,8 @@ def columns(table: Table) -> dict[str, np.ndarray]:
 
     batch = pa.record_batch(table)
     return {name: col.to_numpy(zero_copy_only=True) for name, col in zip(batch.schema.names, batch.columns, strict=True)}
+
+# life tests (force_life, strain_life) and the virtual cyclic specimen (engine/life.rs, cyclic_material.rs)
+from htm._core import cyclic_stress, run_life, run_life_batch, virtual_life  # noqa: E402
+
+__all__ += ["cyclic_stress", "run_life", "run_life_batch", "virtual_life"]

@@ -187,6 +187,24 @@ impl Masing {
         (sr + 2.0 * s * (eps - er).signum(), t)
     }
 
+    /// The same strain history under another K′ (cyclic hardening or softening): the reversal
+    /// points' stresses replayed along their branches, so the loop stays the Masing loop of the
+    /// new curve (a plain change of K′ under stored stresses would make it drift off centre).
+    pub fn replay(&mut self, m: &CyclicMaterial, k: f64) {
+        let mut prev: Option<(f64, f64)> = None;
+        for r in self.rev.iter_mut() {
+            r.1 = match prev {
+                None => m.stress_of(r.0.abs(), k).0 * r.0.signum(),
+                Some((e0, s0)) => s0 + 2.0 * m.stress_of(0.5 * (r.0 - e0).abs(), k).0 * (r.0 - e0).signum(),
+            };
+            prev = Some(*r);
+        }
+        self.sig = match prev {
+            None => m.stress_of(self.eps.abs(), k).0 * self.eps.signum(),
+            Some((e0, s0)) => s0 + 2.0 * m.stress_of(0.5 * (self.eps - e0).abs(), k).0 * (self.eps - e0).signum(),
+        };
+    }
+
     /// Move to strain `eps`; returns the stress.
     pub fn update(&mut self, m: &CyclicMaterial, k: f64, eps: f64) -> f64 {
         let (n, dir) = self.top(eps);
@@ -319,6 +337,15 @@ impl CyclicSpecimen {
     /// initiation, then crack growth (midpoint rule), milestones and separation. Returns the
     /// cycles actually consumed (a jump stops at initiation).
     pub fn advance(&mut self, cycles: f64, ea: f64, smax: f64, smin: f64) -> f64 {
+        let used = self.grow(cycles, ea, smax, smin);
+        if self.material.transient != 0.0 {
+            let k = self.material.k_at(self.n);
+            self.masing.replay(&self.material, k);
+        }
+        used
+    }
+
+    fn grow(&mut self, cycles: f64, ea: f64, smax: f64, smin: f64) -> f64 {
         let area = self.area_m2();
         let n0 = self.n;
         let mut left = cycles;

@@ -254,70 +254,32 @@ pub struct LifeOutcome {
     pub velocity_gain_m_s_per_v: f64,
 }
 
-/// The drop from the trend that freezes it (the value has left its stabilised trend).
-const FREEZE_DROP: f64 = 0.02;
-
-/// A stabilised trend: a least-squares line through the accepted values of the last half of the
-/// cycles run so far, frozen once the value has left it for three resolved cycles.
+/// The stabilised level of a per-cycle value: at cycle N, the median of the values of the five
+/// resolved cycles nearest N/2 (half the life so far: past a cyclic transient, before a crack's
+/// fall, which takes the last part of a life).
 #[derive(serde::Serialize, serde::Deserialize, Debug, Clone, Default)]
 struct Trend {
-    pts: std::collections::VecDeque<(f64, f64)>,
-    /// Σx, Σy, Σxy, Σxx of the points (x relative to `x0`)
-    sums: [f64; 4],
-    x0: f64,
-    frozen: bool,
-    below: u32,
+    pts: Vec<(f64, f64)>,
 }
 
 impl Trend {
-    fn add(&mut self, x: f64, y: f64, sign: f64) {
-        let x = x - self.x0;
-        let s = &mut self.sums;
-        s[0] += sign * x;
-        s[1] += sign * y;
-        s[2] += sign * x * y;
-        s[3] += sign * x * x;
-    }
-
     fn predict(&self, n: f64) -> f64 {
-        let m = self.pts.len() as f64;
-        if m == 0.0 {
+        if self.pts.is_empty() {
             return f64::NAN;
         }
-        let s = &self.sums;
-        let (mx, my) = (s[0] / m, s[1] / m);
-        if m < 5.0 {
-            return my;
-        }
-        let sxx = s[3] - m * mx * mx;
-        let slope = if sxx > 1e-9 * m * (1.0 + mx * mx) { (s[2] - m * mx * my) / sxx } else { 0.0 };
-        let v = my + slope * (n - self.x0 - mx);
-        // never extrapolate a rise: the stabilised value is at most the last seen
-        if slope > 0.0 { v.min(self.pts.back().unwrap().1.max(my)) } else { v }
+        let i = self.pts.partition_point(|p| p.0 <= 0.5 * n).max(1);
+        let mut v: Vec<f64> = self.pts[i.saturating_sub(5)..i].iter().map(|p| p.1).collect();
+        v.sort_by(|a, b| a.total_cmp(b));
+        v[v.len() / 2]
     }
 
-    /// Judge value `v` at cycle `n`: its drop from the trend (NaN before any trend).
+    /// Judge value `v` at cycle `n`: its drop from the stabilised level (NaN before any).
     fn observe(&mut self, n: f64, v: f64) -> f64 {
         let t = self.predict(n);
-        let drop = if t.is_finite() && t > 0.0 { 1.0 - v / t } else { f64::NAN };
-        if !self.frozen {
-            if drop.is_nan() || drop < FREEZE_DROP {
-                self.below = 0;
-                if self.pts.is_empty() {
-                    self.x0 = n;
-                }
-                self.pts.push_back((n, v));
-                self.add(n, v, 1.0);
-                while self.pts.len() > 5 && self.pts.front().unwrap().0 < 0.5 * n {
-                    let (x, y) = self.pts.pop_front().unwrap();
-                    self.add(x, y, -1.0);
-                }
-            } else {
-                self.below += 1;
-                self.frozen = self.below >= 3;
-            }
+        if v.is_finite() {
+            self.pts.push((n, v));
         }
-        drop
+        if t.is_finite() && t > 0.0 { 1.0 - v / t } else { f64::NAN }
     }
 }
 
@@ -345,8 +307,15 @@ pub struct LifeMachine {
     pub n_modulus: Option<u64>,
     pub end: Option<LifeEnd>,
     kept_bucket: i64,
+    /// largest tensile peak of the judged cycles [N]
+    peak_max: f64,
     pub velocity_gain: f64,
 }
+
+/// Peak-valley gain of a life test relative to the cycle machine's: a yielding bar changes its
+/// loop with each correction (the reversal moves along a Masing branch), so the correction is
+/// learnt more slowly than on a linear specimen.
+const LIFE_PV_GAIN: f64 = 0.3;
 
 /// One closed cycle's row.
 #[derive(Debug, Clone, Copy, Default)]
@@ -395,7 +364,11 @@ impl LifeMachine {
         let dt = 1.0 / (n as f64 * cfg.frequency_hz);
         let p = &cfg.params;
         let y0 = p.specimen_zero_force_position_m;
-        let k_eff = series_stiffness(cfg.elastic_stiffness(), hydraulic_stiffness(p, y0));
+        // the loop's gain from piston to signal: the elastic bar and load train for force; for
+        // strain the yielding bar's (dε/dy → 1/L), the largest, so the loop stays damped when
+        // the specimen yields
+        let k_sig = if cfg.mode == LifeMode::Strain { cfg.ea() / cfg.gauge_length_m } else { cfg.elastic_stiffness() };
+        let k_eff = series_stiffness(k_sig, hydraulic_stiffness(p, y0));
         let kv = match cfg.velocity_gain_m_s_per_v {
             Some(k) => k,
             None => {
@@ -411,7 +384,7 @@ impl LifeMachine {
         Ok(LifeMachine {
             drive, pv: PeakValley::new(), n, dt, k: 0, cycle: 0, f0: s0, start_cycles: cfg.envelope.start_cycles(), ea: cfg.ea(), area: cfg.specimen.area_m2(),
             buf: Vec::with_capacity(n), e_ref: f64::NAN, trend: Trend::default(), ratio_trend: Trend::default(), n_drop10: None,
-            n_drop50: None, n_modulus: None, end: None, kept_bucket: -1, velocity_gain: kv,
+            n_drop50: None, n_modulus: None, end: None, kept_bucket: -1, peak_max: 0.0, velocity_gain: kv,
         })
     }
 
@@ -491,7 +464,7 @@ impl LifeMachine {
         let fa = cfg.envelope.start(c as f64 - 0.5).1;
         if fa >= PeakValley::MIN_AMPLITUDE_FRACTION && self.end.is_none() {
             let (mid, amp) = self.setpoint_at(cfg, c as f64 - 0.25);
-            let gain = if fa < 1.0 { PeakValley::RAMP_GAIN } else { PeakValley::GAIN };
+            let gain = LIFE_PV_GAIN * if fa < 1.0 { PeakValley::RAMP_GAIN } else { PeakValley::GAIN };
             self.pv.update(mid + amp, mid - amp, smax, smin, 2.0 * amp, 2.0 * amp, gain);
         }
         let judged = c > self.start_cycles + 2;
@@ -533,7 +506,8 @@ impl LifeMachine {
             }
             // separation: the tension the bar carries is gone
             let _ = tlo;
-            let ref_t = if cfg.mode == LifeMode::Strain { self.trend.predict(c as f64) } else { thi };
+            self.peak_max = self.peak_max.max(fmax);
+            let ref_t = if cfg.mode == LifeMode::Strain { self.peak_max } else { thi };
             if fmax < cfg.criteria.separation * ref_t || (cfg.mode == LifeMode::Force && drop >= 1.0 - cfg.criteria.separation) {
                 end = Some(LifeEnd::Separation);
             }
