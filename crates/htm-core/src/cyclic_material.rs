@@ -330,7 +330,7 @@ impl CyclicSpecimen {
         if kmax >= self.k_ic_pa_sqrt_m {
             return (0.0, f64::INFINITY);
         }
-        (0.0, self.law.rate(dk, r.max(-1.0).min(0.99), kmax))
+        (0.0, self.law.rate(dk, r.clamp(-1.0, 0.99), kmax))
     }
 
     /// Advance the hidden state by `cycles` cycles of loop (ε_a, σ_max, σ_min): damage to

@@ -9,7 +9,6 @@ use super::{InputError, PyParams};
 use crate::crack::Law;
 use crate::cyclic_material::{CyclicMaterial, CyclicSpecimen};
 use crate::engine::life::{run_life as run, virtual_life as vlife, Criteria, LifeConfig, LifeMode, LifeOutcome};
-use crate::params::Params;
 use crate::waveform::Envelope;
 
 const KEYS: &[&str] = &[
@@ -57,7 +56,7 @@ fn config(d: &Bound<'_, PyDict>, params: Option<&PyParams>) -> PyResult<LifeConf
         f("fracture_toughness_pa_sqrt_m", 60e6)?, f("life_factor", 1.0)?)?;
     let freq = f("frequency_hz", 5.0)?;
     let runout = f("runout_cycles", 1e7)?;
-    if !(runout >= 1.0 && runout <= 1e12) {
+    if !(1.0..=1e12).contains(&runout) {
         return Err(crate::error::Error::Parameter { field: "end.runout_cycles".into(), value: runout, allowed: "[1, 1e12]".into() }.into());
     }
     let jump = match d.get_item("jump")? {
@@ -69,7 +68,7 @@ fn config(d: &Bound<'_, PyDict>, params: Option<&PyParams>) -> PyResult<LifeConf
         _ => None,
     };
     Ok(LifeConfig {
-        params: params.map(|p| p.inner.clone()).unwrap_or_else(Params::default), rtol: f("rtol", 1e-4)?, mode, amplitude,
+        params: params.map(|p| p.inner.clone()).unwrap_or_default(), rtol: f("rtol", 1e-4)?, mode, amplitude,
         r_ratio: f("r_ratio", -1.0)?, frequency_hz: freq, control_rate_hz: f("control_rate_hz", 80.0 * freq)?,
         envelope: Envelope { mean_cycles: f("mean_cycles", 1.0)?, amplitude_cycles: f("amplitude_cycles", 5.0)?, stop_cycles: 1.0 },
         specimen, gauge_length_m: f("gauge_length_m", 25e-3)?, load_train_n_m: f("load_train_n_m", 5e8)?,
