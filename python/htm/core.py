@@ -109,6 +109,6 @@ def columns(table: Table) -> dict[str, np.ndarray]:
     return {name: col.to_numpy(zero_copy_only=True) for name, col in zip(batch.schema.names, batch.columns, strict=True)}
 
 # life tests (force_life, strain_life) and the virtual cyclic specimen (engine/life.rs, cyclic_material.rs)
-from htm._core import cyclic_stress, run_life, run_life_batch, virtual_life  # noqa: E402
+from htm._core import LifeController, LifeRig, cyclic_stress, run_life, run_life_batch, virtual_life  # noqa: E402
 
-__all__ += ["cyclic_stress", "run_life", "run_life_batch", "virtual_life"]
+__all__ += ["LifeController", "LifeRig", "cyclic_stress", "run_life", "run_life_batch", "virtual_life"]

@@ -258,3 +258,23 @@ def is_life_file(path: str | Path) -> bool:
         return is_life(tomllib.loads(Path(path).read_text(encoding="utf-8")))
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
         return False
+
+
+def run_on_rig(spec: LifeSpec, rig: Any, max_cycles: int | None = None) -> dict[str, Any]:
+    """A life test on a rig, one control period at a time: `rig` offers ``measure()`` and
+    ``step(u, dt)`` → (force [N], extensometer strain, piston position [m]) (the virtual rig
+    `core.LifeRig`, or a device layer with the same two calls). The controller is the core's
+    `LifeController`, the code `run_life` runs; every cycle is resolved (no jump on a rig).
+    Returns the per-cycle rows as columns, the end reason and the cycle count."""
+    f, e, _ = rig.measure()
+    ctl = core.LifeController(spec.config, f, e)
+    rows: list[dict[str, Any]] = []
+    limit = max_cycles if max_cycles is not None else int(spec.config.get("runout_cycles", 1e7))
+    while ctl.end_reason is None and ctl.cycle < limit:
+        while not ctl.at_end():
+            f, e, y = rig.measure()
+            rig.step(ctl.command(f, e, y), ctl.dt)
+        rows.append(ctl.close())
+        ctl.next_cycle()
+    cols = {k: np.array([r[k] for r in rows]) for k in rows[0]} if rows else {}
+    return {"table": cols, "end_reason": ctl.end_reason, "cycles": ctl.cycle}

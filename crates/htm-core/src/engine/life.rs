@@ -547,6 +547,7 @@ impl LifeMachine {
 /// The virtual bar on the plant: the piston position gives the gauge strain through the load
 /// train in series (Newton), the specimen gives the force, and the plant's spring is set to the
 /// tangent through that point for the next period.
+#[derive(Debug, Clone)]
 struct Bar {
     y_zero: f64,
     l: f64,
@@ -578,40 +579,83 @@ impl Bar {
 }
 
 /// Run a life test on the simulated rig to its end. `progress` receives the cycle count.
+/// The virtual rig of a life test: the plant with the virtual bar on it (the hidden truth). Its
+/// sensors are what a rig's would read; `step` applies a valve command for one control period.
+#[derive(Debug, Clone)]
+pub struct VirtualBar {
+    pub m: Machine,
+    bar: Bar,
+    pub spec: CyclicSpecimen,
+    /// measured force [N], extensometer strain
+    pub f: f64,
+    pub eps: f64,
+    /// control periods per load cycle and the count in this one: the bar closes its true loop
+    /// every cycle by itself (a rig's specimen needs no telling)
+    n: usize,
+    k: usize,
+}
+
+impl VirtualBar {
+    pub fn new(cfg: &LifeConfig) -> Result<Self> {
+        cfg.validate()?;
+        let mut spec = cfg.specimen.clone();
+        let mut p = cfg.params.clone();
+        p.specimen_stiffness_n_m = cfg.elastic_stiffness();
+        p.specimen_closure_stiffness_n_m = 0.0;
+        let y_zero = p.specimen_zero_force_position_m;
+        let m = Machine::new(p)?.with_rtol(cfg.rtol)?;
+        let mut bar = Bar { y_zero, l: cfg.gauge_length_m, k_lt: cfg.load_train_n_m, eps: 0.0 };
+        let (f, eps, _) = bar.settle(&mut spec, m.x[Y]);
+        let n = (cfg.control_rate_hz / cfg.frequency_hz).round() as usize;
+        Ok(VirtualBar { m, bar, spec, f, eps, n, k: 0 })
+    }
+
+    /// (force [N], strain, piston position [m]) as the sensors read them now.
+    pub fn measure(&self) -> (f64, f64, f64) {
+        (self.f, self.eps, self.m.x[Y])
+    }
+
+    /// One control period under valve command `u` [V] for `dt` [s]: the plant moves, the bar
+    /// follows, its tangent becomes the plant's spring for the next period.
+    pub fn step(&mut self, u: f64, dt: f64) -> Result<(f64, f64, f64)> {
+        self.m.step(u, dt)?;
+        let (f1, e1, k) = self.bar.settle(&mut self.spec, self.m.x[Y]);
+        self.m.plant.p.specimen_stiffness_n_m = k;
+        self.m.plant.p.specimen_zero_force_position_m = self.m.x[Y] - f1 / k;
+        (self.f, self.eps) = (f1, e1);
+        self.k += 1;
+        if self.k == self.n {
+            // a load cycle is over: the bar's damage and crack advance by its true loop
+            self.k = 0;
+            self.spec.end_cycle();
+        }
+        Ok(self.measure())
+    }
+}
+
+/// Run a life test on the simulated rig to its end. `progress` receives the cycle count.
 pub fn run_life(cfg: &LifeConfig, progress: Option<&AtomicU64>, cancel: Option<&AtomicBool>) -> Result<LifeOutcome> {
-    cfg.validate()?;
-    let mut spec = cfg.specimen.clone();
-    let mut p = cfg.params.clone();
-    let k_el = cfg.elastic_stiffness();
-    p.specimen_stiffness_n_m = k_el;
-    p.specimen_closure_stiffness_n_m = 0.0;
-    let y_zero = p.specimen_zero_force_position_m;
-    let mut m = Machine::new(p)?.with_rtol(cfg.rtol)?;
-    let mut bar = Bar { y_zero, l: cfg.gauge_length_m, k_lt: cfg.load_train_n_m, eps: 0.0 };
-    let (mut f, mut eps, _) = bar.settle(&mut spec, m.x[Y]);
+    let mut vb = VirtualBar::new(cfg)?;
+    let (f, eps, _) = vb.measure();
     let mut lm = LifeMachine::new(cfg, lm_signal(cfg, f, eps))?;
     let mut rec = LifeRecords::default();
     let mut loops = Loops::default();
     let mut simulated = 0u64;
     let mut since_jump = 0u64;
     let mut prev = (f64::NAN, f64::NAN);
-    let area = spec.area_m2();
+    let area = vb.spec.area_m2();
     loop {
         if cancel.is_some_and(|c| c.load(Ordering::Relaxed)) {
             lm.end = Some(LifeEnd::Cancelled);
             break;
         }
         for _ in 0..lm.n {
-            let y = m.x[Y];
+            let (f, eps, y) = vb.measure();
             let u = lm.command(cfg, f, eps, y);
-            m.step(u, lm.dt)?;
-            let (f1, e1, k) = bar.settle(&mut spec, m.x[Y]);
-            m.plant.p.specimen_stiffness_n_m = k;
-            m.plant.p.specimen_zero_force_position_m = m.x[Y] - f1 / k;
-            (f, eps) = (f1, e1);
+            vb.step(u, lm.dt)?;
         }
         simulated += 1;
-        spec.end_cycle();
+        let spec = &mut vb.spec;
         let row = lm.close(cfg);
         if row.keep_loop {
             for (e, s) in lm.loop_samples() {
@@ -632,7 +676,7 @@ pub fn run_life(cfg: &LifeConfig, progress: Option<&AtomicU64>, cancel: Option<&
         let settled = (row.fmax_n / prev.0 - 1.0).abs() < 2e-4 && (row.strain_max / prev.1 - 1.0).abs() < 2e-4;
         prev = (row.fmax_n, row.strain_max);
         if cfg.jump && row.events & life_events::START == 0 && since_jump >= 3 && (settled || since_jump >= 30) && !spec.separated {
-            if let Some(j) = jump_length(cfg, &spec, lm.cycle) {
+            if let Some(j) = jump_length(cfg, spec, lm.cycle) {
                 let (ea, smax, smin) = spec.last_loop_or(&row, area);
                 let used = spec.advance(j as f64, ea, smax, smin).round() as u64;
                 let used = used.max(1);
@@ -654,6 +698,7 @@ pub fn run_life(cfg: &LifeConfig, progress: Option<&AtomicU64>, cancel: Option<&
         }
     }
     let nan = |o: Option<f64>| o.unwrap_or(f64::NAN);
+    let spec = &vb.spec;
     Ok(LifeOutcome {
         records: rec, loops, end: lm.end.unwrap_or(LifeEnd::Cancelled), cycles: lm.cycle, n_drop10: lm.n_drop10, n_drop50: lm.n_drop50,
         n_modulus: lm.n_modulus, cycles_simulated: simulated,

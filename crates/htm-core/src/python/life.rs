@@ -8,7 +8,7 @@ use pyo3::types::PyDict;
 use super::{InputError, PyParams};
 use crate::crack::Law;
 use crate::cyclic_material::{CyclicMaterial, CyclicSpecimen};
-use crate::engine::life::{run_life as run, virtual_life as vlife, Criteria, LifeConfig, LifeMode, LifeOutcome};
+use crate::engine::life::{run_life as run, virtual_life as vlife, Criteria, LifeConfig, LifeMachine, LifeMode, LifeOutcome, VirtualBar};
 use crate::waveform::Envelope;
 
 const KEYS: &[&str] = &[
@@ -157,5 +157,93 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(run_life_batch, m)?)?;
     m.add_function(wrap_pyfunction!(virtual_life, m)?)?;
     m.add_function(wrap_pyfunction!(cyclic_stress, m)?)?;
+    m.add_class::<PyLifeController>()?;
+    m.add_class::<PyLifeRig>()?;
     Ok(())
+}
+
+/// The controller side of a life test for a rig loop (`engine::life::LifeMachine`, the same code
+/// `run_life` runs): `command(f, strain, y)` once per control period with the measured force [N],
+/// extensometer strain and piston position [m], the valve command [V] back; `at_end` when the
+/// cycle's last period was commanded, then `close()` (the cycle's row as a dict) and `next_cycle()`.
+#[pyclass(name = "LifeController", module = "htm._core", unsendable)]
+pub struct PyLifeController {
+    cfg: LifeConfig,
+    lm: LifeMachine,
+}
+
+#[pymethods]
+impl PyLifeController {
+    #[new]
+    #[pyo3(signature = (spec, f0, strain0, params = None))]
+    fn new(spec: &Bound<'_, PyDict>, f0: f64, strain0: f64, params: Option<PyRef<'_, PyParams>>) -> PyResult<Self> {
+        let cfg = config(spec, params.as_deref())?;
+        cfg.validate()?;
+        let s0 = if cfg.mode == LifeMode::Strain { strain0 * cfg.ea() } else { f0 };
+        let lm = LifeMachine::new(&cfg, s0)?;
+        Ok(PyLifeController { cfg, lm })
+    }
+    /// control period [s] and samples per cycle
+    #[getter]
+    fn dt(&self) -> f64 {
+        self.lm.dt
+    }
+    #[getter]
+    fn samples_per_cycle(&self) -> usize {
+        self.lm.n
+    }
+    #[getter]
+    fn cycle(&self) -> u64 {
+        self.lm.cycle
+    }
+    /// why the test ended (None while it runs)
+    #[getter]
+    fn end_reason(&self) -> Option<&'static str> {
+        self.lm.end.map(|e| e.name())
+    }
+    fn command(&mut self, f: f64, strain: f64, y: f64) -> f64 {
+        self.lm.command(&self.cfg, f, strain, y)
+    }
+    fn at_end(&self) -> bool {
+        self.lm.at_end()
+    }
+    fn close<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let r = self.lm.close(&self.cfg);
+        let d = PyDict::new(py);
+        d.set_item("cycle", r.cycle)?;
+        for (k, v) in [("fmax_n", r.fmax_n), ("fmin_n", r.fmin_n), ("strain_max", r.strain_max), ("strain_min", r.strain_min),
+            ("plastic_strain_range", r.plastic_strain_range), ("modulus_t_pa", r.modulus_t_pa), ("modulus_c_pa", r.modulus_c_pa),
+            ("stiffness_n_m", r.stiffness_n_m), ("trend", r.trend)] {
+            d.set_item(k, v)?;
+        }
+        d.set_item("events", r.events)?;
+        d.set_item("keep_loop", r.keep_loop)?;
+        Ok(d)
+    }
+    fn next_cycle(&mut self) {
+        self.lm.next_cycle()
+    }
+}
+
+/// The virtual rig of a life test: the plant with the virtual bar (hidden truth) behind sensors.
+/// `measure()` and `step(u, dt)` give (force [N], extensometer strain, piston position [m]); the
+/// bar closes its own true loop every load cycle.
+#[pyclass(name = "LifeRig", module = "htm._core", unsendable)]
+pub struct PyLifeRig {
+    vb: VirtualBar,
+}
+
+#[pymethods]
+impl PyLifeRig {
+    #[new]
+    #[pyo3(signature = (spec, params = None))]
+    fn new(spec: &Bound<'_, PyDict>, params: Option<PyRef<'_, PyParams>>) -> PyResult<Self> {
+        Ok(PyLifeRig { vb: VirtualBar::new(&config(spec, params.as_deref())?)? })
+    }
+    fn measure(&self) -> (f64, f64, f64) {
+        self.vb.measure()
+    }
+    fn step(&mut self, u: f64, dt: f64) -> PyResult<(f64, f64, f64)> {
+        Ok(self.vb.step(u, dt)?)
+    }
 }
