@@ -332,7 +332,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from htm.fatigue import lifetest
 
     if lifetest.is_life_file(args.spec):  # force_life / strain_life: the life engine
-        return lifetest.cmd_run(args.spec, args.out, args.json)
+        return lifetest.cmd_run(args.spec, args.out, args.json, args.check)
     if args.check:
         return cmd_check(args)
     if not args.out:

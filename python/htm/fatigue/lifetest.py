@@ -232,10 +232,19 @@ def write_outputs(out_dir: Path, spec: LifeSpec, out: dict[str, Any], wall: floa
     return s
 
 
-def cmd_run(spec_path: str, out: str | None, as_json: bool) -> int:
-    """`htm run SPEC --out DIR` for a life test."""
+def cmd_run(spec_path: str, out: str | None, as_json: bool, check: bool = False) -> int:
+    """`htm run SPEC --out DIR` for a life test (`out` None with `check`: check the spec only)."""
     from htm.terminal import emit_json
 
+    if check:
+        spec = load(spec_path)
+        n = core.virtual_life(spec.config)
+        if as_json:
+            emit_json({"name": spec.name, "mode": spec.mode, "ok": True})
+        else:
+            print(f"{spec.name}: {spec.mode} spec ok (the virtual specimen, life factor {spec.config['life_factor']:.3g}: "
+                  f"initiation at {n[0]:,.0f} cycles, separation at {n[2]:,.0f})")
+        return 0
     if not out:
         raise HtmError("--out DIR is required")
     spec = load(spec_path)
