@@ -150,3 +150,33 @@ def test_the_rig_loop_runs_the_same_controller_code_as_the_simulator(example):
     else:
         got = 0.5 * (rig["table"]["fmax_n"][-1] - rig["table"]["fmin_n"][-1])
     assert abs(got / amp - 1) < 0.02
+
+
+def test_htm_run_records_a_life_test_in_the_store_and_the_recording(tmp_path):
+    from rerun.chunk import RrdReader
+
+    from htm.record.store import Store
+
+    store = tmp_path / "store"
+    r = subprocess.run([sys.executable, "-m", "htm.cli", "run", str(STRAIN), "--out", str(tmp_path / "o"), "--json",
+                        "--store", str(store)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    s = json.loads(r.stdout)
+    with Store(store) as st:
+        row = st.get(s["test_id"])
+        assert row["status"] == "finished" and row["end_reason"] == "load_drop" and row["cycles"] == s["cycles"]
+        assert row["results"]["n_drop50"] == s["n_drop50"]
+        cyc = st.cycles(s["test_id"])
+        assert int(cyc["cycle"][-1]) == s["cycles"]
+        rrd = Path(row["files"]["recording"]["path"])
+    loops_at, series = set(), set()
+    for ch in RrdReader(rrd).stream():
+        if ch.is_static:
+            continue
+        b = ch.to_record_batch()
+        if ch.entity_path == "/life/loop":
+            loops_at |= set(b.column("cycle").cast("int64").to_pylist())
+        else:
+            series.add(ch.entity_path)
+    assert loops_at == set(s["loops_kept"])
+    assert {"/life/stress_pa", "/life/strain", "/life/modulus_pa", "/life/tensile_peak_n"} <= series

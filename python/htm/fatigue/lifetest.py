@@ -232,8 +232,9 @@ def write_outputs(out_dir: Path, spec: LifeSpec, out: dict[str, Any], wall: floa
     return s
 
 
-def cmd_run(spec_path: str, out: str | None, as_json: bool, check: bool = False) -> int:
-    """`htm run SPEC --out DIR` for a life test (`out` None with `check`: check the spec only)."""
+def cmd_run(spec_path: str, out: str | None, as_json: bool, check: bool = False, store: Any = None) -> int:
+    """`htm run SPEC --out DIR` for a life test (`out` None with `check`: check the spec only);
+    `store(spec, result, wall)`, when given, records the test and returns its id."""
     from htm.terminal import emit_json
 
     if check:
@@ -253,10 +254,14 @@ def cmd_run(spec_path: str, out: str | None, as_json: bool, check: bool = False)
         raise HtmError(f"{out_dir} already holds a test (summary.json); choose another --out")
     res, wall = run(spec)
     s = write_outputs(out_dir, spec, res, wall)
+    if store is not None:
+        s["test_id"] = store(spec, res, wall)
     if as_json:
         emit_json(dict(s, out=str(out_dir)))
     else:
         print(summary_text(s))
+        if "test_id" in s:
+            print(f"store: test {s['test_id']}")
         print(f"outputs: {out_dir}/summary.json, cycles.parquet, loops.parquet, summary.txt")
     return 0
 
