@@ -180,3 +180,26 @@ def test_htm_run_records_a_life_test_in_the_store_and_the_recording(tmp_path):
             series.add(ch.entity_path)
     assert loops_at == set(s["loops_kept"])
     assert {"/life/stress_pa", "/life/strain", "/life/modulus_pa", "/life/tensile_peak_n"} <= series
+
+
+def test_an_sn_campaign_feeds_htm_sn_fit(tmp_path):
+    """A small S-N campaign (3 levels × 3 specimens with scatter) through `htm campaign`, its
+    sn.csv fitted by `htm sn fit`: the fitted slope has the sign and size of the virtual material's."""
+    camp = tmp_path / "c.toml"
+    camp.write_text(f'[life_campaign]\nkind = "sn"\ntest = "{FORCE}"\nseed = 2\nlevels_pa = [400e6, 450e6, 520e6]\n'
+                    "specimens_per_level = 3\n")
+    r = subprocess.run([sys.executable, "-m", "htm.cli", "campaign", str(camp), "--out", str(tmp_path / "o"), "--json"],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    s = json.loads(r.stdout)
+    assert s["specimens"] == 9 and s["failures"] == 9
+    r = subprocess.run([sys.executable, "-m", "htm.cli", "sn", "fit", s["data"], "--out", str(tmp_path / "fit")],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    fit = json.loads((tmp_path / "fit" / "fit.json").read_text())
+    # the virtual material's own local slope between the outer levels (median lives)
+    spec = lifetest.load(FORCE)
+    n1, n2 = life_campaign.true_life(spec, 400e6), life_campaign.true_life(spec, 520e6)
+    b_true = (math.log10(n2) - math.log10(n1)) / (math.log10(520e6) - math.log10(400e6))
+    assert fit["b_ci90"][0] < b_true < fit["b_ci90"][1], (fit["b"], fit["b_ci90"], b_true)
+    assert fit["b"] < -3
