@@ -203,3 +203,16 @@ def test_an_sn_campaign_feeds_htm_sn_fit(tmp_path):
     b_true = (math.log10(n2) - math.log10(n1)) / (math.log10(520e6) - math.log10(400e6))
     assert fit["b_ci90"][0] < b_true < fit["b_ci90"][1], (fit["b"], fit["b_ci90"], b_true)
     assert fit["b"] < -3
+
+
+def test_strain_life_acceptance_on_the_rig_path():
+    """E606 on the rig loop (one control period at a time against the virtual rig's sensors, every
+    cycle resolved): a bar whose short crack grows fast enough to finish in seconds."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from life_tests import strain_on_rig
+
+    r = strain_on_rig([0.008, 0.01, 0.012])
+    for lv in r["levels"]:
+        assert lv["end_reason"] in ("load_drop", "separation"), lv
+        assert abs(lv["stress_err_pct"]) < 3 and abs(lv["life_err_pct"]) < 2, lv
+    assert abs(r["k_prime_err_pct"]) < 10 and abs(r["n_prime_err_pct"]) < 10, r
