@@ -148,8 +148,21 @@ def parse(doc: dict, name: str = "test") -> LifeSpec:
     else:
         cfg["life_factor"] = specimen_life_factor(sigma, seed)
     spec = LifeSpec(name, mode, cfg, sigma, seed)
-    core.virtual_life(spec.config)  # the core judges every value (ParameterError names the field)
+    try:
+        core.virtual_life(spec.config)  # the core judges every value (ParameterError names the field)
+    except core.ParameterError as e:
+        raise SpecParameterError(_spec_field(str(e.field)), float(e.value), str(e.allowed)) from None
     return spec
+
+
+def _spec_field(field: str) -> str:
+    """The spec's path of a core field (`material.n_prime` → `material.cyclic_n_prime`)."""
+    section, _, key = field.partition(".")
+    names = {"material": _MATERIAL, "specimen": _SPECIMEN, "end": _END}.get(section, {})
+    back = {v: k for k, v in names.items()}
+    if section == "law":
+        back = {"c": "c", "m": "m"}
+    return f"{section}.{back.get(key, key)}" if key else field
 
 
 def specimen_life_factor(sigma_log10: float, seed: int | None) -> float:
