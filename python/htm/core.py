@@ -112,3 +112,8 @@ def columns(table: Table) -> dict[str, np.ndarray]:
 from htm._core import SpecimenParams, specimen_force  # noqa: E402
 
 __all__ += ["SpecimenParams", "specimen_force"]
+
+# life tests (force_life, strain_life) and the virtual cyclic specimen (engine/life.rs, cyclic_material.rs)
+from htm._core import LifeController, LifeRig, cyclic_stress, run_life, run_life_batch, virtual_life  # noqa: E402
+
+__all__ += ["LifeController", "LifeRig", "cyclic_stress", "run_life", "run_life_batch", "virtual_life"]

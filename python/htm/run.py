@@ -355,6 +355,17 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    from htm.fatigue import lifetest
+
+    if lifetest.is_life_file(args.spec):  # force_life / strain_life: the life engine
+        if args.check or args.no_store:
+            return lifetest.cmd_run(args.spec, args.out, args.json, args.check)
+        from htm import lifestore
+        from htm.record.store import Store
+
+        with Store(args.store) as st:
+            return lifetest.cmd_run(args.spec, args.out, args.json, store=lambda sp, res, wall: lifestore.record(
+                st, args.spec, sp, res, wall, recording=not args.no_recording))
     if args.check:
         return cmd_check(args)
     if not args.out:

@@ -5,6 +5,7 @@ pub mod control;
 pub mod crack;
 pub mod crack_measure;
 pub mod cyclic;
+pub mod cyclic_material;
 pub mod engine;
 pub mod error;
 pub mod feasibility;

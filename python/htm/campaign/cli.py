@@ -34,8 +34,12 @@ def write_table(path: Path, rows: list[dict[str, Any]]) -> None:
 
 def cmd_campaign(args: argparse.Namespace) -> int:
     from htm.campaign import engine, plot
+    from htm.campaign import life as life_campaign
     from htm.campaign import spec as campaign_spec
     from htm.record.store import Store
+
+    if life_campaign.is_life_campaign(args.campaign):  # S-N or staircase of life tests
+        return life_campaign.cmd(args)
 
     # everything that can be wrong is found before the first test: the file, every test's spec,
     # the store and the cluster

@@ -15,6 +15,7 @@ mod batch;
 pub mod config;
 pub mod convergence;
 pub mod cycle;
+pub mod life;
 mod raw;
 mod session;
 mod sim;

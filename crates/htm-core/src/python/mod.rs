@@ -18,6 +18,7 @@ mod engine;
 mod fatigue;
 mod feasibility;
 mod ident;
+mod life;
 mod measure;
 mod outer_loop;
 mod replay;
@@ -31,6 +32,7 @@ pub(crate) fn register_extensions(m: &Bound<'_, PyModule>) -> PyResult<()> {
     control::register(m)?;
     engine::register(m)?;
     ident::register(m)?;
+    life::register(m)?;
     measure::register(m)?;
     outer_loop::register(m)?;
     replay::register(m)?;
