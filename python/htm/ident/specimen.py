@@ -55,6 +55,15 @@ VELOCITY_WINDOW_S = 0.02
 # percentile), and the screen tries these factors on it.
 FRICTION_VELOCITY_SHARE = 0.05
 FRICTION_VELOCITY_STARTS = (0.2, 1.0, 5.0)
+# A play with a friction behind it (composites): the friction's build-up velocity (factors on its
+# nominal) and the pre-sliding displacement (shares of the travel) the refits start from.
+COMPOSITE_VELOCITY_STARTS = (1.0, 5.0)
+COMPOSITE_PRESLIDING_STARTS = (0.05, 0.15)
+# The base model's damper starts at this share of its least-squares value: a friction behind a
+# play looks viscous to a least-squares fit (it is nil near each reversal, where the velocity is
+# small), and every refit goes back to the start, from where a friction found later would first
+# have to undo a damper that stands in for it.
+DAMPING_START_SHARE = 0.0
 # Pre-sliding displacement: nominal share of the travel, and the shares the screen starts from.
 PRESLIDING_SHARE = 0.01
 PRESLIDING_STARTS = (0.002, 0.01, 0.05)
@@ -157,14 +166,14 @@ class SpecimenFamily(Family):
     def _start(self, p: SpecimenParams, y: np.ndarray, v: np.ndarray, f: np.ndarray, *, stiffness_declared: bool) -> None:
         """The least-squares spring and damper through the measured force (a constant takes up the
         load cell's offset, which the search judges, or places the zero-force position when the
-        metadata does not declare it)."""
+        metadata does not declare it); the damper starts at `DAMPING_START_SHARE` of its share."""
         y0 = p["specimen_zero_force_position_m"]
         a = np.column_stack([y - y0, v, np.ones_like(y)])
         coef, *_ = np.linalg.lstsq(a, f, rcond=None)
         k = float(max(coef[0], 0.0))
         if not stiffness_declared:
             p["specimen_stiffness_n_m"] = k
-        p["specimen_damping_n_s_m"] = float(max(coef[1], 0.0))
+        p["specimen_damping_n_s_m"] = DAMPING_START_SHARE * float(max(coef[1], 0.0))
         if not self.zero_declared and k > 0:
             lo, hi = self._zero_bounds()
             p["specimen_zero_force_position_m"] = float(np.clip(y0 - coef[2] / k, lo, hi))
@@ -214,12 +223,42 @@ class SpecimenFamily(Family):
                                       (lin("specimen_presliding_friction_n", 0.01 * fmax, 0.0, 1e4),
                                        logf("specimen_presliding_m", 1e-3, 1e2, step=0.1)),
                                       "sign(v)", starts=(float(np.log(share / PRESLIDING_SHARE)),)))
+        out += self.play_with_friction()
         k = max(self.nominal["specimen_stiffness_n_m"], fmax / self.y_span)
         # the closure position's step a tenth of its unit: the kink is sharp (its corner is 20 um)
         # and a coarse difference stalls the fit a few percent short of it
         out += [dataclasses.replace(c, frees=(c.frees[0], dataclasses.replace(c.frees[1], step=0.1)))
                 for c in self.closure_candidates(self.rec.columns["y"], self.nominal["specimen_zero_force_position_m"], k)]
         return out
+
+
+    def play_with_friction(self) -> list[Candidate]:
+        """A play with a friction behind it (a dry friction damper with play, guides with a loose
+        grip): after each reversal the friction falls away, the displacement travels the gap at no
+        friction force and the friction builds up the other way. With a gap that is large against
+        the travel neither pays off alone — the friction alone misses where the force rests, the
+        play alone has nothing to hold during the gap, and the base model's damper soaks up the
+        rest — so they are screened together (composites: when no single effect pays off) and
+        found as two findings. The gap is scanned (it is not smooth to find); the friction starts
+        at half the step between the force's plateaus while the displacement moves fast one way
+        and the other (the damper and the spring's share of it vanish where the motion is
+        symmetric), its build-up as the single candidates' is."""
+        y, f = _filled(self.rec.columns["y"]), _filled(self.rec.columns["f"])
+        v = np.gradient(smooth(y, max(1, int(round(VELOCITY_WINDOW_S / self.dt)))), self.dt)
+        up, down = v > 0.5 * self.v_max, v < -0.5 * self.v_max
+        level = 0.5 * float(np.median(f[up]) - np.median(f[down])) if up.any() and down.any() else 0.0
+        level = float(np.clip(level, 0.05 * self.f_max, self.f_max))
+        unit = 0.01 * self.f_max
+        gap = lin("load_train_gap_m", 0.01 * self.y_span, 0.0, 50.0)
+        play = self.candidate("load_train_backlash", "f", (gap,), "sign(v)")
+        friction = self.candidate("specimen_friction", "f", (lin("specimen_friction_n", unit, 0.0, 1e4),
+                                                             logf("specimen_friction_velocity_m_s", 1e-3, 1e2, step=0.1)), "sign(v)")
+        presliding = self.candidate("presliding_friction", "f", (lin("specimen_presliding_friction_n", unit, 0.0, 1e4),
+                                                                 logf("specimen_presliding_m", 1e-3, 1e2, step=0.1)), "sign(v)")
+        frictions = [(friction, (level / unit, float(np.log(factor)))) for factor in COMPOSITE_VELOCITY_STARTS]
+        frictions += [(presliding, (level / unit, float(np.log(share / PRESLIDING_SHARE)))) for share in COMPOSITE_PRESLIDING_STARTS]
+        return [Candidate(f"{play.effect}+{fr.effect}", "f", play.frees + fr.frees, "sign(v)", starts=starts,
+                          fields=play.fields + fr.fields, parts=(play, fr)) for fr, starts in frictions]
 
 
 def _filled(x: np.ndarray) -> np.ndarray:
