@@ -59,11 +59,6 @@ FRICTION_VELOCITY_STARTS = (0.2, 1.0, 5.0)
 # nominal) and the pre-sliding displacement (shares of the travel) the refits start from.
 COMPOSITE_VELOCITY_STARTS = (1.0, 5.0)
 COMPOSITE_PRESLIDING_STARTS = (0.05, 0.15)
-# The base model's damper starts at this share of its least-squares value: a friction behind a
-# play looks viscous to a least-squares fit (it is nil near each reversal, where the velocity is
-# small), and every refit goes back to the start, from where a friction found later would first
-# have to undo a damper that stands in for it.
-DAMPING_START_SHARE = 0.0
 # Pre-sliding displacement: nominal share of the travel, and the shares the screen starts from.
 PRESLIDING_SHARE = 0.01
 PRESLIDING_STARTS = (0.002, 0.01, 0.05)
@@ -166,14 +161,14 @@ class SpecimenFamily(Family):
     def _start(self, p: SpecimenParams, y: np.ndarray, v: np.ndarray, f: np.ndarray, *, stiffness_declared: bool) -> None:
         """The least-squares spring and damper through the measured force (a constant takes up the
         load cell's offset, which the search judges, or places the zero-force position when the
-        metadata does not declare it); the damper starts at `DAMPING_START_SHARE` of its share."""
+        metadata does not declare it)."""
         y0 = p["specimen_zero_force_position_m"]
         a = np.column_stack([y - y0, v, np.ones_like(y)])
         coef, *_ = np.linalg.lstsq(a, f, rcond=None)
         k = float(max(coef[0], 0.0))
         if not stiffness_declared:
             p["specimen_stiffness_n_m"] = k
-        p["specimen_damping_n_s_m"] = DAMPING_START_SHARE * float(max(coef[1], 0.0))
+        p["specimen_damping_n_s_m"] = float(max(coef[1], 0.0))
         if not self.zero_declared and k > 0:
             lo, hi = self._zero_bounds()
             p["specimen_zero_force_position_m"] = float(np.clip(y0 - coef[2] / k, lo, hi))
