@@ -15,6 +15,7 @@ from htm import core
 from htm.cli import main
 from htm.ident.diagnose import diagnose
 from htm.ident.records import read_record, write_record
+from htm.ident.specimen import simulate
 from htm.ident.specimen_proving import NOISE_STD, QUANTUM, SPECIMEN_MATRIX, judge, make_specimen_record, specimen_matrix_record
 
 
@@ -23,8 +24,15 @@ def test_specimen_matrix_case_is_diagnosed_right(case):
     rec, truth = specimen_matrix_record(case, "A")
     report = diagnose(rec)
     assert judge(report, truth) == []
-    if truth["effects"]:  # the findings take the force's error down to the noise
-        assert report["final"]["rmse"]["f"] < 1.2 * NOISE_STD["f"] < 0.5 * report["baseline"]["rmse"]["f"]
+    if truth["effects"]:  # the findings take the force's error down to the noise (or to the true
+        # parameters' own error on the noisy displacement: a play with a friction behind it turns
+        # the displacement's noise at the gap's edges into force)
+        p = core.SpecimenParams()
+        for k, v in truth["params"].items():
+            p[k] = v
+        true_f = simulate([p], rec)[0]["f"]
+        floor = max(NOISE_STD["f"], float(np.sqrt(np.mean((true_f - rec.columns["f"]) ** 2))))
+        assert report["final"]["rmse"]["f"] < 1.2 * floor < 0.5 * report["baseline"]["rmse"]["f"]
 
 
 def test_judge_fails_what_a_wrong_diagnosis_gets_wrong():
