@@ -11,7 +11,10 @@ the geometry) with viscous damping. Its effects are EFFECTS.md's "Specimen and l
 its rules are the engine's own (`search.py`); this module only says what the model is. One effect
 is the project's own id (EFFECTS.md allows it): `presliding_friction`, a friction that builds up
 over a displacement after each reversal (an elasto-plastic element) where `specimen_friction`
-builds up over a velocity.
+builds up over a velocity; behind a load-train play it unloads, rests over the gap and loads again
+(the core's model). A play with a friction behind it, the gap large against the travel, pays off
+only as a whole: the family offers that pair as composites (`play_with_friction`), which the
+search refits when no single effect pays off and reports as two findings.
 
 The displacement is the model's input: its prediction is the record's own reading (an error of
 zero, reported as such), and every finding shows in the force.
