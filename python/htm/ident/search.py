@@ -226,13 +226,13 @@ class Selector:
                    ranked={c.label: g for c, g, _ in ranked[:6]})
             with self.stages("refit", f"round {rnd + 1}: {', '.join(c.label for c, _, _ in ranked[:max_refits]) or 'none'}"):
                 good, better_base, too_small = self.refit(ranked, max_refits)
-            if not good and (composites := [c for c in self.pool if c.parts]):
+            if composites := [c for c in self.pool if c.parts]:
                 # no single effect pays off: effects that pay off only together (a composite; each is
                 # refitted from its starts, its first parameter scanned: a linearised screen of several
                 # effects at once says little)
                 ranked = [Screened(c, 0.0, c.frees[0].step) for c in composites]
                 with self.stages("refit", f"round {rnd + 1}: composites {', '.join(c.label for c in composites)}"):
-                    good = self.refit(ranked, max_refits)[0]
+                    good += self.refit(ranked, len(ranked))[0]
             if better_base is not None and good:
                 good = self.settle(good, better_base)
             if not good:

@@ -153,6 +153,8 @@ SPECIMEN_MATRIX: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
     # force over the travel, the play a seventh of the travel (larger than the small sines' swing)
     ("specimen:friction+backlash-large-gap", {"specimen_friction": {}, "load_train_backlash": {}},
      {"sizes": {"specimen_friction": {"friction_n": 2000.0, "velocity_m_s": 1.5e-3}, "load_train_backlash": {"gap_m": 3.0e-4}}}),
+    ("specimen:presliding+backlash-large-gap", {"presliding_friction": {}, "load_train_backlash": {}},
+     {"sizes": {"presliding_friction": {"friction_n": 2000.0, "presliding_m": 3.0e-4}, "load_train_backlash": {"gap_m": 3.0e-4}}}),
 ]
 # seed set -> shift. A was used while building the family; B and C were run once afterwards, and
 # again after `presliding_friction` joined the vocabulary (the real friction damper lacked it);
