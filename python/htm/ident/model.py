@@ -193,8 +193,8 @@ class Candidate:
     # that reading (through restarts from the measured state it moves the others too).
     own_reading: bool = False
     # A composite (effects that pay off only together, as a play with the friction behind it): its
-    # parts, each a candidate on a contiguous run of these frees; screened when no single candidate
-    # pays off, and found as one finding per part.
+    # parts, each a candidate on a contiguous run of these frees; refitted beside the single
+    # candidates every round, and found as one finding per part.
     parts: tuple["Candidate", ...] = ()
 
     def report(self, p: Any) -> dict[str, float]:

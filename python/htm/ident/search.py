@@ -227,9 +227,9 @@ class Selector:
             with self.stages("refit", f"round {rnd + 1}: {', '.join(c.label for c, _, _ in ranked[:max_refits]) or 'none'}"):
                 good, better_base, too_small = self.refit(ranked, max_refits)
             if composites := [c for c in self.pool if c.parts]:
-                # no single effect pays off: effects that pay off only together (a composite; each is
-                # refitted from its starts, its first parameter scanned: a linearised screen of several
-                # effects at once says little)
+                # effects that may pay off only together (a composite), refitted beside the single
+                # candidates, every one from its starts with its first parameter scanned (a linearised
+                # screen of several effects at once says little); the better by dBIC is chosen
                 ranked = [Screened(c, 0.0, c.frees[0].step) for c in composites]
                 with self.stages("refit", f"round {rnd + 1}: composites {', '.join(c.label for c in composites)}"):
                     good += self.refit(ranked, len(ranked))[0]

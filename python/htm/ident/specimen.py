@@ -14,7 +14,7 @@ over a displacement after each reversal (an elasto-plastic element) where `speci
 builds up over a velocity; behind a load-train play it unloads, rests over the gap and loads again
 (the core's model). A play with a friction behind it, the gap large against the travel, pays off
 only as a whole: the family offers that pair as composites (`play_with_friction`), which the
-search refits when no single effect pays off and reports as two findings.
+search refits beside the single effects and reports as two findings.
 
 The displacement is the model's input: its prediction is the record's own reading (an error of
 zero, reported as such), and every finding shows in the force.
@@ -236,7 +236,7 @@ class SpecimenFamily(Family):
         friction force and the friction builds up the other way. With a gap that is large against
         the travel neither pays off alone — the friction alone misses where the force rests, the
         play alone has nothing to hold during the gap, and the base model's damper soaks up the
-        rest — so they are screened together (composites: when no single effect pays off) and
+        rest — so they are refitted together as well (composites, beside the single effects) and
         found as two findings. The gap is scanned (it is not smooth to find); the friction starts
         at half the step between the force's plateaus while the displacement moves fast one way
         and the other (the damper and the spring's share of it vanish where the motion is
