@@ -61,7 +61,7 @@ FRICTION_VELOCITY_STARTS = (0.2, 1.0, 5.0)
 # A play with a friction behind it (composites): the friction's build-up velocity (factors on its
 # nominal) and the pre-sliding displacement (shares of the travel) the refits start from.
 COMPOSITE_VELOCITY_STARTS = (1.0, 5.0)
-COMPOSITE_PRESLIDING_STARTS = (0.05, 0.15)
+COMPOSITE_PRESLIDING_STARTS = (0.05, 0.15, 0.4)
 # Pre-sliding displacement: nominal share of the travel, and the shares the screen starts from.
 PRESLIDING_SHARE = 0.01
 PRESLIDING_STARTS = (0.002, 0.01, 0.05)
