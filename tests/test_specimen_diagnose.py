@@ -15,6 +15,7 @@ from htm import core
 from htm.cli import main
 from htm.ident.diagnose import diagnose
 from htm.ident.records import read_record, write_record
+from htm.ident.specimen import simulate
 from htm.ident.specimen_proving import NOISE_STD, QUANTUM, SPECIMEN_MATRIX, judge, make_specimen_record, specimen_matrix_record
 
 
@@ -23,8 +24,15 @@ def test_specimen_matrix_case_is_diagnosed_right(case):
     rec, truth = specimen_matrix_record(case, "A")
     report = diagnose(rec)
     assert judge(report, truth) == []
-    if truth["effects"]:  # the findings take the force's error down to the noise
-        assert report["final"]["rmse"]["f"] < 1.2 * NOISE_STD["f"] < 0.5 * report["baseline"]["rmse"]["f"]
+    if truth["effects"]:  # the findings take the force's error down to the noise (or to the true
+        # parameters' own error on the noisy displacement: a play with a friction behind it turns
+        # the displacement's noise at the gap's edges into force)
+        p = core.SpecimenParams()
+        for k, v in truth["params"].items():
+            p[k] = v
+        true_f = simulate([p], rec)[0]["f"]
+        floor = max(NOISE_STD["f"], float(np.sqrt(np.mean((true_f - rec.columns["f"]) ** 2))))
+        assert report["final"]["rmse"]["f"] < 1.2 * floor < 0.5 * report["baseline"]["rmse"]["f"]
 
 
 def test_judge_fails_what_a_wrong_diagnosis_gets_wrong():
@@ -103,6 +111,19 @@ def test_bad_displacement_input_records_are_refused_in_one_line(tmp_path, capsys
     assert not (tmp_path / "d").exists()
 
 
+def test_a_specimen_record_that_does_not_move_is_refused_in_one_line(tmp_path, capsys):
+    rec, _ = make_specimen_record({}, seed=5, duration_s=3)
+    n = len(rec.columns["t"])
+    rng = np.random.default_rng(5)
+    cols = {"t": rec.columns["t"], "y": 0.25e-3 + rng.normal(0.0, 0.3e-6, n), "f": 1000.0 + rng.normal(0.0, 8.0, n)}
+    table = _raw(cols, rec.meta, "still", tmp_path)
+    assert main(["diagnose", str(table), "--out", str(tmp_path / "d")]) == 2
+    err = capsys.readouterr().err
+    assert "no excitation" in err and "moves only" in err and "Traceback" not in err
+    assert "command" not in err  # a displacement_input record has none
+    assert len([line for line in err.splitlines() if not line.startswith("[")]) == 1
+
+
 def test_a_model_of_another_kind_is_refused_for_a_specimen_record(tmp_path, capsys):
     rec, _ = make_specimen_record({}, seed=4, duration_s=3)
     table, _ = write_record(rec, tmp_path / "spec")
@@ -131,14 +152,17 @@ def test_the_core_specimen_model_and_its_binding():
         core.specimen_force([p], 0.0, y)
 
 
-def test_the_real_friction_damper_is_diagnosed_as_friction_and_its_model_carries_to_another_run():
-    # ARTS Lab's banded friction damper (data/arts_friction_damper, CC BY-SA 4.0): a dry friction of
-    # about 10 kN that builds up over millimetres after each reversal
+def test_the_real_friction_damper_is_diagnosed_as_friction_with_play():
+    # ARTS Lab's banded friction damper (data/arts_friction_damper, CC BY-SA 4.0), "dry friction and
+    # a play after each reversal": a dry friction of about 10 kN that falls to zero after each
+    # reversal, rests over a few millimetres and builds up the other way over millimetres
     root = Path(__file__).resolve().parent.parent / "data" / "arts_friction_damper"
     rec = read_record(root / "arts_30lb_1hz_0p5in.csv.gz")
     report = diagnose(rec)
     found = {f["effect"]: f["params"] for f in report["findings"]}
-    assert "presliding_friction" in found and 5e3 < found["presliding_friction"]["friction_n"] < 15e3
+    final = report["final"]["params"]
+    assert {"presliding_friction", "load_train_backlash"} <= set(found)
+    assert 5e3 < final["specimen_presliding_friction_n"] < 15e3 and 1e-3 < final["load_train_gap_m"] < 8e-3
     assert report["final"]["rmse"]["f"] < 0.75 * report["baseline"]["rmse"]["f"]
     assert set(found) <= {"presliding_friction", "specimen_friction", "load_train_backlash", "sensor_offset"}
     # what remains (the damper's ringing while it slides) is said, not forced onto an effect

@@ -9,12 +9,25 @@
 //!   ẋ   = (x[k+m] − x[k−m]) / (2m·Δt)                the specimen's velocity (central difference, window 2m·Δt)
 //!   F   = k·(x − y_s) − k_cl·⌊y_s + y_cl − x⌋₊        spring, stiffer by k_cl below the closure position
 //!         + c·ẋ + F_c·tanh(ẋ/v_f)                     viscous damping, friction in the load path
-//!         + F_p·z,  z = clip(z + Δx/δ_p, −1, 1)        friction built up over a displacement (pre-sliding)
+//!         + F_p·z(u),  u = clip(u + Δy, ±(g/2 + δ_e))  friction built up over a displacement (pre-sliding),
+//!           z(u) = sign(u)·min(⌊|u| − g/2⌋₊/δ_e, 1)     behind the play in series (below), δ_e = δ_p − g/2
 //!   f   = F + f_0                                    the load cell's reading (EFFECTS sensor_offset on f)
 //! ```
 //!
 //! `play` is the backlash operator: after each reversal the displacement travels the gap g with
-//! the specimen at rest (no force change) before it is loaded again; it starts centred. ⌊·⌋₊ is
+//! the specimen at rest (no force change) before it is loaded again; it starts centred. The
+//! pre-sliding friction (an elastic stage δ_p in series with a slider) sits behind that play in
+//! series: a force goes through the play only while it is closed, so after a reversal the element
+//! first unloads over δ_p, the play then opens and the displacement travels g at no friction force,
+//! and the element loads again over δ_p before it slides (a dry friction damper with play: the
+//! force falls to zero, stays there over the gap, and builds up the other way). δ_p is the travel
+//! from a reversal to where that friction force crosses zero, half the travel from sliding one way
+//! to sliding the other (with no play, the elastic stage itself): its elastic stage is δ_e =
+//! δ_p − g/2 (at least `PRESLIDING_MIN_SHARE`·δ_p: a slider behind the play with no elastic
+//! stage to speak of when g/2 ≥ δ_p). A play added to a pre-sliding friction so keeps the width
+//! of its reversal and reshapes it (flat in the middle), which is how a fit finds one. The velocity
+//! friction F_c·tanh(ẋ/v_f) behind the play does the same with no elastic stage: x rests in the
+//! gap, and so does its friction. Without a play z(u) is the elasto-plastic z = clip(z + Δx/δ_p, ±1). ⌊·⌋₊ is
 //! max(·, 0) with its corner smoothed over `CLOSURE_SMOOTHING_M` (the same bilinear spring as the
 //! plant's specimen, `machine.rs`, and the displacement loop's, `outer_loop.rs`: all three call
 //! `spring_force`; the loop's damping and friction are `damping_friction_force`, as here).
@@ -86,7 +99,8 @@ define_specimen_params! {
     /// slope F_p/δ_p from each reversal until it slides at F_p; the project's
     /// `presliding_friction`, beside EFFECTS specimen_friction's build-up over a velocity)
     specimen_presliding_friction_n ["N"] = 0.0, closed 0.0, 1.0e8;
-    /// Displacement δ_p over which the pre-sliding friction builds up
+    /// Displacement δ_p over which the pre-sliding friction builds up: from a reversal to where
+    /// its force crosses zero (behind a play g, its elastic stage is δ_p − g/2)
     specimen_presliding_m ["m"] = 1.0e-3, open 0.0, 1.0;
     /// Closure stiffness k_cl added below the closure position (EFFECTS specimen_nonlinearity)
     specimen_closure_stiffness_n_m ["N/m"] = 0.0, closed 0.0, 1.0e12;
@@ -185,6 +199,17 @@ pub fn play(y: &[f64], half: f64, start: f64) -> Vec<f64> {
         .collect()
 }
 
+/// The least elastic stage of the pre-sliding friction behind a play, as a share of δ_p.
+pub const PRESLIDING_MIN_SHARE: f64 = 1e-3;
+
+/// The share z ∈ [−1, 1] of the pre-sliding friction carried at the element's state `u` (the
+/// displacement ahead of the play, kept within ±(`half` + `d`)): none while the play of half-width
+/// `half` is open, then built up linearly over `d`. With no play it is z = clip(z + Δx/δ_p, −1, 1).
+#[inline]
+pub fn presliding_share(u: f64, half: f64, d: f64) -> f64 {
+    ((u.abs() - half).max(0.0) / d).min(1.0).copysign(u)
+}
+
 /// Check a displacement input: samples, a finite value, a positive sample period.
 pub fn validate_input(dt: f64, y: &[f64]) -> Result<()> {
     if y.len() < 2 {
@@ -206,9 +231,10 @@ pub fn force(p: &SpecimenParams, dt: f64, y: &[f64]) -> Result<Vec<f64>> {
     validate_input(dt, y)?;
     let y = held(y);
     let n = y.len();
-    let x = if p.load_train_gap_m > 0.0 { play(&y, 0.5 * p.load_train_gap_m, y[0]) } else { y };
+    let played = (p.load_train_gap_m > 0.0).then(|| play(&y, 0.5 * p.load_train_gap_m, y[0]));
+    let x: &[f64] = played.as_deref().unwrap_or(&y);
     let m = ((p.velocity_window_s / (2.0 * dt)).round() as usize).clamp(1, (n - 1).max(1));
-    let mut z = 0.0;
+    let mut u = 0.0;
     let out = (0..n)
         .map(|k| {
             let (a, b) = (k.saturating_sub(m), (k + m).min(n - 1));
@@ -217,9 +243,13 @@ pub fn force(p: &SpecimenParams, dt: f64, y: &[f64]) -> Result<Vec<f64>> {
                                      p.specimen_closure_offset_m, x[k])
                 + damping_friction_force(p.specimen_damping_n_s_m, p.specimen_friction_n, p.specimen_friction_velocity_m_s, v);
             if p.specimen_presliding_friction_n > 0.0 {
-                let dx = if k > 0 { x[k] - x[k - 1] } else { 0.0 };
-                z = (z + dx / p.specimen_presliding_m).clamp(-1.0, 1.0);
-                f += p.specimen_presliding_friction_n * z;
+                // the element sits behind the play, in series: its state u follows the displacement
+                // ahead of the play within ±(g/2 + δ_p), and the play is a dead zone of width g in it
+                let dy = if k > 0 { y[k] - y[k - 1] } else { 0.0 };
+                let half = 0.5 * p.load_train_gap_m;
+                let d = (p.specimen_presliding_m - half).max(PRESLIDING_MIN_SHARE * p.specimen_presliding_m);
+                u = (u + dy).clamp(-(half + d), half + d);
+                f += p.specimen_presliding_friction_n * presliding_share(u, half, d);
             }
             f + p.sensor_offset_f
         })
@@ -289,6 +319,25 @@ mod tests {
         let back = |d: f64| top + (d / (1e-3 / (n as f64 / 2.0))).round() as usize;
         assert!((f[back(0.9 * gap)] - peak).abs() < 1e-9);
         assert!((f[back(gap + 1e-4)] - (peak - k * 1e-4)).abs() < 0.5, "{}", f[back(gap + 1e-4)] - peak);
+    }
+
+    #[test]
+    fn presliding_friction_behind_a_play_unloads_then_crosses_the_gap_at_no_force() {
+        // elastic stage d = δ_p − g/2
+        let (fp, d, gap) = (1000.0, 1e-4, 4e-4);
+        let p = SpecimenParams { specimen_presliding_friction_n: fp, specimen_presliding_m: d + 0.5 * gap, load_train_gap_m: gap,
+                                 ..Default::default() };
+        // up 2 mm in 1 µm steps (sliding at +F_p), then back 2 mm
+        let y: Vec<f64> = (0..4001).map(|i| 1e-6 * (2000.0 - (i as f64 - 2000.0).abs())).collect();
+        let f = force(&p, 1e-3, &y).unwrap();
+        assert!((f[2000] - fp).abs() < 1e-9, "{}", f[2000]);
+        // back by half of δ_p: half unloaded; by δ_p: none; across the gap: none; then loading the other way
+        assert!((f[2050] - 0.5 * fp).abs() < 1e-6 && f[2100].abs() < 1e-6 && f[2100 + 390].abs() < 1e-6, "{} {}", f[2050], f[2100]);
+        assert!((f[2100 + 400 + 50] + 0.5 * fp).abs() < 1e-6 && (f[2100 + 400 + 100] + fp).abs() < 1e-6);
+        // the same reversal without the play: from +F_p to −F_p over 2δ_p, crossing zero at δ_p as with it
+        let q = SpecimenParams { load_train_gap_m: 0.0, ..p };
+        let g = force(&q, 1e-3, &y).unwrap();
+        assert!(g[2300].abs() < 1e-6 && (g[2600] + fp).abs() < 1e-9 && (g[2150] - 0.5 * fp).abs() < 1e-6);
     }
 
     #[test]

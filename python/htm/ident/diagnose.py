@@ -270,7 +270,7 @@ def _check_excitation(rec: Record, sigma: dict[str, float], st: SearchSettings) 
     if span_y < max(st.excitation_noise * sigma["y"], st.excitation_stroke * stroke):
         raise IdentificationError(
             f"cannot identify `{rec.name}`: no excitation — position y moves only {span_y:.3g} m "
-            f"(noise {sigma['y']:.2g} m) and command {cmd} spans {span_u:.3g} {unit}; record a moving experiment "
+            f"(noise {sigma['y']:.2g} m)" + (f" and command {cmd} spans {span_u:.3g} {unit}" if cmd in rec.columns else "") + "; record a moving experiment "
             "(ramps, sines, steps)")
 
 

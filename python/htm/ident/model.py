@@ -192,6 +192,10 @@ class Candidate:
     # The effect is a fault of the reading of `channel` (a sensor's): its signature is judged in
     # that reading (through restarts from the measured state it moves the others too).
     own_reading: bool = False
+    # A composite (effects that pay off only together, as a play with the friction behind it): its
+    # parts, each a candidate on a contiguous run of these frees; refitted beside the single
+    # candidates every round, and found as one finding per part.
+    parts: tuple["Candidate", ...] = ()
 
     def report(self, p: Any) -> dict[str, float]:
         return {name: float(p[key]) for name, key in self.fields}
@@ -203,3 +207,8 @@ class Candidate:
     @property
     def key(self) -> tuple[str, str | None]:
         return (self.effect, self.channel)
+
+    @property
+    def keys(self) -> set[tuple[str, str | None]]:
+        """The keys of the effects this candidate adds (its parts' for a composite)."""
+        return {c.key for c in self.parts} if self.parts else {self.key}

@@ -219,13 +219,20 @@ class Selector:
             if self.at_floor("refit without effect"):
                 break
             with self.stages("screen", f"round {rnd + 1}: {len(self.pool)} candidates"):
-                ranked = screen(prob, self.model, self.work_pred, self.jac, self.pool)
+                ranked = screen(prob, self.model, self.work_pred, self.jac, [c for c in self.pool if not c.parts])
             log("screen", [(c.effect, c.channel, round(g, 3)) for c, g, _ in ranked[:6]])
             tr.add("screen", None, "signature explains > screen_chi2 and > screen_fraction of the fit cost",
                    f"{len(ranked)} of {len(self.pool)} carry evidence",
                    ranked={c.label: g for c, g, _ in ranked[:6]})
             with self.stages("refit", f"round {rnd + 1}: {', '.join(c.label for c, _, _ in ranked[:max_refits]) or 'none'}"):
                 good, better_base, too_small = self.refit(ranked, max_refits)
+            if composites := [c for c in self.pool if c.parts]:
+                # effects that may pay off only together (a composite), refitted beside the single
+                # candidates, every one from its starts with its first parameter scanned (a linearised
+                # screen of several effects at once says little); the better by dBIC is chosen
+                ranked = [Screened(c, 0.0, c.frees[0].step) for c in composites]
+                with self.stages("refit", f"round {rnd + 1}: composites {', '.join(c.label for c in composites)}"):
+                    good += self.refit(ranked, len(ranked))[0]
             if better_base is not None and good:
                 good = self.settle(good, better_base)
             if not good:
@@ -245,7 +252,7 @@ class Selector:
                 continue
             with self.stages("break ties", ", ".join(g.cand.label for g in good)):
                 chosen = self.break_ties(good)
-            self.pool = [c for c in self.pool if c.key != chosen.cand.key]
+            self.pool = [c for c in self.pool if not c.keys & chosen.cand.keys]
             if not chosen.verdict.ok:
                 # Polished, the effect no longer matters: keep the better-fitted model without it.
                 self.model = chosen.model.truncated(len(self.model.x))
@@ -258,8 +265,7 @@ class Selector:
                 continue
             if not self.findings:  # the baseline is the base model as fitted just before the first finding
                 self.base, self.base_pred = self.model, self.pred
-            self.findings.append(finding(prob, chosen.cand, self.model, self.pred, chosen.model, chosen.pred, chosen.verdict,
-                                         self.rate))
+            self.findings += self.found(chosen)
             tr.add("finding", chosen.cand.label, chosen.verdict.rule, "added", close=chosen.verdict.close,
                    params=chosen.cand.report(chosen.model.params()), **chosen.verdict.numbers())
             assert chosen.jac is not None
@@ -268,6 +274,20 @@ class Selector:
         with self.stages("backward check", f"{len(self.findings)} findings"):
             self.backward_check()
         return self.result()
+
+    def found(self, chosen: Trial) -> list[Finding]:
+        """The findings a chosen trial adds: one, or one per part of a composite (each part's
+        "before" the model with the parts ahead of it on, the later ones off)."""
+        parts = chosen.cand.parts or (chosen.cand,)
+        n0, x = len(self.model.x), chosen.model.x
+        steps = [self.model] + [Model(chosen.model.nominal, chosen.model.frees,
+                                      np.r_[x[:n0 + sum(len(c.frees) for c in parts[:i + 1])],
+                                            np.zeros(len(x) - n0 - sum(len(c.frees) for c in parts[:i + 1]))])
+                                for i in range(len(parts) - 1)] + [chosen.model]
+        mids = self.prob.predict([m.params() for m in steps[1:-1]], whole=True) if len(parts) > 1 else []
+        preds = [self.pred, *mids, chosen.pred]
+        return [finding(self.prob, c, steps[i], preds[i], steps[i + 1], preds[i + 1], chosen.verdict, self.rate)
+                for i, c in enumerate(parts)]
 
     def at_floor(self, when: str) -> bool:
         ratios = self.prob.ratios(self.pred, self.rate)

@@ -11,7 +11,10 @@ the geometry) with viscous damping. Its effects are EFFECTS.md's "Specimen and l
 its rules are the engine's own (`search.py`); this module only says what the model is. One effect
 is the project's own id (EFFECTS.md allows it): `presliding_friction`, a friction that builds up
 over a displacement after each reversal (an elasto-plastic element) where `specimen_friction`
-builds up over a velocity.
+builds up over a velocity; behind a load-train play it unloads, rests over the gap and loads again
+(the core's model). A play with a friction behind it, the gap large against the travel, pays off
+only as a whole: the family offers that pair as composites (`play_with_friction`), which the
+search refits beside the single effects and reports as two findings.
 
 The displacement is the model's input: its prediction is the record's own reading (an error of
 zero, reported as such), and every finding shows in the force.
@@ -55,6 +58,10 @@ VELOCITY_WINDOW_S = 0.02
 # percentile), and the screen tries these factors on it.
 FRICTION_VELOCITY_SHARE = 0.05
 FRICTION_VELOCITY_STARTS = (0.2, 1.0, 5.0)
+# A play with a friction behind it (composites): the friction's build-up velocity (factors on its
+# nominal) and the pre-sliding displacement (shares of the travel) the refits start from.
+COMPOSITE_VELOCITY_STARTS = (1.0, 5.0)
+COMPOSITE_PRESLIDING_STARTS = (0.05, 0.15, 0.4)
 # Pre-sliding displacement: nominal share of the travel, and the shares the screen starts from.
 PRESLIDING_SHARE = 0.01
 PRESLIDING_STARTS = (0.002, 0.01, 0.05)
@@ -214,12 +221,42 @@ class SpecimenFamily(Family):
                                       (lin("specimen_presliding_friction_n", 0.01 * fmax, 0.0, 1e4),
                                        logf("specimen_presliding_m", 1e-3, 1e2, step=0.1)),
                                       "sign(v)", starts=(float(np.log(share / PRESLIDING_SHARE)),)))
+        out += self.play_with_friction()
         k = max(self.nominal["specimen_stiffness_n_m"], fmax / self.y_span)
         # the closure position's step a tenth of its unit: the kink is sharp (its corner is 20 um)
         # and a coarse difference stalls the fit a few percent short of it
         out += [dataclasses.replace(c, frees=(c.frees[0], dataclasses.replace(c.frees[1], step=0.1)))
                 for c in self.closure_candidates(self.rec.columns["y"], self.nominal["specimen_zero_force_position_m"], k)]
         return out
+
+
+    def play_with_friction(self) -> list[Candidate]:
+        """A play with a friction behind it (a dry friction damper with play, guides with a loose
+        grip): after each reversal the friction falls away, the displacement travels the gap at no
+        friction force and the friction builds up the other way. With a gap that is large against
+        the travel neither pays off alone — the friction alone misses where the force rests, the
+        play alone has nothing to hold during the gap, and the base model's damper soaks up the
+        rest — so they are refitted together as well (composites, beside the single effects) and
+        found as two findings. The gap is scanned (it is not smooth to find); the friction starts
+        at half the step between the force's plateaus while the displacement moves fast one way
+        and the other (the damper and the spring's share of it vanish where the motion is
+        symmetric), its build-up as the single candidates' is."""
+        y, f = _filled(self.rec.columns["y"]), _filled(self.rec.columns["f"])
+        v = np.gradient(smooth(y, max(1, int(round(VELOCITY_WINDOW_S / self.dt)))), self.dt)
+        up, down = v > 0.5 * self.v_max, v < -0.5 * self.v_max
+        level = 0.5 * float(np.median(f[up]) - np.median(f[down])) if up.any() and down.any() else 0.0
+        level = float(np.clip(level, 0.05 * self.f_max, self.f_max))
+        unit = 0.01 * self.f_max
+        gap = lin("load_train_gap_m", 0.01 * self.y_span, 0.0, 50.0)
+        play = self.candidate("load_train_backlash", "f", (gap,), "sign(v)")
+        friction = self.candidate("specimen_friction", "f", (lin("specimen_friction_n", unit, 0.0, 1e4),
+                                                             logf("specimen_friction_velocity_m_s", 1e-3, 1e2, step=0.1)), "sign(v)")
+        presliding = self.candidate("presliding_friction", "f", (lin("specimen_presliding_friction_n", unit, 0.0, 1e4),
+                                                                 logf("specimen_presliding_m", 1e-3, 1e2, step=0.1)), "sign(v)")
+        frictions = [(friction, (level / unit, float(np.log(factor)))) for factor in COMPOSITE_VELOCITY_STARTS]
+        frictions += [(presliding, (level / unit, float(np.log(share / PRESLIDING_SHARE)))) for share in COMPOSITE_PRESLIDING_STARTS]
+        return [Candidate(f"{play.effect}+{fr.effect}", "f", play.frees + fr.frees, "sign(v)", starts=starts,
+                          fields=play.fields + fr.fields, parts=(play, fr)) for fr, starts in frictions]
 
 
 def _filled(x: np.ndarray) -> np.ndarray:

@@ -80,13 +80,15 @@ def history(duration_s: float, rate_hz: float, *, variant: int = 0) -> np.ndarra
 
 def make_specimen_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, seed: int, rate_hz: float = 1000,
                          duration_s: float = 12, noise: bool = True, variant: int = 0, declare_zero: bool = True,
-                         column: str = "y", name: str | None = None) -> tuple[Record, dict[str, Any]]:
+                         column: str = "y", name: str | None = None,
+                         sizes: Mapping[str, Mapping[str, float]] | None = None) -> tuple[Record, dict[str, Any]]:
     """A `displacement_input` record of a simulated specimen with `effects` on (EFFECTS.md ids ->
     their parameters; empty dicts take `DEFAULT_EFFECTS` scaled by a factor drawn in
     `EFFECT_SPREAD`). The specimen (stiffness, damping) is drawn from `seed` alone; `variant`
     chooses the displacement history and the sensor noise. `declare_zero`: the metadata states
     the zero-force position (DATA_FORMAT.md: then a load-cell offset is a finding). `column`: the
-    displacement as `y` or as a clip gauge's `cod`.
+    displacement as `y` or as a clip gauge's `cod`. `sizes`: other nominal sizes than
+    `DEFAULT_EFFECTS` for some effects (still drawn within `EFFECT_SPREAD`).
 
     Returns (record, truth): truth = {"effects": {id: {"channel", "params"}}, "params": the
     SpecimenParams as a dict}."""
@@ -103,7 +105,8 @@ def make_specimen_record(effects: Mapping[str, Mapping[str, Any]] | None = None,
         if eid not in DEFAULT_EFFECTS:
             raise InputError(f"effect `{eid}` is not a specimen or load-train effect; known: {', '.join(DEFAULT_EFFECTS)}")
         factor = float(rng.uniform(*EFFECT_SPREAD))
-        vals = {k: float(v) for k, v in given.items()} if given else {k: v * factor for k, v in DEFAULT_EFFECTS[eid].items()}
+        nominal = {**DEFAULT_EFFECTS[eid], **((sizes or {}).get(eid) or {})}
+        vals = {k: float(v) for k, v in given.items()} if given else {k: v * factor for k, v in nominal.items()}
         for k, v in vals.items():
             truth[EFFECT_FIELDS[eid][k]] = v
         resolved[eid] = {"channel": "f", "params": vals}
@@ -146,10 +149,17 @@ SPECIMEN_MATRIX: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
     ("specimen:friction+backlash", {"specimen_friction": {}, "load_train_backlash": {}}, {}),
     ("specimen:closure-cod", {"specimen_nonlinearity": {}}, {"column": "cod"}),
     ("specimen:presliding_friction", {"presliding_friction": {}}, {}),
+    # a dry friction damper with play (as the ARTS damper): friction about the size of the spring's
+    # force over the travel, the play a seventh of the travel (larger than the small sines' swing)
+    ("specimen:friction+backlash-large-gap", {"specimen_friction": {}, "load_train_backlash": {}},
+     {"sizes": {"specimen_friction": {"friction_n": 2000.0, "velocity_m_s": 1.5e-3}, "load_train_backlash": {"gap_m": 3.0e-4}}}),
+    ("specimen:presliding+backlash-large-gap", {"presliding_friction": {}, "load_train_backlash": {}},
+     {"sizes": {"presliding_friction": {"friction_n": 2000.0, "presliding_m": 3.0e-4}, "load_train_backlash": {"gap_m": 3.0e-4}}}),
 ]
 # seed set -> shift. A was used while building the family; B and C were run once afterwards, and
 # again after `presliding_friction` joined the vocabulary (the real friction damper lacked it);
-# D was drawn last and run once.
+# D was drawn last and run once. `friction+backlash-large-gap` joined later (the ARTS damper's
+# play with its dry friction: neither pays off alone) and was run on all four sets.
 SPECIMEN_SEED = {"A": 500, "B": 8500, "C": 16500, "D": 24500}
 
 
