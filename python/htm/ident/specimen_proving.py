@@ -18,7 +18,7 @@ import numpy as np
 from htm.core import SpecimenParams, specimen_force
 from htm.errors import HtmError, InputError
 from htm.ident.records import DISPLACEMENT_INPUT, FORMAT, Record
-from htm.ident.specimen import EFFECT_FIELDS, VELOCITY_WINDOW_S
+from htm.ident.specimen import EFFECT_FIELDS, REPORTED_AS, VELOCITY_WINDOW_S
 
 STIFFNESS_N_M = 4.0e6  # nominal (declared): a C(T) and its grips seen by a clip gauge, about
 ZERO_FORCE_M = 0.0  # the gauge zeroed at installation, unloaded (declared, trusted)
@@ -181,7 +181,7 @@ def judge(report: Mapping[str, Any], truth: Mapping[str, Any]) -> list[str]:
     carries; a finding's own `params` are its values when it was added, and the later refits
     with the other findings move them), and `unexplained` false."""
     found = sorted((f["effect"], f["channel"]) for f in report["findings"])
-    want = sorted((e, "f") for e in truth["effects"])
+    want = sorted((REPORTED_AS.get(e, e), "f") for e in truth["effects"])
     problems = []
     if found != want:
         problems.append(f"findings {found}, truth {want}")
@@ -190,7 +190,7 @@ def judge(report: Mapping[str, Any], truth: Mapping[str, Any]) -> list[str]:
     final = report["final"]["params"]
     for eid, t in truth["effects"].items():
         for name, true in t["params"].items():
-            est = final.get(EFFECT_FIELDS[eid][name]) if (eid, "f") in found else None
+            est = final.get(EFFECT_FIELDS[eid][name]) if (REPORTED_AS.get(eid, eid), "f") in found else None
             if est is None or abs(est - true) > 0.3 * abs(true):
                 problems.append(f"{eid}.{name}: estimated {est}, true {true:.4g}")
     return problems
