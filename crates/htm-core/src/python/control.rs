@@ -33,6 +33,7 @@ fn cycle_dict<'py>(py: Python<'py>, r: &CycleResult) -> PyResult<Bound<'py, PyDi
         ("peak_err_pct", r.peak_err_pct), ("df_err_pct", r.df_err_pct), ("a_m", r.a_m), ("delta_k_pa_sqrt_m", r.delta_k),
         ("delta_k_target_pa_sqrt_m", r.delta_k_target), ("kmax_pa_sqrt_m", r.kmax), ("dadn_m_per_cycle", r.dadn_m),
         ("k_sp_n_m", r.k_sp_n_m), ("ymin_m", r.ymin_m), ("ymax_m", r.ymax_m), ("ctrl_u1_v", r.ctrl_u1_v), ("ctrl_u2_v", r.ctrl_u2_v),
+        ("a_law_m", r.a_law_m), ("opening_force_n", r.opening_force_n), ("delta_k_eff_pa_sqrt_m", r.delta_k_eff),
     ] {
         d.set_item(k, v)?;
     }
@@ -74,8 +75,9 @@ impl PyCyclic {
     }
 
     /// One period: measured force [N] and position [m] in, valve command [V] out.
-    fn step(&mut self, force_n: f64, position_m: f64) -> PyResult<f64> {
-        self.inner.step(force_n, position_m).map_err(PyErr::from)
+    #[pyo3(signature = (force_n, position_m, measurement=f64::NAN))]
+    fn step(&mut self, force_n: f64, position_m: f64, measurement: f64) -> PyResult<f64> {
+        self.inner.step_measured(force_n, position_m, measurement).map_err(PyErr::from)
     }
 
     /// Start the force test `config` (as `run_test`'s) from the measured force `f0_n`.
@@ -131,6 +133,11 @@ impl PyCyclic {
     #[getter]
     fn a_m(&self) -> f64 {
         self.inner.a_m()
+    }
+    /// The growth law's crack beside the measured one [m] (NaN without a test).
+    #[getter]
+    fn a_law_m(&self) -> f64 {
+        self.inner.a_law_m()
     }
     #[getter]
     fn results(&self) -> u64 {
