@@ -243,10 +243,11 @@ impl CycleMachine {
     /// full-amplitude counted cycles are read (a ramp's or a hold's are not).
     #[inline]
     pub fn observe_measure(&mut self, f: f64, m: f64) {
+        let Some(r) = &mut self.reader else { return };
         if self.open && self.counting && self.full && !self.starting {
-            if let Some(r) = &mut self.reader {
-                r.sample(f, m, self.cycle);
-            }
+            r.sample(f, m, self.cycle);
+        } else if self.starting && self.cycle == 0 {
+            r.reference_sample(m); // the start's first cycle: the mean ramps in, the crack is a0
         }
     }
 
@@ -427,7 +428,7 @@ impl CycleMachine {
             cycle: self.cycle, phase: self.phase_i, fmax_n: fmax, fmin_n: fmin, fmax_target_n: tmax, fmin_target_n: tmin,
             peak_err_pct: pe * 100.0, df_err_pct: de * 100.0, a_m: self.a, delta_k: f64::NAN, delta_k_target: dkt, kmax: f64::NAN,
             dadn_m: 0.0, k_sp_n_m: ksp, ymin_m: ymin, ymax_m: ymax, ctrl_u1_v: u1, ctrl_u2_v: u2, events: 0, counted: self.counting,
-            judged: false, a_law_m: self.a_law, opening_force_n: self.reading.map_or(f64::NAN, |r| r.opening_force_n), delta_k_eff: f64::NAN,
+            judged: false, a_law_m: self.a_law, opening_force_n: self.reader.as_ref().map_or(f64::NAN, |r| r.opening_force_n()), delta_k_eff: f64::NAN,
         };
         if !self.counting {
             if matches!(self.stage, Stage::Stopping | Stage::Stopped) {
@@ -469,9 +470,10 @@ impl CycleMachine {
             } else {
                 reader.discard();
             }
-            if let Some(rd) = self.reading {
-                r.opening_force_n = rd.opening_force_n;
-                r.delta_k_eff = crate::crack_measure::delta_k(spec, self.a, fmin, fmax, rd.opening_force_n).1;
+            if self.reading.is_some() {
+                let f_op = reader.opening_force_n();
+                r.opening_force_n = f_op;
+                r.delta_k_eff = if f_op.is_finite() { crate::crack_measure::delta_k(spec, self.a, fmin, fmax, f_op).1 } else { dk };
             }
         }
         if self.ramping_in && !r.judged {

@@ -152,6 +152,8 @@ pub struct CrackReader {
     pub failed: u64,
     pub last_error: Option<String>,
     a0: f64,
+    /// potential drop: the sum and count of the reference samples (before the crack grows)
+    reference: (f64, u64),
 }
 
 impl CrackReader {
@@ -159,7 +161,7 @@ impl CrackReader {
         let method = meas.method(spec, material, a0_m)?;
         Some(CrackReader {
             method, every: meas.cycles_per_reading, fitted: meas.readings_fitted, f: Vec::new(), m: Vec::new(), cyc: Vec::new(), cycles_in: 0,
-            readings: Vec::new(), failed: 0, last_error: None, a0: a0_m,
+            readings: Vec::new(), failed: 0, last_error: None, a0: a0_m, reference: (0.0, 0),
         })
     }
 
@@ -170,6 +172,16 @@ impl CrackReader {
             self.f.push(f);
             self.m.push(m);
             self.cyc.push(cycle as f64);
+        }
+    }
+
+    /// A sample taken before the crack grows (the start's mean ramp): a potential-drop reading's
+    /// reference potential V_r at the initial crack is their mean.
+    #[inline]
+    pub fn reference_sample(&mut self, m: f64) {
+        if m.is_finite() && matches!(self.method, Method::Johnson { .. } | Method::Calibration { .. }) {
+            self.reference.0 += m;
+            self.reference.1 += 1;
         }
     }
 
@@ -211,9 +223,10 @@ impl CrackReader {
         if self.f.len() < 10 {
             return Err(Error::Input(format!("cycle {cycle}: too few measurement samples in the interval")));
         }
-        if let Method::Johnson { v_ref, .. } = &mut self.method {
+        if let Method::Johnson { v_ref, .. } | Method::Calibration { v_ref, .. } = &mut self.method {
             if !v_ref.is_finite() {
-                *v_ref = self.m.iter().sum::<f64>() / self.m.len() as f64;
+                // the reference at the initial crack: the samples before growth, else this interval's
+                *v_ref = if self.reference.1 > 0 { self.reference.0 / self.reference.1 as f64 } else { self.m.iter().sum::<f64>() / self.m.len() as f64 };
             }
         }
         let iv = if matches!(self.method, Method::Johnson { .. } | Method::Calibration { .. }) {
@@ -232,7 +245,8 @@ impl CrackReader {
         let r = &self.readings[self.readings.len().saturating_sub(self.fitted)..];
         match r.len() {
             0 => self.a0,
-            1 | 2 => r[r.len() - 1].a_m,
+            1 => r[0].a_m,
+            2 => r[1].a_m + (r[1].a_m - r[0].a_m) / (r[1].cycle - r[0].cycle) * (cycle as f64 - r[1].cycle),
             _ => {
                 let x: Vec<f64> = r.iter().map(|r| r.cycle).collect();
                 let y: Vec<f64> = r.iter().map(|r| r.a_m).collect();
@@ -246,6 +260,14 @@ impl CrackReader {
 
     pub fn last(&self) -> Option<Reading> {
         self.readings.last().copied()
+    }
+
+    /// The opening force [N]: the mean over the readings the crack is fitted through (E647 X2
+    /// allows averaging; one interval's is noisy); NaN without one.
+    pub fn opening_force_n(&self) -> f64 {
+        let r = &self.readings[self.readings.len().saturating_sub(self.fitted)..];
+        let v: Vec<f64> = r.iter().map(|r| r.opening_force_n).filter(|f| f.is_finite()).collect();
+        if v.is_empty() { f64::NAN } else { v.iter().sum::<f64>() / v.len() as f64 }
     }
 
     /// A cycle jump moved the crack to `a` (simulation): the readings start again from it.

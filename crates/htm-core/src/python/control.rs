@@ -341,6 +341,29 @@ impl PyRigPlant {
     fn a_m(&self) -> f64 {
         self.inner.specimen.as_ref().map(|s| s.a_m).unwrap_or(f64::NAN)
     }
+    /// Put a crack gauge on the specimen: `crack` "compliance" (a clip gauge's opening [m]) or
+    /// "potential_drop" (the potential [V], 1 V at the initial crack), with its chain's noise,
+    /// resolution, drift and the specimen's closure (opening force / Fmax); returns its index.
+    #[pyo3(signature = (crack, noise=0.0, resolution=0.0, drift_per_cycle=0.0, closure_opening_fraction=0.0, gauge_x_over_w=-0.25, gauge_y_m=f64::NAN, seed=1))]
+    #[allow(clippy::too_many_arguments)]
+    fn add_gauge(&mut self, crack: &str, noise: f64, resolution: f64, drift_per_cycle: f64, closure_opening_fraction: f64, gauge_x_over_w: f64, gauge_y_m: f64, seed: u64) -> PyResult<usize> {
+        let m = crate::engine::Measurement {
+            crack: crate::engine::CrackSource::parse(crack)?, noise, resolution, drift_per_cycle, closure_opening_fraction, gauge_x_over_w, gauge_y_m, seed,
+            ..crate::engine::Measurement::model()
+        };
+        Ok(self.inner.add_gauge(&m)?)
+    }
+    /// The gauges' readings after the last step (NaN before the first and once broken).
+    #[getter]
+    fn gauge_readings(&self) -> Vec<f64> {
+        self.inner.gauge_readings.clone()
+    }
+    /// A gauge slip: a sudden offset of gauge `i`'s opening [m].
+    fn slip_gauge(&mut self, i: usize, offset_m: f64) -> PyResult<()> {
+        let g = self.inner.gauges.get_mut(i).ok_or_else(|| InputError::new_err(format!("no gauge {i}")))?;
+        g.offset += offset_m;
+        Ok(())
+    }
     #[getter]
     fn cycles(&self) -> u64 {
         self.inner.specimen.as_ref().map(|s| s.cycles).unwrap_or(0)

@@ -265,8 +265,7 @@ struct SpecIn<'py> {
 #[derive(FromPyObject)]
 #[pyo3(from_item_all)]
 struct MeasurementIn {
-    #[pyo3(default)]
-    crack: Option<String>,
+    crack: String,
     #[pyo3(default)]
     gauge_x_over_w: Option<f64>,
     #[pyo3(default)]
@@ -288,7 +287,7 @@ struct MeasurementIn {
 }
 
 fn measurement_of(m: &MeasurementIn) -> PyResult<engine::Measurement> {
-    let crack = engine::CrackSource::parse(m.crack.as_deref().unwrap_or("model"))?;
+    let crack = engine::CrackSource::parse(&m.crack)?;
     let d = engine::Measurement::model();
     // the simulated chain's defaults: a clip gauge of 0.1 µm noise and 0.05 µm steps; a
     // potential of 0.01 % noise and 0.001 % steps
