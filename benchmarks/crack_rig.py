@@ -8,9 +8,11 @@ does not know it). Both laws are scaled by `--accel` (the same factor) so that t
 shedding take a few thousand cycles instead of some 10⁶: the control problem (ΔK held on a
 crack the controller only measures) is the same, the wall time is seconds.
 
-Per period: ``u = CyclicController.step(f, y, m)`` with ``m`` the rig's gauge reading and the
-plant stepped once (core.RigPlant, its own specimen and gauge chain: noise, resolution, closure
-at 30 % of Fmax for the clip gauge). Reported: ΔK on the true crack against its target at the
+Through `htm.Session` (lock-step, in-process virtual rig): the rig's TOML wires a clip gauge
+(ai4), a potential drop (ai5) and its current monitor (ai6); `[virtual.specimen] c_factor = 1.4`
+makes its own specimen's law; `[virtual.gauges]` the gauges' noise and the closure at 30 % of
+Fmax. Each period the loop reads the gauge through the DAQ and calls
+``CyclicController.step(f, y, m)``. Reported: ΔK on the true crack against its target at the
 true crack after the first 0.5 mm, |measured − true| over a/W 0.25–0.7 against
 max(0.1 mm, 0.002 W), and the opening force against the closure put on the specimen.
 
@@ -58,60 +60,65 @@ def spec_doc(geometry: str, accel: float, r: float, crack: str, dk0: float = 14e
     return doc
 
 
-def run(geometry: str, accel: float, r: float, crack: str, seed: int, closure: float) -> dict:
+def run(geometry: str, accel: float, r: float, crack: str, seed: int, closure: float, max_cycles: int = 200_000) -> dict:
+    """One K-decreasing test through `htm.Session` on an in-process virtual rig (lock-step)."""
+    from htm.control.session import Session, specimen_of
+    from htm.devices.config import virtual_config
+
     doc = spec_doc(geometry, accel, r, crack)
     spec = parse(doc, "crack_rig", check=False)
-    cfg = spec.config
-    law = dict(spec.law)
-    law["c"] = law["c"] * TRUE_C_FACTOR  # the rig's specimen: a law the spec does not know
-    specimen = {"geometry": spec.geometry, "width_m": spec.width_m, "thickness_m": spec.thickness_m, "a0_m": spec.a0_m, **spec.material, "law": law}
-    plant = core.RigPlant(cfg.params, specimen)
-    gauge = None
-    if crack == "compliance":
-        gauge = plant.add_gauge("compliance", noise=0.2e-6, resolution=0.05e-6, closure_opening_fraction=closure, seed=seed,
-                                gauge_y_m=doc["measurement"].get("gauge_y_m", math.nan))
-    elif crack == "potential_drop":
-        gauge = plant.add_gauge("potential_drop", noise=1e-4, resolution=1e-5, gauge_y_m=doc["measurement"]["gauge_y_m"], seed=seed)
-    rate = 500.0
-    dt = 1.0 / rate
-    ctrl = core.CyclicController(rate)
-    o = plant.outputs()
-    ctrl.start_test(cfg, o[5])
+    gy = doc["measurement"].get("gauge_y_m", 0.004)
+    rig = virtual_config(
+        "lockstep", analog={"channels": {"cod": "ai4", "dcpd": "ai5", "dcpd_current": "ai6"}},
+        virtual={"specimen": {"c_factor": TRUE_C_FACTOR, "seed": seed},
+                 "gauges": {"cod": {"noise_m": 0.2e-6, "closure_opening_fraction": closure},
+                            "dcpd": {"noise": 1e-4, "probe_y_m": gy}}})
+    if geometry == "mt":  # the M(T)'s clip gauge spans ±Y on the centre line
+        rig.virtual_gauges["cod"]["gauge_y_m"] = gy
+    ses = Session().open(rig, virtual=True, specimen=specimen_of(spec), thread=False)
     ph = doc["loading"]
     dk0, c_per_m, a0, w = ph["delta_k_pa_sqrt_m"], ph["k_gradient_per_m"], spec.a0_m, spec.width_m
-    rows = []
-    seen = 0
+    n = round(ph["control_rate_hz"] / ph["frequency_hz"])
+    truth: dict[int, float] = {}
     t0 = time.perf_counter()
-    m = math.nan
-    limit = 400_000 * 50
-    for _ in range(limit):
-        u = ctrl.step(o[5], o[0], m)
-        o = plant.step(u, dt)
-        if gauge is not None:
-            m = plant.gauge_readings[gauge]
-        if ctrl.results != seen:
-            seen = ctrl.results
-            c = ctrl.last_cycle()
-            rows.append((c["cycle"], plant.a_m, c["a_m"], c["a_law_m"], c["fmax_n"], c["fmin_n"], c["opening_force_n"], c["judged"]))
-        if ctrl.state in ("stopped", "idle") or plant.fractured:
-            break
+    try:
+        ses.step(5)
+        ses.start(spec, record=False)
+        ses.step(1)  # the new controller is swapped in by the loop
+        ctrl = ses.loop.ctrl
+        while ctrl.state not in ("stopped", "idle", "holding") and ctrl.cycle < max_cycles and not ses.rig.plant.fractured:
+            ses.step(n)
+            truth[ctrl.cycle] = ses.rig.plant.a_m
+        rows = [c for c in ses.cycles_since(0)]
+        events = ses.events_since(0)
+        end = ctrl.end_reason or ("fracture" if ses.rig.plant.fractured else ctrl.state)
+    finally:
+        ses.close()
     wall = time.perf_counter() - t0
-    arr = np.array(rows, dtype=float)
-    cyc, a_true, a_meas, a_law, fmax, fmin, f_op, judged = arr.T
-    df = fmax - np.maximum(fmin, 0.0)
+    rows = [c for c in rows if c["cycle"] in truth]
+    cyc = np.array([c["cycle"] for c in rows], dtype=float)
+    a_true = np.array([truth[c["cycle"]] for c in rows])
+    a_meas = np.array([c["a_m"] for c in rows])
+    fmax = np.array([c["fmax_n"] for c in rows])
+    fmin = np.array([c["fmin_n"] for c in rows])
+    f_op = np.array([c["opening_force_n"] for c in rows])
+    judged = np.array([c["judged"] for c in rows])
+    df = fmax - np.maximum(fmin, 0.0) if r >= 0 else fmax
     dk_true = np.array([core.stress_intensity(spec.geometry, w, spec.thickness_m, np.array([a]), d)[0] for a, d in zip(a_true, df)])
     target = dk0 * np.exp(c_per_m * (a_true - a0))
     err = dk_true / target - 1.0
-    sel = (a_true - a0 >= 0.5e-3) & (judged > 0)
+    sel = (a_true - a0 >= 0.5e-3) & judged
     scale = 1.0 if geometry == "ct" else 2.0
     aw = scale * a_true / w
     # C(T): E647's a/W 0.25–0.7; an M(T) K-decreasing test stays below 2a/W 0.25, judged over all of it
     inside = (aw >= 0.25) & (aw <= 0.7) if geometry == "ct" else np.ones_like(aw, dtype=bool)
-    win = inside & (judged > 0) & (cyc > cyc[np.argmax(judged > 0)] + 10)
+    # from the first full line of readings on (cycles_per_reading × readings_fitted after the first
+    # judged cycle: before it the line is one or two readings, lagging an accelerated crack)
+    win = inside & judged & (cyc > cyc[np.argmax(judged)] + 25)
     res = max(1e-4, 0.002 * w)
     out = {
         "crack": crack, "geometry": geometry, "r_ratio": r, "seed": seed, "accel": accel, "true_c_factor": TRUE_C_FACTOR,
-        "cycles": int(cyc[-1]), "end": ctrl.end_reason, "wall_s": round(wall, 2),
+        "cycles": int(cyc[-1]), "end": end, "wall_s": round(wall, 2), "trips": [e["detector"] for e in events if e["kind"] == "trip"],
         "a_true_end_mm": round(float(a_true[-1]) * 1e3, 3), "a_test_end_mm": round(float(a_meas[-1]) * 1e3, 3),
         "dk_true_err_max_pct": round(float(np.max(np.abs(err[sel]))) * 100, 3) if sel.any() else None,
         "dk_true_err_end_pct": round(float(err[-1]) * 100, 3),

@@ -378,6 +378,13 @@ class Session:
             # the working pressure, once the start-up is through (the supply limit would trip)
             self._started_up()
         self._load_supply()
+        crack = spec.measurement.get("crack", "model")
+        if crack == "model" and self.cfg.analog.backend != "simulated":
+            raise HtmError(f"test {spec.name}: [measurement] crack = \"model\" grows the crack by the law, which a real specimen "
+                           "does not follow: name the rig's measurement (crack = \"compliance\" or \"potential_drop\")")
+        channel = {"compliance": "cod", "potential_drop": "dcpd"}.get(crack)
+        if channel is not None and channel not in self.cfg.crack_channels:
+            raise HtmError(f"test {spec.name}: [measurement] crack = \"{crack}\" needs analog.channels.{channel} in the rig configuration")
         cfg = spec.config.with_params(with_overrides(core.Params(self.cfg.rig_preset), self.cfg.rig_overrides))
         lp = self.loop
         ctrl = core.CyclicController(lp.rate_hz, lp.position_settings)
@@ -387,6 +394,7 @@ class Session:
         def f() -> int:
             self._motion_allowed()
             lp.ctrl = ctrl
+            lp.crack_channel = channel
             lp.test_no += 1  # this test's rows carry its number (cycles restart at 1)
             lp.energise()
             return lp.test_no

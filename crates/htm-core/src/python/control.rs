@@ -358,6 +358,10 @@ impl PyRigPlant {
     fn gauge_readings(&self) -> Vec<f64> {
         self.inner.gauge_readings.clone()
     }
+    /// Gauge `i`'s offset from slips [m].
+    fn gauge_offset(&self, i: usize) -> PyResult<f64> {
+        self.inner.gauges.get(i).map(|g| g.offset).ok_or_else(|| InputError::new_err(format!("no gauge {i}")))
+    }
     /// A gauge slip: a sudden offset of gauge `i`'s opening [m].
     fn slip_gauge(&mut self, i: usize, offset_m: f64) -> PyResult<()> {
         let g = self.inner.gauges.get_mut(i).ok_or_else(|| InputError::new_err(format!("no gauge {i}")))?;
