@@ -240,22 +240,25 @@ class ControlLoop:
         val[CH["gauge_v"]] = volts
         s = self._slip
         jump = 0.0
+        lo, hi = self._limit("gauge_range")
+        if not lo < volts < hi:
+            cod = math.nan  # out of its range: no opening to judge a slip by (gauge_range's business)
         if st in FRACTURE_STATES and math.isfinite(cod) and math.isfinite(f) and math.isfinite(s[2]):
             dv, df = cod - s[2], f - s[3]
             comp = s[0] / s[1] if s[1] > 0.0 else 0.0
             jump = abs(dv - comp * df)
-            if jump < self._slip_hi():  # a slip does not teach the compliance
+            if jump < self._limit("gauge_slip")[1]:  # a slip does not teach the compliance
                 s[0], s[1] = 0.995 * s[0] + dv * df, 0.995 * s[1] + df * df
         elif st not in FRACTURE_STATES:
             s[0] = s[1] = 0.0
         s[2], s[3] = cod, f
         val[CH["gauge_jump_m"]] = jump
 
-    def _slip_hi(self) -> float:
+    def _limit(self, name: str) -> tuple[float, float]:
         for lim in self.cfg.limits:
-            if lim.name == "gauge_slip":
-                return lim.hi
-        return math.inf
+            if lim.name == name:
+                return lim.lo, lim.hi
+        return -math.inf, math.inf
 
     def _plausibility(self, y: float, v: float) -> float:
         """|position change − integrated speed| [m] over the fresh samples of the last

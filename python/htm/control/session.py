@@ -477,6 +477,11 @@ class Session:
             "period": lp.k, "t_s": lp.k * lp.dt, "test": lp.test_no, "state": c.state, "mode": self.cfg.loop.mode, "rate_hz": lp.rate_hz,
             "amplifier": lp.powered, "interlock": lp.safety.latched(), "estop": lp.safety.estop,
             "cycles": c.cycle, "frequency_hz": info["frequency_hz"], "a_m": c.a_m, "end_reason": c.end_reason,
+            # the crack the test runs on (`crack`: compliance, potential_drop or model) beside the law's,
+            # and the last reading's opening force and ΔK_eff (NaN without a compliance reading)
+            "crack": {"cod": "compliance", "dcpd": "potential_drop"}.get(lp.crack_channel or "", "model"), "a_law_m": c.a_law_m,
+            "opening_force_n": last["opening_force_n"] if last else math.nan,
+            "delta_k_eff_pa_sqrt_m": last["delta_k_eff_pa_sqrt_m"] if last else math.nan,
             "delta_k_pa_sqrt_m": last["delta_k_pa_sqrt_m"] if last else math.nan,
             "k_sp_n_m": last["k_sp_n_m"] if last else math.nan,
             "peak_err_pct": last["peak_err_pct"] if last else math.nan, "df_err_pct": last["df_err_pct"] if last else math.nan,
