@@ -163,7 +163,9 @@ impl Sim {
             }
             self.set_stiffness(cfg, false)?;
             let ready = self.since_jump >= cfg.jump.settle_cycles && (settled || self.since_jump >= 10 * cfg.jump.settle_cycles);
-            if mode == ExecMode::Jump && ev & events::START == 0 && ready && r.fmax_n > 0.0 {
+            // a measured crack: a reading since the last jump first (the table keeps the chain's data)
+            let read = self.cm.reader.as_ref().is_none_or(|rd| !rd.readings.is_empty());
+            if mode == ExecMode::Jump && ev & events::START == 0 && ready && read && r.fmax_n > 0.0 {
                 self.jump(cfg, &r, ev, steps.get(self.next_step).map(|s| s.0))?;
             }
         }
