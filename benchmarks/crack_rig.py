@@ -16,7 +16,9 @@ Fmax. Each period the loop reads the gauge through the DAQ and calls
 true crack after the first 0.5 mm, |measured − true| over a/W 0.25–0.7 against
 max(0.1 mm, 0.002 W), and the opening force against the closure put on the specimen.
 
-    .venv/bin/python benchmarks/crack_rig.py [--accel 300] [--geometry ct|mt] [--r 0.1] [--seed 1]
+    .venv/bin/python benchmarks/crack_rig.py [--accel 300] [--geometry ct|mt] [--r 0.1] [--seed 1] [--dk 14 7]
+    .venv/bin/python benchmarks/crack_rig.py --geometry mt --accel 30000 --r 0.3 --seed 7 --dk 6 3   # the M(T) of
+        examples/virkler_mt.toml (its 25 kN load cell allows ΔK 6 → 3 MPa·√m at R = 0.3)
 """
 from __future__ import annotations
 
@@ -60,12 +62,13 @@ def spec_doc(geometry: str, accel: float, r: float, crack: str, dk0: float = 14e
     return doc
 
 
-def run(geometry: str, accel: float, r: float, crack: str, seed: int, closure: float, max_cycles: int = 200_000) -> dict:
+def run(geometry: str, accel: float, r: float, crack: str, seed: int, closure: float, max_cycles: int = 200_000,
+        dk0: float = 14e6, dk1: float = 7e6) -> dict:
     """One K-decreasing test through `htm.Session` on an in-process virtual rig (lock-step)."""
     from htm.control.session import Session, specimen_of
     from htm.devices.config import virtual_config
 
-    doc = spec_doc(geometry, accel, r, crack)
+    doc = spec_doc(geometry, accel, r, crack, dk0, dk1)
     spec = parse(doc, "crack_rig", check=False)
     gy = doc["measurement"].get("gauge_y_m", 0.004)
     rig = virtual_config(
@@ -138,8 +141,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--r", type=float, default=0.1)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--closure", type=float, default=0.3)
+    ap.add_argument("--dk", type=float, nargs=2, default=(14.0, 7.0), metavar=("FROM", "TO"), help="ΔK from, to [MPa·√m]")
     a = ap.parse_args(argv)
-    results = [run(a.geometry, a.accel, a.r, crack, a.seed, a.closure) for crack in ("compliance", "potential_drop", "model")]
+    results = [run(a.geometry, a.accel, a.r, crack, a.seed, a.closure, dk0=a.dk[0] * 1e6, dk1=a.dk[1] * 1e6)
+               for crack in ("compliance", "potential_drop", "model")]
     json.dump({"benchmark": "crack_rig", "runs": results}, sys.stdout, indent=1)
     print()
     return 0
