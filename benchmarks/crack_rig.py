@@ -4,7 +4,7 @@ crack. Prints JSON.
 
 The C(T) of examples/ct_constant_force.toml runs ΔK 14 → 7 MPa·√m at C = −0.08 mm⁻¹ (E647's
 steepest shedding), R = 0.1. The rig's specimen grows by the spec's law with C × 1.4 (the spec
-does not know it). Both laws are scaled by `--accel` (the same factor) so that the 8.7 mm of
+does not know it; ln C is further scattered by 0.1 per specimen, drawn from --seed). Both laws are scaled by `--accel` (the same factor) so that the 8.7 mm of
 shedding take a few thousand cycles instead of some 10⁶: the control problem (ΔK held on a
 crack the controller only measures) is the same, the wall time is seconds.
 
@@ -37,6 +37,7 @@ from htm.spec import parse
 
 ROOT = Path(__file__).resolve().parents[1]
 TRUE_C_FACTOR = 1.4
+C_SCATTER = 0.1  # σ of ln C per specimen on top of the factor (drawn from --seed)
 
 
 def spec_doc(geometry: str, accel: float, r: float, crack: str, dk0: float = 14e6, dk1: float = 7e6, c_per_m: float = -80.0) -> dict:
@@ -73,7 +74,7 @@ def run(geometry: str, accel: float, r: float, crack: str, seed: int, closure: f
     gy = doc["measurement"].get("gauge_y_m", 0.004)
     rig = virtual_config(
         "lockstep", analog={"channels": {"cod": "ai4", "dcpd": "ai5", "dcpd_current": "ai6"}},
-        virtual={"specimen": {"c_factor": TRUE_C_FACTOR, "seed": seed},
+        virtual={"specimen": {"c_factor": TRUE_C_FACTOR, "c_scatter": C_SCATTER, "seed": seed},
                  "gauges": {"cod": {"noise_m": 0.2e-6, "closure_opening_fraction": closure},
                             "dcpd": {"noise": 1e-4, "probe_y_m": gy}}})
     if geometry == "mt":  # the M(T)'s clip gauge spans ±Y on the centre line

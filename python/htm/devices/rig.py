@@ -87,16 +87,17 @@ class VirtualRig:
         self._gauges: dict[str, tuple[int, int]] = {}  # name -> (plant gauge index, ai channel)
         self._cal = cfg.analog.calibration
         g = cfg.virtual_gauges
+        seed = int(cfg.virtual_specimen.get("seed", 1))  # the gauges' noise draws follow the specimen's seed
         if specimen is not None and "cod" in ch:
             c = g.get("cod", {})
             self._gauges["cod"] = (self.plant.add_gauge(
                 "compliance", noise=c.get("noise_m", 0.2e-6), resolution=c.get("resolution_m", 0.0),
                 drift_per_cycle=c.get("drift_m_per_cycle", 0.0), closure_opening_fraction=c.get("closure_opening_fraction", 0.0),
-                gauge_x_over_w=c.get("gauge_x_over_w", -0.25), gauge_y_m=c.get("gauge_y_m", math.nan), seed=7), _idx(ch["cod"]))
+                gauge_x_over_w=c.get("gauge_x_over_w", -0.25), gauge_y_m=c.get("gauge_y_m", math.nan), seed=2 * seed + 1), _idx(ch["cod"]))
         if specimen is not None and "dcpd" in ch:
             d = g.get("dcpd", {})
             self._gauges["dcpd"] = (self.plant.add_gauge("potential_drop", noise=d.get("noise", 1e-4), resolution=d.get("resolution", 0.0),
-                                                         gauge_y_m=d.get("probe_y_m", 0.004), seed=11), _idx(ch["dcpd"]))
+                                                         gauge_y_m=d.get("probe_y_m", 0.004), seed=2 * seed + 2), _idx(ch["dcpd"]))
         self._current = (_idx(ch["dcpd_current"]), g.get("dcpd", {}).get("current_a", 10.0)) if "dcpd_current" in ch else None
         self._valve, self._supply, self._relay = _idx(ch["valve"]), _idx(ch["supply_setpoint"]), _idx(ch["amplifier_enable"])
         self.daq = SimulatedDaq(cfg.analog.device, create=True)
