@@ -55,6 +55,9 @@ def test_console_in_tmux_runs_two_tests_by_keys_and_records_both(tmp_path):
         t.wait_for("state idle")
         t.keys("s")
         t.wait_for("state running")
+        # the crack the test runs on beside the law's, the opening force and ΔK_eff (issue 29)
+        screen = t.wait_for("crack model")
+        assert "a law" in screen and "F_op" in screen and "ΔK_eff" in screen, screen
         t.keys("h")
         t.wait_for("state holding")
         t.keys("r")

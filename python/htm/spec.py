@@ -99,6 +99,9 @@ class TestSpec:
     # the identified model the test runs on instead of the nominal rig (`htm run --model`):
     # `htm.ident.plant.describe` of its model.json, None for the spec's own rig
     twin: dict[str, Any] | None = None
+    # [measurement]: where the test's crack size comes from (crack = "compliance",
+    # "potential_drop" or "model") and the gauge; keys left out are the core's defaults
+    measurement: dict[str, Any] = field(default_factory=lambda: {"crack": "model"})
     # the core's configuration of this test, built once by `parse` (validated)
     config: core.TestConfig = field(init=False, repr=False, compare=False)
     _feasibility: Feasibility | None = field(default=None, init=False, repr=False, compare=False)
@@ -273,7 +276,7 @@ def parse(doc: dict, name: str = "test", base: Path | None = None, *, check: boo
     With `check` (the default) a test the rig cannot run raises InfeasibleTest naming the limit
     and the largest feasible value, unless the spec sets ``[run] override_limits = true``."""
     _keys(doc, {"specimen", "material", "law", "loading", "precrack", "controller", "end", "start", "rig", "run", "stiffness_steps",
-                "variable_amplitude"}, "spec")
+                "variable_amplitude", "measurement"}, "spec")
     sp = _table(doc, "specimen", "specimen")
     _keys(sp, {"geometry", "width_m", "thickness_m", "a0_m"}, "specimen")
     geometry = _choice(sp, "geometry", "specimen", ("ct", "mt"))
@@ -361,6 +364,7 @@ def parse(doc: dict, name: str = "test", base: Path | None = None, *, check: boo
                             "reference level of the report)")
         if run.get("mode", "full") != "full":
             raise SpecError("variable_amplitude: run.mode must be \"full\" (a cycle jump assumes constant amplitude)")
+    measurement = _measurement(_table(doc, "measurement", "measurement", required=False))
     steps = doc.get("stiffness_steps", [])
     if not (isinstance(steps, list) and all(isinstance(s, list) and len(s) == 2 for s in steps)):
         raise SpecError("stiffness_steps must be a list of [cycle, factor] pairs")
@@ -371,6 +375,7 @@ def parse(doc: dict, name: str = "test", base: Path | None = None, *, check: boo
         rig_preset=preset, rtol=_num(run, "rtol", "run", default=DEFAULTS["rtol"]),
         mode=_choice(run, "mode", "run", ("full", "jump"), "full" if va else "jump"),
         stiffness_steps=[(int(c), float(f)) for c, f in steps], blocks=blocks, spectrum=spectrum, override_limits=override,
+        measurement=measurement,
     )
     # the one configuration of the test: the core reads the spec, takes its defaults and checks
     # every value (naming the spec's field), once
@@ -380,6 +385,28 @@ def parse(doc: dict, name: str = "test", base: Path | None = None, *, check: boo
         if not feas.feasible:
             raise InfeasibleTest(feas.refusal())
     return spec
+
+
+MEASUREMENT_KEYS = {"crack", "gauge", "gauge_x_over_w", "gauge_y_m", "cycles_per_reading", "readings_fitted", "noise", "resolution",
+                    "drift_per_cycle", "closure_opening_fraction", "seed"}
+
+
+def _measurement(m: dict) -> dict[str, Any]:
+    """`[measurement]`: the crack source and the gauge as given (the core checks the values and
+    fills the defaults). `gauge` names a C(T) gauge location (crack_mouth, front_face_knife_edges,
+    knife_edges_0.1576, load_line) in place of `gauge_x_over_w`."""
+    _keys(m, MEASUREMENT_KEYS, "measurement")
+    out: dict[str, Any] = {"crack": _choice(m, "crack", "measurement", ("compliance", "potential_drop", "model"), "model")}
+    if "gauge" in m:
+        names = {"crack_mouth": -0.25, "front_face": -0.25, "front_face_knife_edges": -0.345, "knife_edges_0.1576": -0.1576, "load_line": 0.0}
+        out["gauge_x_over_w"] = names[_choice(m, "gauge", "measurement", tuple(names))]
+    for k in ("gauge_x_over_w", "gauge_y_m", "noise", "resolution", "drift_per_cycle", "closure_opening_fraction"):
+        if k in m:
+            out[k] = _num(m, k, "measurement")
+    for k, lo, hi in (("cycles_per_reading", 1, 1000), ("readings_fitted", 1, 50), ("seed", 0, 2**63)):
+        if k in m:
+            out[k] = _int(m, k, "measurement", lo, 1, hi)
+    return out
 
 
 def _config(spec: TestSpec) -> core.TestConfig:

@@ -28,6 +28,7 @@ fn main() {
         jump: JumpConfig::default(),
         sequence: vec![],
         sequence_from_spectrum: false,
+        measurement: htm_core::engine::Measurement::model(),
     };
     let mut p = cfg.params.clone();
     p.specimen_stiffness_n_m = cfg.specimen.stiffness(cfg.a0_m, &cfg.material).unwrap();

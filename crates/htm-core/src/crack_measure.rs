@@ -182,7 +182,7 @@ pub fn ls_line(x: &[f64], y: &[f64]) -> Option<(f64, f64, f64)> {
 }
 
 /// How the crack size follows from the measurement.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(serde::Serialize, serde::Deserialize, Debug, Clone, PartialEq)]
 pub enum Method {
     /// C(T) compliance at gauge location X/W, with the modulus the expression uses [Pa].
     ComplianceCt { x_over_w: f64, modulus_pa: f64 },

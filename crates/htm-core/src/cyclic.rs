@@ -459,20 +459,26 @@ impl Cyclic {
 
     /// One control period: measured force `f` [N] and position `y` [m] in, valve command [V] out.
     pub fn step(&mut self, f: f64, y: f64) -> Result<f64> {
+        self.step_measured(f, y, f64::NAN)
+    }
+
+    /// `step` with the crack measurement's channel `m` (clip-gauge opening [m] or potential drop
+    /// [V], NaN when absent): a force test with a `[measurement]` reads its crack from it.
+    pub fn step_measured(&mut self, f: f64, y: f64, m: f64) -> Result<f64> {
         let u = match self.state {
             State::Idle => 0.0,
             State::Stopped => self.u_null,
             State::Position => self.pos.step(f, y, self.dt),
-            _ => self.test_step(f, y)?,
+            _ => self.test_step(f, y, m)?,
         };
         let u = if u.is_finite() { u.clamp(-self.command_limit_v, self.command_limit_v) } else { 0.0 };
         self.u_last = u;
         Ok(u)
     }
 
-    fn test_step(&mut self, f: f64, y: f64) -> Result<f64> {
+    fn test_step(&mut self, f: f64, y: f64, m: f64) -> Result<f64> {
         let t = self.test.as_mut().expect("a force state has a test");
-        let (u, closed) = t.cm.step(&t.cfg, f, y)?;
+        let (u, closed) = t.cm.step_measured(&t.cfg, f, y, m)?;
         if let Some(r) = closed.filter(|r| r.counted) {
             self.last = Some(r);
             self.results += 1;
@@ -502,6 +508,10 @@ impl Cyclic {
     }
     pub fn a_m(&self) -> f64 {
         self.test.as_ref().map(|t| t.cm.a).unwrap_or(f64::NAN)
+    }
+    /// The growth law's crack beside the measured one [m].
+    pub fn a_law_m(&self) -> f64 {
+        self.test.as_ref().map(|t| t.cm.a_law).unwrap_or(f64::NAN)
     }
     /// Test targets (Fmax, Fmin, ΔK) of the current cycle.
     pub fn targets(&self) -> Option<(f64, f64, f64)> {

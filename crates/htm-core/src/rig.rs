@@ -109,6 +109,12 @@ pub struct RigPlant {
     sensors: Option<Sensors>,
     /// their history: the probe, the period it samples and how many samples it keeps
     probe: Option<(Probe, f64, usize)>,
+    /// the crack gauges on the specimen (clip gauge, potential drop): what they read of its
+    /// true crack (`engine::measured::GaugeChain`, the simulator's one copy), and the last readings
+    pub gauges: Vec<crate::engine::GaugeChain>,
+    pub gauge_readings: Vec<f64>,
+    /// the last confirmed peak force the specimen saw [N] (closure scales with it)
+    last_peak_n: f64,
 }
 
 impl RigPlant {
@@ -129,7 +135,18 @@ impl RigPlant {
         let ps = p.supply_pressure_pa;
         let sensors = Sensors::from_params(&p);
         let sensors = sensors.0.iter().any(|s| *s != Sensor::IDEAL).then_some(sensors);
-        Ok(RigPlant { machine: Machine::new(p)?, specimen, supply_setpoint_pa: ps, supply_tau_s: 0.05, sensors, probe: None })
+        Ok(RigPlant { machine: Machine::new(p)?, specimen, supply_setpoint_pa: ps, supply_tau_s: 0.05, sensors, probe: None, gauges: Vec::new(), gauge_readings: Vec::new(), last_peak_n: f64::NAN })
+    }
+
+    /// Put a crack gauge on the specimen (its chain: kind, noise, resolution, drift, closure);
+    /// returns its index in `gauge_readings`.
+    pub fn add_gauge(&mut self, m: &crate::engine::Measurement) -> Result<usize> {
+        let s = self.specimen.as_ref().ok_or_else(|| Error::Input("a crack gauge needs a specimen in the rig".into()))?;
+        m.validate(&s.specimen)?;
+        let g = crate::engine::GaugeChain::new(m, &s.specimen, &s.material, s.a_m).ok_or_else(|| Error::Input("measurement.crack = \"model\" is no gauge".into()))?;
+        self.gauges.push(g);
+        self.gauge_readings.push(f64::NAN);
+        Ok(self.gauges.len() - 1)
     }
 
     /// Hold valve command `u` [V] for `dt` [s]; returns the sensor readings (the true outputs
@@ -154,8 +171,17 @@ impl RigPlant {
         p.supply_pressure_pa += (target - p.supply_pressure_pa) * (1.0 - (-dt / self.supply_tau_s).exp());
         let o = self.machine.step(u, dt)?;
         if let Some(s) = &mut self.specimen {
+            let peak = s.peak;
             if s.observe(o.f) {
                 self.machine.plant.p.specimen_stiffness_n_m = s.stiffness();
+                self.last_peak_n = peak;
+                for g in &mut self.gauges {
+                    g.cycle();
+                }
+            }
+            let fmax = if self.last_peak_n.is_finite() { self.last_peak_n } else { s.peak.max(0.0) };
+            for (g, r) in self.gauges.iter_mut().zip(&mut self.gauge_readings) {
+                *r = if s.fractured { f64::NAN } else { g.read(&s.specimen, s.a_m, o.f, fmax) };
             }
         }
         Ok(o)

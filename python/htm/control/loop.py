@@ -58,6 +58,10 @@ class ControlLoop:
         self._fresh: deque[tuple[int, float, float]] = deque(maxlen=PLAUS_WINDOW + 1)
         self._fracture = FractureWatch(self.dt, cfg.transducer.speed_resolution_m_s)
         self._last_results = 0
+        # the crack measurement's channel of the running test (`cod` or `dcpd`; None: the law),
+        # and the clip gauge's slip watch: compliance from the recent periods, last (cod, force)
+        self.crack_channel: str | None = None
+        self._slip = [0.0, 0.0, math.nan, math.nan]  # Σ Δv·ΔF, Σ ΔF², last v, last F
         self._decim = max(1, round(self.rate_hz / FEED_HZ))
         # how long to wait for this SYNC's TPDO: a share of the period in real time; in lock-step
         # nothing when the rig is pumped here, else long enough for another process to answer
@@ -141,7 +145,9 @@ class ControlLoop:
         c = self.ctrl
         fed = self.k % self._decim == 0
         f_ref = c.force_ref_n if fed else math.nan  # the setpoint at this period's force (set by the last step)
-        u = c.step(f, y)
+        crack = self.io.read_crack()
+        src = self.crack_channel
+        u = c.step(f, y, crack[src][0] if src in crack else math.nan)
         st = c.state
         # watched values (see htm.devices.config.CHANNELS)
         val = self.safety.values
@@ -192,6 +198,8 @@ class ControlLoop:
         val[CH["force_unexplained"]] = unexplained
         f_hyd = self._area_a * p_a - self._area_b * p_b - self._weight
         val[CH["load_plausibility_n"]] = abs(f - f_hyd) if self.powered else 0.0
+        if crack:
+            self._watch_gauges(crack, f, st)
         worst = self.safety.check(self.k)
         if worst is not None:
             self._act(worst, y)
@@ -217,6 +225,40 @@ class ControlLoop:
         if fed:
             self.feed.append({"period": self.k, "t_s": self.k * self.dt, "state": c.state, "cycle": c.cycle, "f_ref": f_ref, **mm})
         return u
+
+    def _watch_gauges(self, crack: dict[str, tuple[float, float]], f: float, st: str) -> None:
+        """The crack gauges' watches: the clip gauge's signal [V] (out of range near ±10 V), its
+        jump [m] (the opening's change less what the force's change explains with the compliance
+        of the recent periods: a slip on the knife edges is a step the force does not make), the
+        potential drop's current [A]."""
+        val = self.safety.values
+        if "dcpd_current" in crack:
+            val[CH["dcpd_current_a"]] = crack["dcpd_current"][0]
+        if "cod" not in crack:
+            return
+        cod, volts = crack["cod"]
+        val[CH["gauge_v"]] = volts
+        s = self._slip
+        jump = 0.0
+        lo, hi = self._limit("gauge_range")
+        if not lo < volts < hi:
+            cod = math.nan  # out of its range: no opening to judge a slip by (gauge_range's business)
+        if st in FRACTURE_STATES and math.isfinite(cod) and math.isfinite(f) and math.isfinite(s[2]):
+            dv, df = cod - s[2], f - s[3]
+            comp = s[0] / s[1] if s[1] > 0.0 else 0.0
+            jump = abs(dv - comp * df)
+            if jump < self._limit("gauge_slip")[1]:  # a slip does not teach the compliance
+                s[0], s[1] = 0.995 * s[0] + dv * df, 0.995 * s[1] + df * df
+        elif st not in FRACTURE_STATES:
+            s[0] = s[1] = 0.0
+        s[2], s[3] = cod, f
+        val[CH["gauge_jump_m"]] = jump
+
+    def _limit(self, name: str) -> tuple[float, float]:
+        for lim in self.cfg.limits:
+            if lim.name == name:
+                return lim.lo, lim.hi
+        return -math.inf, math.inf
 
     def _plausibility(self, y: float, v: float) -> float:
         """|position change − integrated speed| [m] over the fresh samples of the last

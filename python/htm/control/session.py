@@ -378,6 +378,13 @@ class Session:
             # the working pressure, once the start-up is through (the supply limit would trip)
             self._started_up()
         self._load_supply()
+        crack = spec.measurement.get("crack", "model")
+        if crack == "model" and self.cfg.analog.backend != "simulated":
+            raise HtmError(f"test {spec.name}: [measurement] crack = \"model\" grows the crack by the law, which a real specimen "
+                           "does not follow: name the rig's measurement (crack = \"compliance\" or \"potential_drop\")")
+        channel = {"compliance": "cod", "potential_drop": "dcpd"}.get(crack)
+        if channel is not None and channel not in self.cfg.crack_channels:
+            raise HtmError(f"test {spec.name}: [measurement] crack = \"{crack}\" needs analog.channels.{channel} in the rig configuration")
         cfg = spec.config.with_params(with_overrides(core.Params(self.cfg.rig_preset), self.cfg.rig_overrides))
         lp = self.loop
         ctrl = core.CyclicController(lp.rate_hz, lp.position_settings)
@@ -387,6 +394,7 @@ class Session:
         def f() -> int:
             self._motion_allowed()
             lp.ctrl = ctrl
+            lp.crack_channel = channel
             lp.test_no += 1  # this test's rows carry its number (cycles restart at 1)
             lp.energise()
             return lp.test_no
@@ -469,6 +477,11 @@ class Session:
             "period": lp.k, "t_s": lp.k * lp.dt, "test": lp.test_no, "state": c.state, "mode": self.cfg.loop.mode, "rate_hz": lp.rate_hz,
             "amplifier": lp.powered, "interlock": lp.safety.latched(), "estop": lp.safety.estop,
             "cycles": c.cycle, "frequency_hz": info["frequency_hz"], "a_m": c.a_m, "end_reason": c.end_reason,
+            # the crack the test runs on (`crack`: compliance, potential_drop or model) beside the law's,
+            # and the last reading's opening force and ΔK_eff (NaN without a compliance reading)
+            "crack": {"cod": "compliance", "dcpd": "potential_drop"}.get(lp.crack_channel or "", "model"), "a_law_m": c.a_law_m,
+            "opening_force_n": last["opening_force_n"] if last else math.nan,
+            "delta_k_eff_pa_sqrt_m": last["delta_k_eff_pa_sqrt_m"] if last else math.nan,
             "delta_k_pa_sqrt_m": last["delta_k_pa_sqrt_m"] if last else math.nan,
             "k_sp_n_m": last["k_sp_n_m"] if last else math.nan,
             "peak_err_pct": last["peak_err_pct"] if last else math.nan, "df_err_pct": last["df_err_pct"] if last else math.nan,

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from htm.devices.config import ANALOG_INPUTS, PHYSICAL, AnalogConfig
+from htm.devices.config import ANALOG_INPUTS, CRACK_INPUTS, PHYSICAL, AnalogConfig
 from htm.errors import DeviceError
 
 FULL_SCALE_V = 10.0
@@ -86,7 +86,9 @@ class NidaqmxDaq:
         self._ai = nidaqmx.Task("htm-ai")
         self._ao = nidaqmx.Task("htm-ao")
         self._do = nidaqmx.Task("htm-relay")
-        for i in range(PHYSICAL["ai"]):
+        # the inputs up to the highest wired (a rig without crack gauges has one 4-channel module)
+        n_ai = 1 + max(int(c[2:]) for c in channels.values() if c.startswith("ai"))
+        for i in range(n_ai):
             self._ai.ai_channels.add_ai_voltage_chan(f"{device}/ai{i}", min_val=-10.0, max_val=10.0)
         for i in range(PHYSICAL["ao"]):
             self._ao.ao_channels.add_ao_voltage_chan(f"{device}/ao{i}", min_val=-10.0, max_val=10.0)
@@ -131,6 +133,7 @@ class AnalogIO:
         self._supply = _index(cfg.channels["supply_setpoint"])
         self._supply_cal = cfg.calibration["supply_setpoint"]
         self._relay = _index(cfg.channels["amplifier_enable"])
+        self._crack = [(s, _index(cfg.channels[s]), cfg.calibration[s]) for s in CRACK_INPUTS if s in cfg.channels]
         self.valve_v = 0.0
         self.amplifier = False
 
@@ -139,6 +142,13 @@ class AnalogIO:
         v = self.daq.read_inputs(self._in_idx)
         c = self._in_cal
         return (c[0].to_value(v[0]), c[1].to_value(v[1]), c[2].to_value(v[2]), c[3].to_value(v[3]))
+
+    def read_crack(self) -> dict[str, tuple[float, float]]:
+        """The crack gauges wired: name -> (value [SI], volts)."""
+        if not self._crack:
+            return {}
+        v = self.daq.read_inputs([i for _, i, _ in self._crack])
+        return {s: (c.to_value(x), x) for (s, _, c), x in zip(self._crack, v)}
 
     def write_valve(self, u_v: float) -> None:
         """Valve command [V] (clipped to ±10 V)."""

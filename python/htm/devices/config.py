@@ -31,18 +31,25 @@ REQUIRED_EDS = {
     (0x6030, 1): "speed value",
 }
 ANALOG_INPUTS = ("p_a", "p_b", "p_s", "load")
+# the crack gauges (ASTM E647), wired when the rig has them: a clip gauge's opening (`cod`), the
+# direct-current potential drop (`dcpd`, the amplified potential after current reversal) and its
+# current monitor (`dcpd_current`); on a second 4-channel input module (ai4..ai7)
+CRACK_INPUTS = ("cod", "dcpd", "dcpd_current")
 ANALOG_OUTPUTS = ("valve", "supply_setpoint")
 RELAYS = ("amplifier_enable",)
 # the thesis rig's wiring (Table 3.2): NI 9215 inputs, NI 9263 outputs, NI 9481 relay
 THESIS_CHANNELS = {"p_a": "ai0", "p_b": "ai1", "p_s": "ai2", "load": "ai3",
                    "supply_setpoint": "ao0", "valve": "ao1", "amplifier_enable": "relay0"}
-PHYSICAL = {"ai": 4, "ao": 4, "relay": 4}
+PHYSICAL = {"ai": 8, "ao": 4, "relay": 4}
 INTERFACES = ("virtual", "udp_multicast", "socketcan")
 
 # Limit detectors: name -> (channel, lo, hi, action). Channels are the loop's watched values.
 CHANNELS = ("position_m", "velocity_m_s", "force_n", "p_a_pa", "p_b_pa", "p_s_pa", "following_error_m",
             "amplitude_error_pct", "force_band", "transducer_age_periods", "transducer_fault", "heartbeat_age_s",
-            "can_error_frames", "bus_off", "position_plausibility_m", "load_plausibility_n", "force_unexplained")
+            "can_error_frames", "bus_off", "position_plausibility_m", "load_plausibility_n", "force_unexplained",
+            "gauge_v", "gauge_jump_m", "dcpd_current_a")
+# the crack gauges' watches when a channel is not wired: inside every limit
+GAUGE_ABSENT = {"gauge_v": 0.0, "gauge_jump_m": 0.0}
 DEFAULT_LIMITS: dict[str, dict[str, Any]] = {
     "position": {"channel": "position_m", "lo": 0.002, "hi": 0.198, "action": "stop"},
     "velocity": {"channel": "velocity_m_s", "lo": -0.3, "hi": 0.3, "action": "power_off"},
@@ -64,6 +71,13 @@ DEFAULT_LIMITS: dict[str, dict[str, Any]] = {
     # a fraction of the test's force range); with nothing to push against, the force loop would drive
     # the piston into its end stop, so the amplifier goes off at once
     "fracture": {"channel": "force_unexplained", "lo": 0.0, "hi": 0.05, "action": "power_off"},
+    # the crack gauges (E647): a reading the crack size cannot come from holds the test (cycles stop
+    # counting, nothing is lost) until the operator has put it right and resumes. The clip gauge's
+    # signal near its converter's end (out of range), an opening that jumps by more than the force
+    # explains (the gauge slipped on its knife edges), the potential drop's current lost
+    "gauge_range": {"channel": "gauge_v", "lo": -9.8, "hi": 9.8, "action": "hold"},
+    "gauge_slip": {"channel": "gauge_jump_m", "lo": 0.0, "hi": 20e-6, "action": "hold"},
+    "dcpd_current": {"channel": "dcpd_current_a", "lo": 1.0, "hi": 100.0, "action": "hold"},
 }
 ACTIONS = ("indicate", "hold", "stop", "power_off")
 
@@ -137,6 +151,16 @@ class RigConfig:
     # empty one) = the EFFECTS.md base model of the rig with exactly these effects (nothing but
     # the virtual rig's plant knows them: not the controller, the spec nor the session)
     virtual_effects: dict[str, dict[str, Any]] | None = None
+    # `[virtual.specimen]`: how the virtual rig's specimen departs from the spec's law (c_factor,
+    # m, c_scatter: the standard deviation of ln C drawn per specimen, seed); `[virtual.gauges]`:
+    # its crack gauges' noise, resolution, drift, closure (see `htm.devices.rig`)
+    virtual_specimen: dict[str, float] = field(default_factory=dict)
+    virtual_gauges: dict[str, dict[str, float]] = field(default_factory=dict)
+
+    @property
+    def crack_channels(self) -> tuple[str, ...]:
+        """The crack gauges wired (`cod`, `dcpd`, `dcpd_current`)."""
+        return tuple(s for s in CRACK_INPUTS if s in self.analog.channels)
 
     def detector_specs(self) -> list[dict[str, Any]]:
         """The limits as `htm.core.Detectors` items."""
@@ -177,13 +201,13 @@ def check_eds(path: Path, node_id: int) -> None:
 
 
 def _channel_map(channels: dict[str, Any]) -> dict[str, str]:
-    known = ANALOG_INPUTS + ANALOG_OUTPUTS + RELAYS
+    known = ANALOG_INPUTS + CRACK_INPUTS + ANALOG_OUTPUTS + RELAYS
     _keys(channels, set(known), "analog.channels")
     out = dict(THESIS_CHANNELS)
     out.update({k: str(v) for k, v in channels.items()})
     seen: dict[str, str] = {}
     for sig, ch in out.items():
-        kind = "ai" if sig in ANALOG_INPUTS else "ao" if sig in ANALOG_OUTPUTS else "relay"
+        kind = "ai" if sig in ANALOG_INPUTS + CRACK_INPUTS else "ao" if sig in ANALOG_OUTPUTS else "relay"
         num = ch[len(kind):]
         if not (ch.startswith(kind) and num.isdigit() and int(num) < PHYSICAL[kind]):
             raise _err(f"analog.channels.{sig} = {ch!r}: allowed {kind}0..{kind}{PHYSICAL[kind] - 1}")
@@ -225,7 +249,7 @@ def parse_config(doc: dict[str, Any], base: Path | None = None) -> RigConfig:
     channels = _channel_map(dict(a.get("channels", {})))
     cal_path = a.get("calibration", "builtin")
     cal = load_calibration(cal_path if cal_path == "builtin" else base / str(cal_path))
-    missing = [s for s in ANALOG_INPUTS + ANALOG_OUTPUTS if s not in cal]
+    missing = [s for s in ANALOG_INPUTS + ANALOG_OUTPUTS + tuple(c for c in CRACK_INPUTS if c in channels) if s not in cal]
     if missing:
         raise _err(f"analog.calibration has no entry for {', '.join(missing)}")
     device = str(a.get("device", "htm-sim" if backend == "simulated" else "cRIO1"))
@@ -260,10 +284,32 @@ def parse_config(doc: dict[str, Any], base: Path | None = None) -> RigConfig:
     rig = doc.get("rig", {})
     _keys(rig, {"preset", "overrides"}, "rig")
     virt = doc.get("virtual", {})
-    _keys(virt, {"effects"}, "virtual")
+    _keys(virt, {"effects", "specimen", "gauges"}, "virtual")
     effects = _effects(virt["effects"]) if "effects" in virt else None
+    if "dcpd" in channels and "dcpd_current" not in channels:
+        raise _err("analog.channels: dcpd needs its current monitor dcpd_current (a lost current must hold the test)")
+    vs = virt.get("specimen", {})
+    _keys(vs, set(SPECIMEN_KEYS), "virtual.specimen")
+    vspec = {k: _num(vs, k, "virtual.specimen", d, lo, hi) for k, (d, lo, hi) in SPECIMEN_KEYS.items() if k in vs}
+    vg = virt.get("gauges", {})
+    _keys(vg, set(GAUGE_KEYS), "virtual.gauges")
+    gauges = {}
+    for g, keys in GAUGE_KEYS.items():
+        t = vg.get(g, {})
+        _keys(t, set(keys), f"virtual.gauges.{g}")
+        gauges[g] = {k: _num(t, k, f"virtual.gauges.{g}", d, lo, hi) for k, (d, lo, hi) in keys.items()}
     return RigConfig(bus, tr, analog, loop, tuple(limits), {k: float(v) for k, v in pos.items()},
-                     str(rig.get("preset", "thesis")), {k: float(v) for k, v in rig.get("overrides", {}).items()}, effects)
+                     str(rig.get("preset", "thesis")), {k: float(v) for k, v in rig.get("overrides", {}).items()}, effects,
+                     vspec, gauges)
+
+
+# `[virtual.specimen]` and `[virtual.gauges]` keys: (default, lo, hi), SI
+SPECIMEN_KEYS = {"c_factor": (1.0, 0.01, 100.0), "m": (math.nan, 1.0, 10.0), "c_scatter": (0.0, 0.0, 1.0), "seed": (1, 0, 2**31)}
+GAUGE_KEYS = {
+    "cod": {"noise_m": (0.2e-6, 0.0, 1e-4), "resolution_m": (0.0, 0.0, 1e-4), "drift_m_per_cycle": (0.0, -1e-6, 1e-6),
+            "closure_opening_fraction": (0.0, 0.0, 0.8), "gauge_x_over_w": (-0.25, -0.345, 0.0)},
+    "dcpd": {"noise": (1e-4, 0.0, 0.1), "resolution": (0.0, 0.0, 0.1), "probe_y_m": (0.004, 1e-4, 1.0), "current_a": (10.0, 0.1, 100.0)},
+}
 
 
 def _effects(table: Any) -> dict[str, dict[str, Any]]:

@@ -4,6 +4,9 @@ one plant period. In-process it is pumped by the loop (lock-step) or runs on its
 thread (real time); `htm rig serve` runs it as another process. Faults can be injected."""
 from __future__ import annotations
 
+import math
+import random
+
 import can
 
 from htm import core
@@ -20,7 +23,30 @@ from htm.params import with_overrides
 SENSOR = {"p_a": (4.0e6, 4.0e5), "p_b": (4.0e6, 0.0), "p_s": (4.0e6, 0.0), "load": (2500.0, 0.0)}
 SUPPLY_PA_PER_V = 2.5e6
 FAULTS = ("transducer_silent", "transducer_stuck", "transducer_nan", "heartbeat_lost", "can_error_frames", "bus_off",
-          "supply_loss", "valve_stuck", "load_drift", "fracture")
+          "supply_loss", "valve_stuck", "load_drift", "fracture", "gauge_slip", "gauge_out_of_range", "dcpd_current_lost")
+
+
+def true_specimen(cfg: RigConfig, specimen: dict | None) -> dict | None:
+    """The virtual rig's own specimen: the spec's (its geometry, material, initial crack) with a
+    growth law the spec does not know (`[virtual.specimen]`: C times `c_factor`, another `m`,
+    ln C scattered by `c_scatter` per specimen, drawn from `seed`). With another m, C is kept
+    where the two laws agree at 10 MPa·√m, so the rig's specimen stays in the spec's range."""
+    vs = cfg.virtual_specimen
+    if specimen is None or not vs:
+        return specimen
+    law = dict(specimen["law"])
+    if "c" not in law:  # a law without a Paris-like C: the spec's as it is
+        return specimen
+    c = float(law["c"]) * vs.get("c_factor", 1.0)
+    m_new = vs.get("m", math.nan)
+    if math.isfinite(m_new) and "m" in law:
+        c *= 10e6 ** (float(law["m"]) - m_new)
+        law["m"] = m_new
+    if vs.get("c_scatter", 0.0) > 0.0:
+        rng = random.Random(int(vs.get("seed", 1)))
+        c *= math.exp(rng.gauss(0.0, vs["c_scatter"]))
+    law["c"] = c
+    return {**specimen, "law": law}
 
 
 def plant_params(cfg: RigConfig) -> core.Params:
@@ -52,10 +78,26 @@ class VirtualRig:
     def __init__(self, cfg: RigConfig, specimen: dict | None = None, threaded: bool = True):
         self.cfg = cfg
         self.params = plant_params(cfg)
-        self.plant = core.RigPlant(self.params, specimen)
+        self.plant = core.RigPlant(self.params, true_specimen(cfg, specimen))
         self.dt = 1.0 / cfg.loop.rate_hz
         ch = cfg.analog.channels
         self._ai = {s: _idx(ch[s]) for s in SENSOR}
+        # the crack gauges wired, read from the rig's own specimen through their chains
+        self._gauges: dict[str, tuple[int, int]] = {}  # name -> (plant gauge index, ai channel)
+        self._cal = cfg.analog.calibration
+        g = cfg.virtual_gauges
+        seed = int(cfg.virtual_specimen.get("seed", 1))  # the gauges' noise draws follow the specimen's seed
+        if specimen is not None and "cod" in ch:
+            c = g.get("cod", {})
+            self._gauges["cod"] = (self.plant.add_gauge(
+                "compliance", noise=c.get("noise_m", 0.2e-6), resolution=c.get("resolution_m", 0.0),
+                drift_per_cycle=c.get("drift_m_per_cycle", 0.0), closure_opening_fraction=c.get("closure_opening_fraction", 0.0),
+                gauge_x_over_w=c.get("gauge_x_over_w", -0.25), gauge_y_m=c.get("gauge_y_m", math.nan), seed=2 * seed + 1), _idx(ch["cod"]))
+        if specimen is not None and "dcpd" in ch:
+            d = g.get("dcpd", {})
+            self._gauges["dcpd"] = (self.plant.add_gauge("potential_drop", noise=d.get("noise", 1e-4), resolution=d.get("resolution", 0.0),
+                                                         gauge_y_m=d.get("probe_y_m", 0.004), seed=2 * seed + 2), _idx(ch["dcpd"]))
+        self._current = (_idx(ch["dcpd_current"]), g.get("dcpd", {}).get("current_a", 10.0)) if "dcpd_current" in ch else None
         self._valve, self._supply, self._relay = _idx(ch["valve"]), _idx(ch["supply_setpoint"]), _idx(ch["amplifier_enable"])
         self.daq = SimulatedDaq(cfg.analog.device, create=True)
         try:
@@ -101,6 +143,21 @@ class VirtualRig:
         for name, val in (("p_a", p_a), ("p_b", p_b), ("p_s", p_s), ("load", force + self.__dict__.get("load_offset_n", 0.0))):
             gain, offset = s[name]
             d.set_input(self._ai[name], (val + offset) / gain)
+        if not self._gauges and self._current is None:
+            return
+        f = self.__dict__.get("faults", {})
+        readings = self.plant.gauge_readings
+        for name, (i, ai) in self._gauges.items():
+            val = readings[i]
+            if name == "dcpd" and "dcpd_current_lost" in f:
+                val = 0.0  # no current, no potential (only the thermal EMFs, cancelled by the reversal)
+            volts = self._cal[name].to_volts(val) if math.isfinite(val) else 0.0
+            if name == "cod" and "gauge_out_of_range" in f:
+                volts = 10.0  # the gauge opened past its travel: the converter saturates
+            d.set_input(ai, volts)
+        if self._current is not None:
+            ai, amps = self._current
+            d.set_input(ai, self._cal["dcpd_current"].to_volts(0.0 if "dcpd_current_lost" in f else amps))
 
     def pump(self) -> None:
         """Handle every frame waiting on the rig's bus (lock-step, no notifier thread)."""
@@ -133,6 +190,10 @@ class VirtualRig:
             dev.fault = "silent"
         elif fault == "fracture":
             self.plant.fracture()
+        elif fault == "gauge_slip":
+            if "cod" not in self._gauges:
+                raise InputError("gauge_slip needs a clip gauge (analog.channels.cod)")
+            self.plant.slip_gauge(self._gauges["cod"][0], value if value != 1.0 else 50e-6)
         self.faults[fault] = value
 
     def clear_faults(self) -> None:
@@ -140,6 +201,12 @@ class VirtualRig:
         self.device.fault = None
         self.device.heartbeat = True
         self.load_offset_n = 0.0
+        if "cod" in self._gauges:  # the gauge seated again on its knife edges
+            i = self._gauges["cod"][0]
+            self.plant.slip_gauge(i, -self.plant_gauge_offset(i))
+
+    def plant_gauge_offset(self, i: int) -> float:
+        return self.plant.gauge_offset(i)
 
     def close(self) -> None:
         net = getattr(self, "net", None)

@@ -19,6 +19,9 @@ and `cycle` (sequence, the per-cycle table's cycle number). Entities, all SI:
 | `cycle/dadn_m_per_cycle` | da/dN |
 | `cycle/specimen_stiffness_n_m` | K_sp |
 | `cycle/controller_v` | amplitude-loop u1, mean-loop u2 |
+| `cycle/crack_vs_law_m` | a (the crack the test runs on: measured with a `[measurement]`), the growth law's a |
+| `cycle/opening_force_n` | opening force (2 % compliance offset; NaN without a compliance reading) |
+| `cycle/delta_k_eff_pa_sqrt_m` | ΔK_eff |
 | `crack/dadn_vs_delta_k` | points (log10 ΔK [MPa·√m], log10 da/dN [m/cycle]) |
 | `events` | text log: limit trips, mode changes, operator actions, where each ramp-in ends |
 
@@ -69,6 +72,10 @@ CYCLE_GROUPS = {
     "cycle/dadn_m_per_cycle": (["da/dN"], ["dadn_m_per_cycle"]),
     "cycle/specimen_stiffness_n_m": (["K_sp"], ["k_sp_n_m"]),
     "cycle/controller_v": (["u1 amplitude", "u2 mean"], ["ctrl_u1_v", "ctrl_u2_v"]),
+    # the crack the test runs on beside the growth law's, and closure (a `[measurement]`)
+    "cycle/crack_vs_law_m": (["a", "a law"], ["a_m", "a_law_m"]),
+    "cycle/opening_force_n": (["F_op"], ["opening_force_n"]),
+    "cycle/delta_k_eff_pa_sqrt_m": (["ΔK_eff"], ["delta_k_eff_pa_sqrt_m"]),
 }
 
 

@@ -60,7 +60,7 @@ class RunPane(Vertical):
         super().__init__(**kw)
         self.t: deque[float] = deque(maxlen=FEED_KEEP)
         self.force: deque[float] = deque(maxlen=FEED_KEEP)
-        self.cyc: dict[str, deque[float]] = {k: deque(maxlen=CYCLES_KEEP) for k in ("n", "fmax", "fmin", "tmax", "tmin", "a", "dk")}
+        self.cyc: dict[str, deque[float]] = {k: deque(maxlen=CYCLES_KEEP) for k in ("n", "fmax", "fmin", "tmax", "tmin", "a", "a_law", "dk")}
 
     def compose(self) -> ComposeResult:
         with Horizontal(id="run-bar"):
@@ -98,6 +98,7 @@ class RunPane(Vertical):
             c["tmax"].append(r.get("fmax_target_n", math.nan) / 1e3)
             c["tmin"].append(r.get("fmin_target_n", math.nan) / 1e3)
             c["a"].append(r["a_m"] * 1e3)
+            c["a_law"].append(r.get("a_law_m", math.nan) * 1e3)
             c["dk"].append(r["delta_k_pa_sqrt_m"] / 1e6)
 
     def update_live(self, snap: dict[str, Any], detectors: list[dict[str, Any]]) -> None:
@@ -112,6 +113,9 @@ class RunPane(Vertical):
             f"[b]state[/] {snap['state']}   [b]cycles[/] {snap['cycles']:,}   [b]f[/] {num(snap['frequency_hz'], '.2f')} Hz   "
             f"[b]a[/] {num(snap['a_m'] * 1e3, '.3f')} mm   [b]ΔK[/] {num(snap['delta_k_pa_sqrt_m'] / 1e6, '.2f')} MPa·√m   "
             f"[b]K_sp[/] {num(snap['k_sp_n_m'] / 1e6, '.1f')} kN/mm\n"
+            f"[b]crack[/] {snap.get('crack', 'model')}   [b]a law[/] {num(snap.get('a_law_m', math.nan) * 1e3, '.3f')} mm   "
+            f"[b]F_op[/] {num(snap.get('opening_force_n', math.nan) / 1e3, '.3f')} kN   "
+            f"[b]ΔK_eff[/] {num(snap.get('delta_k_eff_pa_sqrt_m', math.nan) / 1e6, '.2f')} MPa·√m\n"
             f"[b]peak err[/] {num(snap['peak_err_pct'], '+.2f')} %   [b]ΔF err[/] {num(snap['df_err_pct'], '+.2f')} %   "
             f"[b]amplifier[/] {'ON' if snap['amplifier'] else 'off'}   [b]interlock[/] {snap['interlock'] or 'none'}"
             f"{'   [b red]E-STOP[/]' if snap.get('estop') else ''}   "
@@ -127,7 +131,7 @@ class RunPane(Vertical):
         draw("plot-force", [(list(self.t), list(self.force), "F")])
         band = [(c["n"], [v * 1.02 for v in c["tmax"]], "+2 %"), (c["n"], [v * 0.98 for v in c["tmax"]], "−2 %")] if c["n"] else []
         draw("plot-peaks", [(c["n"], c["fmax"], "peak"), (c["n"], c["fmin"], "valley"), *band])
-        draw("plot-a", [(c["n"], c["a"], "a")])
+        draw("plot-a", [(c["n"], c["a"], "a"), (c["n"], c["a_law"], "a law")])
         draw("plot-dk", [(c["n"], c["dk"], "ΔK")])
 
     def _detectors(self, dets: list[dict[str, Any]]) -> None:

@@ -40,6 +40,9 @@ CHANNEL_UNITS: dict[str, Unit] = {
     "position_plausibility_m": Unit("position vs speed", "µm", 1e6, ".1f"),
     "load_plausibility_n": Unit("load vs pressures", "kN", 1e-3, ".2f"),
     "force_unexplained": Unit("force unexplained", "% of ΔF", 100.0, ".1f"),
+    "gauge_v": Unit("clip gauge signal", "V", 1.0, ".2f"),
+    "gauge_jump_m": Unit("clip gauge jump", "µm", 1e6, ".1f"),
+    "dcpd_current_a": Unit("potential-drop current", "A", 1.0, ".2f"),
 }
 
 

@@ -216,6 +216,8 @@ pub struct TestConfig {
     /// the sequence came from a spectrum (`[variable_amplitude] spectrum`, one cycle a level),
     /// not from blocks: how an error names a level
     pub sequence_from_spectrum: bool,
+    /// where the crack size the test runs on comes from (`[measurement]`; the law when none)
+    pub measurement: super::measured::Measurement,
 }
 
 /// One level of a variable-amplitude sequence: peak and valley [N] for `cycles` cycles (a block;
@@ -269,9 +271,13 @@ pub mod events {
     pub const END: u32 = 256;
     /// the amplitude ramps back in after a hold (counted, not judged against the tolerance)
     pub const RAMP: u32 = 512;
+    /// a crack reading was taken this cycle (measured crack)
+    pub const READING: u32 = 1024;
+    /// a crack reading failed (too few samples, gauge out of its range): the last ones stand
+    pub const READING_FAILED: u32 = 2048;
 
     /// Every bit by its name, the one list the bindings export.
-    pub const NAMED: [(&str, u32); 10] = [
+    pub const NAMED: [(&str, u32); 12] = [
         ("start", START),
         ("out_of_tolerance", OUT_OF_TOLERANCE),
         ("tolerance_exceeded", TOLERANCE_EXCEEDED),
@@ -282,6 +288,8 @@ pub mod events {
         ("stop", STOP),
         ("end", END),
         ("ramp", RAMP),
+        ("reading", READING),
+        ("reading_failed", READING_FAILED),
     ];
 }
 
@@ -306,6 +314,12 @@ pub struct Records {
     pub ctrl_u1_v: Vec<f64>,
     pub ctrl_u2_v: Vec<f64>,
     pub events: Vec<u32>,
+    /// the growth law's crack beside the measured one (= a_m when the test runs on the law) [m]
+    pub a_law_m: Vec<f64>,
+    /// opening force of the last reading (2 % compliance offset) [N] and ΔK_eff [Pa·√m] (NaN
+    /// without a compliance measurement)
+    pub opening_force_n: Vec<f64>,
+    pub delta_k_eff: Vec<f64>,
 }
 
 #[derive(Debug, Clone)]
@@ -403,6 +417,7 @@ impl TestConfig {
         within("specimen", self.specimen.validate())?;
         within("material", self.material.validate())?;
         within("law", self.law.validate())?;
+        self.measurement.validate(&self.specimen)?;
         within("loading", self.waveform.validate())?;
         let (alo, ahi) = self.specimen.a_range();
         let (wlo, whi) = self.specimen.geometry.alpha_range();

@@ -10,6 +10,7 @@ use crate::error::Result;
 use crate::waveform::{smoothstep, Waveform};
 
 use super::convergence::{Cause, Episode};
+use super::measured::{CrackReader, Reading};
 
 /// Amplitude ramp of `hold` [cycles]: quick, but no step in the force rate.
 pub const HOLD_CYCLES: f64 = 1.0;
@@ -67,6 +68,12 @@ pub struct CycleResult {
     pub counted: bool,
     /// full amplitude, judged against the tolerance (start-up and ramps are not)
     pub judged: bool,
+    /// the growth law's crack beside the measured one (= `a_m` on the law) [m]
+    pub a_law_m: f64,
+    /// opening force of the last crack reading (2 % compliance offset) [N], and ΔK_eff of
+    /// this cycle from it [Pa·√m]; NaN without a compliance reading
+    pub opening_force_n: f64,
+    pub delta_k_eff: f64,
 }
 
 /// The controller side of a force test (see the module doc).
@@ -128,6 +135,11 @@ pub struct CycleMachine {
     pub u_null: f64,
     pub velocity_gain: f64,
     pub gains: Option<DemodGains>,
+    /// the growth law's crack [m], integrated beside the measured one (the same when the test
+    /// runs on the law); the crack reader when the spec names a measurement, and its last reading
+    pub a_law: f64,
+    pub reader: Option<CrackReader>,
+    pub reading: Option<Reading>,
 }
 
 const EMPTY: [f64; 6] = [f64::MIN, f64::MAX, f64::MAX, f64::MIN, f64::MIN, f64::MAX];
@@ -191,6 +203,7 @@ impl CycleMachine {
             acc: EMPTY, s_hi: f64::MIN, s_lo: f64::MAX, open: false, f_ref: f0,
             out_count: 0, max_df: 0.0, max_peak: 0.0, size_cycle: None, convergence: vec![Episode::new(Cause::Start)], end: None,
             u_null: 0.0, velocity_gain: kv, gains,
+            a_law: cfg.a0_m, reader: CrackReader::new(&cfg.measurement, &cfg.specimen, &cfg.material, cfg.a0_m), reading: None,
         })
     }
 
@@ -216,6 +229,26 @@ impl CycleMachine {
             self.begin(cfg)?;
         }
         Ok((self.command(cfg, f, y), closed))
+    }
+
+    /// One control period with the crack measurement's channel `m` (opening [m] or potential
+    /// [V]; NaN when absent): `step` with the sample taken into the crack reading.
+    #[inline]
+    pub fn step_measured(&mut self, cfg: &TestConfig, f: f64, y: f64, m: f64) -> Result<(f64, Option<CycleResult>)> {
+        self.observe_measure(f, m);
+        self.step(cfg, f, y)
+    }
+
+    /// Take the measurement channel's sample with the force into the crack reading: only
+    /// full-amplitude counted cycles are read (a ramp's or a hold's are not).
+    #[inline]
+    pub fn observe_measure(&mut self, f: f64, m: f64) {
+        let Some(r) = &mut self.reader else { return };
+        if self.open && self.counting && self.full && !self.starting {
+            r.sample(f, m, self.cycle);
+        } else if self.starting && self.cycle == 0 {
+            r.reference_sample(m); // the start's first cycle: the mean ramps in, the crack is a0
+        }
     }
 
     /// Take a measurement into the cycle's peak and valley (the result of the last command).
@@ -395,7 +428,7 @@ impl CycleMachine {
             cycle: self.cycle, phase: self.phase_i, fmax_n: fmax, fmin_n: fmin, fmax_target_n: tmax, fmin_target_n: tmin,
             peak_err_pct: pe * 100.0, df_err_pct: de * 100.0, a_m: self.a, delta_k: f64::NAN, delta_k_target: dkt, kmax: f64::NAN,
             dadn_m: 0.0, k_sp_n_m: ksp, ymin_m: ymin, ymax_m: ymax, ctrl_u1_v: u1, ctrl_u2_v: u2, events: 0, counted: self.counting,
-            judged: false,
+            judged: false, a_law_m: self.a_law, opening_force_n: self.reader.as_ref().map_or(f64::NAN, |r| r.opening_force_n()), delta_k_eff: f64::NAN,
         };
         if !self.counting {
             if matches!(self.stage, Stage::Stopping | Stage::Stopped) {
@@ -413,6 +446,36 @@ impl CycleMachine {
         let mut ev = if self.starting { events::START } else { 0 };
         let mut stop: Option<EndReason> = None;
         r.judged = !self.starting && self.full;
+        // the law's crack beside the measured one: its own ΔK from the measured forces
+        let dadn_law = if self.reader.is_some() && fmax > 0.0 {
+            let a_law = self.a_law.min(spec.a_range().1);
+            let (dkl, kml, rl) = measured_k(spec, a_law, fmax, fmin, r_nom)?;
+            cfg.law.rate(dkl, rl, kml)
+        } else {
+            dadn
+        };
+        if let Some(reader) = &mut self.reader {
+            if r.judged {
+                match reader.cycle_closed(spec, self.cycle) {
+                    Some(rd) => {
+                        self.reading = Some(rd);
+                        ev |= events::READING;
+                    }
+                    None if reader.last_error.is_some() => {
+                        reader.last_error = None;
+                        ev |= events::READING_FAILED;
+                    }
+                    None => {}
+                }
+            } else {
+                reader.discard();
+            }
+            if self.reading.is_some() {
+                let f_op = reader.opening_force_n();
+                r.opening_force_n = f_op;
+                r.delta_k_eff = if f_op.is_finite() { crate::crack_measure::delta_k(spec, self.a, fmin, fmax, f_op).1 } else { dk };
+            }
+        }
         if self.ramping_in && !r.judged {
             ev |= events::RAMP;
         }
@@ -455,12 +518,19 @@ impl CycleMachine {
         if ymin < margin || ymax > cfg.params.stroke_m - margin {
             stop = stop.or(Some(EndReason::StrokeLimit));
         }
+        let a_next = match &self.reader {
+            Some(reader) => reader.a_at(self.cycle),
+            None => self.a + dadn,
+        };
+        if dadn_law.is_finite() {
+            self.a_law = (self.a_law + dadn_law).min(spec.a_range().1);
+        }
         let end = if stop.is_some() {
             stop
-        } else if !dadn.is_finite() || self.a + dadn >= spec.a_range().1 {
+        } else if !a_next.is_finite() || (self.reader.is_none() && !dadn.is_finite()) || a_next >= spec.a_range().1 {
             Some(EndReason::Fracture)
         } else {
-            self.a += dadn;
+            self.a = a_next;
             let mut end = None;
             if self.a >= ph.end_a_m {
                 if self.phase_i + 1 == cfg.phases.len() {

@@ -16,6 +16,7 @@ pub mod config;
 pub mod convergence;
 pub mod cycle;
 pub mod life;
+pub mod measured;
 mod raw;
 mod session;
 mod sim;
@@ -24,6 +25,7 @@ pub use batch::run_batch;
 pub use config::*;
 pub use convergence::{Cause, Episode};
 pub use cycle::{CycleMachine, CycleResult, Stage};
+pub use measured::{CrackReader, CrackSource, GaugeChain, Measurement, Reading};
 pub use raw::{RawCapture, RAW_COLUMNS};
 pub use session::{Chunk, Session};
 
@@ -64,6 +66,7 @@ pub(crate) mod tests {
             jump: JumpConfig::default(),
             sequence: vec![],
             sequence_from_spectrum: false,
+            measurement: Measurement::model(),
         }
     }
 
@@ -97,6 +100,40 @@ pub(crate) mod tests {
         let o = run_test(&cfg, ExecMode::Full, None, None).unwrap();
         let e = &o.convergence[0];
         assert!(e.cycles_seen >= 20 && e.worst_first_df_pct < 2.0, "{e:?}");
+    }
+
+    /// `htm run` with a measurement: the specimen's truth grows by the law, the test runs on the
+    /// crack read through the simulated chain (noise, resolution, closure at 30 % of Fmax); both
+    /// are in the table, within E647's resolution of each other, and the opening force is found.
+    #[test]
+    fn a_measured_crack_follows_the_truth_within_e647_resolution() {
+        for (crack, y, closure) in [(CrackSource::Compliance, f64::NAN, 0.3), (CrackSource::PotentialDrop, 0.004, 0.0)] {
+            let mut cfg = table_b1(10.0, 500.0, 0.45, 60.0);
+            cfg.measurement = Measurement { crack, gauge_y_m: y, closure_opening_fraction: closure, noise: if y.is_nan() { 0.2e-6 } else { 1e-4 }, ..Measurement::model() };
+            let o = run_test(&cfg, ExecMode::Full, None, None).unwrap();
+            assert_eq!(o.end_reason, EndReason::TargetCrack, "{crack:?}");
+            let r = &o.records;
+            let res = crate::crack_measure::resolution_m(cfg.specimen.width_m);
+            let first = r.events.iter().position(|e| e & events::READING != 0).expect("readings");
+            let worst = (first..r.cycle.len()).map(|i| (r.a_m[i] - r.a_law_m[i]).abs()).fold(0.0, f64::max);
+            let grown = r.a_law_m[r.cycle.len() - 1] - r.a_law_m[first];
+            eprintln!("{crack:?}: worst |a − a_true| {:.3} mm over {:.2} mm of growth (E647 resolution {:.3} mm)", worst * 1e3, grown * 1e3, res * 1e3);
+            assert!(grown > 5e-3 && worst < res, "{crack:?}: worst {worst}");
+            if closure > 0.0 {
+                let i = r.cycle.len() - 5;
+                let err = (r.opening_force_n[i] - closure * r.fmax_n[i]).abs() / r.fmax_n[i];
+                assert!(err < 0.05, "opening force {} vs {}", r.opening_force_n[i], closure * r.fmax_n[i]);
+                assert!(r.delta_k_eff[i] < 0.8 * r.delta_k[i]);
+            }
+        }
+        // a cycle jump carries the truth and the measured crack together
+        let mut cfg = table_b1(10.0, 500.0, 0.45, 30.0);
+        cfg.measurement = Measurement { crack: CrackSource::Compliance, ..Measurement::model() };
+        let o = run_test(&cfg, ExecMode::Jump, None, None).unwrap();
+        assert_eq!(o.end_reason, EndReason::TargetCrack);
+        let r = &o.records;
+        let worst = (0..r.cycle.len()).map(|i| (r.a_m[i] - r.a_law_m[i]).abs()).fold(0.0, f64::max);
+        assert!(worst < 1e-4, "jump: {worst}");
     }
 
     #[test]

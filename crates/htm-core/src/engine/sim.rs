@@ -29,6 +29,9 @@ pub(crate) struct Sim {
     stop_rows: u64,
     pending_ev: u32,
     pub raw: RawCapture,
+    /// the measurement chain the specimen is read through (a spec's `[measurement]`): the
+    /// truth is the law's crack (`cm.a_law`), the cycle machine runs on what the chain shows
+    chain: Option<super::measured::GaugeChain>,
     #[serde(skip)]
     pub rec: Records,
 }
@@ -45,11 +48,13 @@ impl Sim {
         let m = Machine::new(p)?.with_rtol(cfg.rtol)?;
         let y0 = m.plant.p.specimen_zero_force_position_m;
         let cm = CycleMachine::new(cfg, cfg.control_rate_hz, m.outputs().f)?;
-        Ok(Sim { m, cm, y0, ksp_factor: 1.0, next_step: 0, since_jump: 0, prev_err: (f64::NAN, f64::NAN), simulated: 0, stop_rows: 0, pending_ev: 0, raw, rec: Records::default() })
+        let chain = super::measured::GaugeChain::new(&cfg.measurement, &cfg.specimen, &cfg.material, cfg.a0_m);
+        Ok(Sim { m, cm, y0, ksp_factor: 1.0, next_step: 0, since_jump: 0, prev_err: (f64::NAN, f64::NAN), simulated: 0, stop_rows: 0, pending_ev: 0, raw, chain, rec: Records::default() })
     }
 
     fn set_stiffness(&mut self, cfg: &TestConfig, keep_force: bool) -> Result<()> {
-        let k_new = cfg.specimen.stiffness(self.cm.a, &cfg.material)? * self.ksp_factor;
+        // the specimen's true crack: the law's (the same as the test's without a measurement)
+        let k_new = cfg.specimen.stiffness(self.cm.a_law, &cfg.material)? * self.ksp_factor;
         let k_old = self.m.plant.p.specimen_stiffness_n_m;
         if keep_force && k_old > 0.0 {
             // a jump: keep the force continuous and tell the controller about the new gain
@@ -79,6 +84,9 @@ impl Sim {
         rec.ctrl_u1_v.push(r.ctrl_u1_v);
         rec.ctrl_u2_v.push(r.ctrl_u2_v);
         rec.events.push(ev);
+        rec.a_law_m.push(r.a_law_m);
+        rec.opening_force_n.push(r.opening_force_n);
+        rec.delta_k_eff.push(r.delta_k_eff);
         self.raw.end_cycle(cycle, ev);
     }
 
@@ -92,6 +100,13 @@ impl Sim {
             meas = self.m.step(u, dt)?;
             self.raw.sample((c0 + (k + 1) as f64 / n as f64) / cfg.frequency_hz, u, &meas, self.cm.f_ref);
             self.cm.observe(meas.f, meas.y);
+            if let Some(ch) = &mut self.chain {
+                let m = ch.read(&cfg.specimen, self.cm.a_law, meas.f, self.cm.targets().0);
+                self.cm.observe_measure(meas.f, m);
+            }
+        }
+        if let Some(ch) = &mut self.chain {
+            ch.cycle();
         }
         self.simulated += 1;
         Ok(self.cm.close(cfg)?.expect("a cycle was begun"))
@@ -148,7 +163,9 @@ impl Sim {
             }
             self.set_stiffness(cfg, false)?;
             let ready = self.since_jump >= cfg.jump.settle_cycles && (settled || self.since_jump >= 10 * cfg.jump.settle_cycles);
-            if mode == ExecMode::Jump && ev & events::START == 0 && ready && r.fmax_n > 0.0 {
+            // a measured crack: a reading since the last jump first (the table keeps the chain's data)
+            let read = self.cm.reader.as_ref().is_none_or(|rd| !rd.readings.is_empty());
+            if mode == ExecMode::Jump && ev & events::START == 0 && ready && read && r.fmax_n > 0.0 {
                 self.jump(cfg, &r, ev, steps.get(self.next_step).map(|s| s.0))?;
             }
         }
@@ -227,13 +244,20 @@ impl Sim {
                 cm.size_cycle.get_or_insert(cm.cycle + 1);
             }
             cm.cycle += jn;
+            // the truth moves by the growth integrated; a measured crack starts again from it (the
+            // chain's errors are simulated over resolved cycles, not across a jump)
+            cm.a_law += a1 - cm.a;
             cm.a = a1;
+            if let Some(rd) = &mut cm.reader {
+                cm.a = cm.a_law;
+                rd.restart(cm.a_law);
+            }
             self.set_stiffness(cfg, true)?;
             let t1 = targets(cfg, &ph, a_phase0, a1)?;
             let row = CycleResult {
                 fmax_n: fx, fmin_n: fn_, fmax_target_n: t1.0, fmin_target_n: t1.1, delta_k_target: t1.2,
                 peak_err_pct: (fx - t1.0) / t1.0 * 100.0, df_err_pct: ((fx - fn_) - (t1.0 - t1.1)) / (t1.0 - t1.1) * 100.0,
-                a_m: a1, delta_k: dk1, kmax: km1, dadn_m: law.rate(dk1, r1, km1), ..*last
+                a_m: self.cm.a, delta_k: dk1, kmax: km1, dadn_m: law.rate(dk1, r1, km1), a_law_m: self.cm.a_law, ..*last
             };
             let ev = events::JUMP | if lig < req { events::SIZE_CRITERION } else { 0 };
             self.push(&row, self.cm.cycle, ev);

@@ -33,6 +33,7 @@ fn cycle_dict<'py>(py: Python<'py>, r: &CycleResult) -> PyResult<Bound<'py, PyDi
         ("peak_err_pct", r.peak_err_pct), ("df_err_pct", r.df_err_pct), ("a_m", r.a_m), ("delta_k_pa_sqrt_m", r.delta_k),
         ("delta_k_target_pa_sqrt_m", r.delta_k_target), ("kmax_pa_sqrt_m", r.kmax), ("dadn_m_per_cycle", r.dadn_m),
         ("k_sp_n_m", r.k_sp_n_m), ("ymin_m", r.ymin_m), ("ymax_m", r.ymax_m), ("ctrl_u1_v", r.ctrl_u1_v), ("ctrl_u2_v", r.ctrl_u2_v),
+        ("a_law_m", r.a_law_m), ("opening_force_n", r.opening_force_n), ("delta_k_eff_pa_sqrt_m", r.delta_k_eff),
     ] {
         d.set_item(k, v)?;
     }
@@ -74,8 +75,9 @@ impl PyCyclic {
     }
 
     /// One period: measured force [N] and position [m] in, valve command [V] out.
-    fn step(&mut self, force_n: f64, position_m: f64) -> PyResult<f64> {
-        self.inner.step(force_n, position_m).map_err(PyErr::from)
+    #[pyo3(signature = (force_n, position_m, measurement=f64::NAN))]
+    fn step(&mut self, force_n: f64, position_m: f64, measurement: f64) -> PyResult<f64> {
+        self.inner.step_measured(force_n, position_m, measurement).map_err(PyErr::from)
     }
 
     /// Start the force test `config` (as `run_test`'s) from the measured force `f0_n`.
@@ -131,6 +133,11 @@ impl PyCyclic {
     #[getter]
     fn a_m(&self) -> f64 {
         self.inner.a_m()
+    }
+    /// The growth law's crack beside the measured one [m] (NaN without a test).
+    #[getter]
+    fn a_law_m(&self) -> f64 {
+        self.inner.a_law_m()
     }
     #[getter]
     fn results(&self) -> u64 {
@@ -333,6 +340,33 @@ impl PyRigPlant {
     #[getter]
     fn a_m(&self) -> f64 {
         self.inner.specimen.as_ref().map(|s| s.a_m).unwrap_or(f64::NAN)
+    }
+    /// Put a crack gauge on the specimen: `crack` "compliance" (a clip gauge's opening [m]) or
+    /// "potential_drop" (the potential [V], 1 V at the initial crack), with its chain's noise,
+    /// resolution, drift and the specimen's closure (opening force / Fmax); returns its index.
+    #[pyo3(signature = (crack, noise=0.0, resolution=0.0, drift_per_cycle=0.0, closure_opening_fraction=0.0, gauge_x_over_w=-0.25, gauge_y_m=f64::NAN, seed=1))]
+    #[allow(clippy::too_many_arguments)]
+    fn add_gauge(&mut self, crack: &str, noise: f64, resolution: f64, drift_per_cycle: f64, closure_opening_fraction: f64, gauge_x_over_w: f64, gauge_y_m: f64, seed: u64) -> PyResult<usize> {
+        let m = crate::engine::Measurement {
+            crack: crate::engine::CrackSource::parse(crack)?, noise, resolution, drift_per_cycle, closure_opening_fraction, gauge_x_over_w, gauge_y_m, seed,
+            ..crate::engine::Measurement::model()
+        };
+        Ok(self.inner.add_gauge(&m)?)
+    }
+    /// The gauges' readings after the last step (NaN before the first and once broken).
+    #[getter]
+    fn gauge_readings(&self) -> Vec<f64> {
+        self.inner.gauge_readings.clone()
+    }
+    /// Gauge `i`'s offset from slips [m].
+    fn gauge_offset(&self, i: usize) -> PyResult<f64> {
+        self.inner.gauges.get(i).map(|g| g.offset).ok_or_else(|| InputError::new_err(format!("no gauge {i}")))
+    }
+    /// A gauge slip: a sudden offset of gauge `i`'s opening [m].
+    fn slip_gauge(&mut self, i: usize, offset_m: f64) -> PyResult<()> {
+        let g = self.inner.gauges.get_mut(i).ok_or_else(|| InputError::new_err(format!("no gauge {i}")))?;
+        g.offset += offset_m;
+        Ok(())
     }
     #[getter]
     fn cycles(&self) -> u64 {

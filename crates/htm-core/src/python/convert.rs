@@ -258,6 +258,52 @@ struct SpecIn<'py> {
     stiffness_steps: Vec<(u64, f64)>,
     blocks: Vec<(u64, f64, f64)>,
     spectrum: Vec<(f64, f64)>,
+    measurement: MeasurementIn,
+}
+
+/// `[measurement]` (`htm.spec.TestSpec.measurement`): what it leaves out is the core's default.
+#[derive(FromPyObject)]
+#[pyo3(from_item_all)]
+struct MeasurementIn {
+    crack: String,
+    #[pyo3(default)]
+    gauge_x_over_w: Option<f64>,
+    #[pyo3(default)]
+    gauge_y_m: Option<f64>,
+    #[pyo3(default)]
+    cycles_per_reading: Option<u64>,
+    #[pyo3(default)]
+    readings_fitted: Option<usize>,
+    #[pyo3(default)]
+    noise: Option<f64>,
+    #[pyo3(default)]
+    resolution: Option<f64>,
+    #[pyo3(default)]
+    drift_per_cycle: Option<f64>,
+    #[pyo3(default)]
+    closure_opening_fraction: Option<f64>,
+    #[pyo3(default)]
+    seed: Option<u64>,
+}
+
+fn measurement_of(m: &MeasurementIn) -> PyResult<engine::Measurement> {
+    let crack = engine::CrackSource::parse(&m.crack)?;
+    let d = engine::Measurement::model();
+    // the simulated chain's defaults: a clip gauge of 0.1 µm noise and 0.05 µm steps; a
+    // potential of 0.01 % noise and 0.001 % steps
+    let (noise, res) = if crack == engine::CrackSource::PotentialDrop { (1e-4, 1e-5) } else { (0.1e-6, 0.05e-6) };
+    Ok(engine::Measurement {
+        crack,
+        gauge_x_over_w: m.gauge_x_over_w.unwrap_or(d.gauge_x_over_w),
+        gauge_y_m: m.gauge_y_m.unwrap_or(d.gauge_y_m),
+        cycles_per_reading: m.cycles_per_reading.unwrap_or(d.cycles_per_reading),
+        readings_fitted: m.readings_fitted.unwrap_or(d.readings_fitted),
+        noise: m.noise.unwrap_or(noise),
+        resolution: m.resolution.unwrap_or(res),
+        drift_per_cycle: m.drift_per_cycle.unwrap_or(0.0),
+        closure_opening_fraction: m.closure_opening_fraction.unwrap_or(0.0),
+        seed: m.seed.unwrap_or(d.seed),
+    })
 }
 
 #[derive(FromPyObject)]
@@ -386,6 +432,7 @@ fn config_of(s: SpecIn<'_>, params: crate::params::Params) -> PyResult<TestConfi
         jump: JumpConfig::default(),
         sequence_from_spectrum: !s.spectrum.is_empty(),
         sequence,
+        measurement: measurement_of(&s.measurement)?,
     })
 }
 
@@ -501,6 +548,8 @@ impl Columns for Records {
             ("delta_k_target_pa_sqrt_m", Column::F64(&self.delta_k_target)), ("kmax_pa_sqrt_m", Column::F64(&self.kmax)),
             ("dadn_m_per_cycle", Column::F64(&self.dadn_m)), ("k_sp_n_m", Column::F64(&self.k_sp_n_m)),
             ("ctrl_u1_v", Column::F64(&self.ctrl_u1_v)), ("ctrl_u2_v", Column::F64(&self.ctrl_u2_v)),
+            ("a_law_m", Column::F64(&self.a_law_m)), ("opening_force_n", Column::F64(&self.opening_force_n)),
+            ("delta_k_eff_pa_sqrt_m", Column::F64(&self.delta_k_eff)),
         ]
     }
 }

@@ -1,0 +1,442 @@
+//! The measured crack of a running test (ASTM E647): the spec's `[measurement]`, the reader the
+//! cycle machine feeds with each full-amplitude cycle's (force, gauge) samples, and the
+//! measurement chain a simulated specimen reads through (noise, resolution, closure, drift).
+//!
+//! The reader pools `cycles_per_reading` cycles (E647 allows averaging a few cycles), reduces
+//! them with `crack_measure` (compliance above the opening force by least squares, crack size by
+//! the E647 expression, opening force by the compliance offset; or the mean potential and
+//! Johnson's expression), and the crack the test runs on is a least-squares line through the
+//! last `readings_fitted` readings evaluated at the current cycle (no lag from the averaging).
+//! One copy: the simulator (`htm run`), the real-time loop and the virtual rig's specimen use it.
+use crate::crack_measure::{self as meas, Method};
+use crate::error::{Error, Result};
+use crate::specimen::{Geometry, Material, Specimen};
+
+/// Where the crack size the test runs on comes from.
+#[derive(serde::Serialize, serde::Deserialize, Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CrackSource {
+    /// the growth law integrated from the measured forces (simulation only; refused on a real rig)
+    Model,
+    /// elastic compliance from a crack-opening gauge (E647 A2)
+    Compliance,
+    /// direct-current potential drop (E647 potential-difference annex)
+    PotentialDrop,
+}
+
+impl CrackSource {
+    pub fn parse(s: &str) -> Result<Self> {
+        match s {
+            "model" => Ok(CrackSource::Model),
+            "compliance" => Ok(CrackSource::Compliance),
+            "potential_drop" => Ok(CrackSource::PotentialDrop),
+            other => Err(Error::Input(format!("measurement.crack = `{other}`: use \"compliance\", \"potential_drop\" or \"model\""))),
+        }
+    }
+    pub fn name(self) -> &'static str {
+        match self {
+            CrackSource::Model => "model",
+            CrackSource::Compliance => "compliance",
+            CrackSource::PotentialDrop => "potential_drop",
+        }
+    }
+}
+
+/// A spec's `[measurement]` (SI). The chain's imperfections (`noise`, `resolution`, `drift`,
+/// `closure_opening_fraction`) are what `htm run` simulates; on a rig the gauge has its own.
+#[derive(serde::Serialize, serde::Deserialize, Debug, Clone, PartialEq)]
+pub struct Measurement {
+    pub crack: CrackSource,
+    /// C(T) compliance: gauge location X/W (E647: −0.345, −0.25 crack mouth, −0.1576, 0 load line)
+    pub gauge_x_over_w: f64,
+    /// M(T) compliance: gauge at ±Y from the crack plane [m]; potential drop: probes at ±Y [m]
+    pub gauge_y_m: f64,
+    /// cycles pooled into one reading, and readings the running crack is fitted through
+    pub cycles_per_reading: u64,
+    pub readings_fitted: usize,
+    /// simulated chain: compliance, opening noise (standard deviation) [m] and resolution [m];
+    /// potential drop, relative noise and resolution of the potential [-]
+    pub noise: f64,
+    pub resolution: f64,
+    /// simulated chain: gauge drift [m per cycle] (compliance; a drift of the offset, which a
+    /// slope does not see) or thermal EMF drift [relative per cycle] (potential drop, cancelled
+    /// by current reversal except for its noise)
+    pub drift_per_cycle: f64,
+    /// simulated specimen: opening force as a share of Fmax (2 % compliance offset), 0 = none
+    pub closure_opening_fraction: f64,
+    pub seed: u64,
+}
+
+impl Measurement {
+    /// The crack measurement of a spec that names none: the law.
+    pub fn model() -> Self {
+        Measurement {
+            crack: CrackSource::Model, gauge_x_over_w: -0.25, gauge_y_m: f64::NAN, cycles_per_reading: 5, readings_fitted: 5, noise: 0.0,
+            resolution: 0.0, drift_per_cycle: 0.0, closure_opening_fraction: 0.0, seed: 1,
+        }
+    }
+
+    pub fn measured(&self) -> bool {
+        self.crack != CrackSource::Model
+    }
+
+    /// Checks with the spec's field names (`measurement.gauge_y_m`).
+    pub fn validate(&self, spec: &Specimen) -> Result<()> {
+        let p = |f: &str, v: f64, allowed: &str| Error::Parameter { field: format!("measurement.{f}"), value: v, allowed: allowed.into() };
+        if !self.measured() {
+            return Ok(());
+        }
+        if !(1..=1000).contains(&self.cycles_per_reading) {
+            return Err(p("cycles_per_reading", self.cycles_per_reading as f64, "[1, 1000]"));
+        }
+        if !(1..=50).contains(&self.readings_fitted) {
+            return Err(p("readings_fitted", self.readings_fitted as f64, "[1, 50]"));
+        }
+        for (f, v) in [("noise", self.noise), ("resolution", self.resolution)] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(p(f, v, "[0, inf)"));
+            }
+        }
+        if !self.drift_per_cycle.is_finite() {
+            return Err(p("drift_per_cycle", self.drift_per_cycle, "finite"));
+        }
+        if !(self.closure_opening_fraction.is_finite() && (0.0..0.9).contains(&self.closure_opening_fraction)) {
+            return Err(p("closure_opening_fraction", self.closure_opening_fraction, "[0, 0.9)"));
+        }
+        let needs_y = self.crack == CrackSource::PotentialDrop || spec.geometry == Geometry::MT;
+        if needs_y && !(self.gauge_y_m.is_finite() && self.gauge_y_m > 0.0 && self.gauge_y_m <= spec.width_m) {
+            return Err(p("gauge_y_m", self.gauge_y_m, &format!("(0, W = {} m]", spec.width_m)));
+        }
+        if self.crack == CrackSource::Compliance && spec.geometry == Geometry::CT && !meas::CT_COMPLIANCE.iter().any(|(x, _)| (x - self.gauge_x_over_w).abs() < 1e-6) {
+            return Err(p("gauge_x_over_w", self.gauge_x_over_w, "one of −0.345, −0.25, −0.1576, 0 (E647 C(T) gauge locations)"));
+        }
+        Ok(())
+    }
+
+    /// The expression the readings use (None for the model). A potential-drop reference
+    /// potential is the first reading's, at the initial crack `a0_m`.
+    pub fn method(&self, spec: &Specimen, material: &Material, a0_m: f64) -> Option<Method> {
+        let (e, nu) = (material.youngs_modulus_pa, material.poisson_ratio);
+        match (self.crack, spec.geometry) {
+            (CrackSource::Model, _) => None,
+            (CrackSource::Compliance, Geometry::CT) => Some(Method::ComplianceCt { x_over_w: self.gauge_x_over_w, modulus_pa: e }),
+            (CrackSource::Compliance, Geometry::MT) => Some(Method::ComplianceMt { y_m: self.gauge_y_m, modulus_pa: e, poisson_ratio: nu }),
+            (CrackSource::PotentialDrop, g) => {
+                let width_m = if g == Geometry::CT { 2.0 * spec.width_m } else { spec.width_m };
+                Some(Method::Johnson { y_m: self.gauge_y_m, a_ref_m: a0_m, v_ref: f64::NAN, width_m })
+            }
+        }
+    }
+}
+
+/// One reading: the cycle it was taken at, crack size [m], opening force (2 % offset) [N], ΔK_eff.
+#[derive(serde::Serialize, serde::Deserialize, Debug, Clone, Copy, PartialEq)]
+pub struct Reading {
+    pub cycle: f64,
+    pub a_m: f64,
+    pub opening_force_n: f64,
+    pub dk_eff: f64,
+}
+
+/// The reader of a running test (see the module doc).
+#[derive(serde::Serialize, serde::Deserialize, Debug, Clone)]
+pub struct CrackReader {
+    pub method: Method,
+    every: u64,
+    fitted: usize,
+    f: Vec<f64>,
+    m: Vec<f64>,
+    cyc: Vec<f64>,
+    cycles_in: u64,
+    pub readings: Vec<Reading>,
+    /// readings that failed (a reduction error: too few samples, gauge out of its range)
+    pub failed: u64,
+    pub last_error: Option<String>,
+    a0: f64,
+    /// potential drop: the sum and count of the reference samples (before the crack grows)
+    reference: (f64, u64),
+}
+
+impl CrackReader {
+    pub fn new(meas: &Measurement, spec: &Specimen, material: &Material, a0_m: f64) -> Option<Self> {
+        let method = meas.method(spec, material, a0_m)?;
+        Some(CrackReader {
+            method, every: meas.cycles_per_reading, fitted: meas.readings_fitted, f: Vec::new(), m: Vec::new(), cyc: Vec::new(), cycles_in: 0,
+            readings: Vec::new(), failed: 0, last_error: None, a0: a0_m, reference: (0.0, 0),
+        })
+    }
+
+    /// One sample of a full-amplitude cycle: force [N], measurement channel [m or V].
+    #[inline]
+    pub fn sample(&mut self, f: f64, m: f64, cycle: u64) {
+        if f.is_finite() && m.is_finite() {
+            self.f.push(f);
+            self.m.push(m);
+            self.cyc.push(cycle as f64);
+        }
+    }
+
+    /// A sample taken before the crack grows (the start's mean ramp): a potential-drop reading's
+    /// reference potential V_r at the initial crack is their mean.
+    #[inline]
+    pub fn reference_sample(&mut self, m: f64) {
+        if m.is_finite() && matches!(self.method, Method::Johnson { .. } | Method::Calibration { .. }) {
+            self.reference.0 += m;
+            self.reference.1 += 1;
+        }
+    }
+
+    /// The interval in progress is not usable (a ramp, a hold, a fault): start it again.
+    pub fn discard(&mut self) {
+        self.f.clear();
+        self.m.clear();
+        self.cyc.clear();
+        self.cycles_in = 0;
+    }
+
+    /// A full-amplitude cycle closed; a reading when the interval is full.
+    pub fn cycle_closed(&mut self, spec: &Specimen, cycle: u64) -> Option<Reading> {
+        self.cycles_in += 1;
+        if self.cycles_in < self.every {
+            return None;
+        }
+        let r = self.reduce(spec, cycle);
+        self.discard();
+        match r {
+            Ok(r) => {
+                self.readings.push(r);
+                let keep = self.fitted.max(2);
+                if self.readings.len() > keep {
+                    self.readings.drain(..self.readings.len() - keep);
+                }
+                self.last_error = None;
+                Some(r)
+            }
+            Err(e) => {
+                self.failed += 1;
+                self.last_error = Some(e.to_string());
+                None
+            }
+        }
+    }
+
+    fn reduce(&mut self, spec: &Specimen, cycle: u64) -> Result<Reading> {
+        if self.f.len() < 10 {
+            return Err(Error::Input(format!("cycle {cycle}: too few measurement samples in the interval")));
+        }
+        if let Method::Johnson { v_ref, .. } | Method::Calibration { v_ref, .. } = &mut self.method {
+            if !v_ref.is_finite() {
+                // the reference at the initial crack: the samples before growth, else this interval's
+                *v_ref = if self.reference.1 > 0 { self.reference.0 / self.reference.1 as f64 } else { self.m.iter().sum::<f64>() / self.m.len() as f64 };
+            }
+        }
+        let iv = if matches!(self.method, Method::Johnson { .. } | Method::Calibration { .. }) {
+            meas::reduce_potential_interval(spec, &self.method, &self.m, Some(&self.f), &self.cyc)?
+        } else {
+            meas::reduce_compliance_interval(spec, &self.method, &self.f, &self.m, &self.cyc)?
+        };
+        // the interval's crack is the crack half-way through it (cycles counted, as `a_at` takes them)
+        let mid = cycle as f64 - 0.5 * self.cycles_in as f64;
+        Ok(Reading { cycle: mid, a_m: iv.a_m, opening_force_n: iv.opening_force_n[1], dk_eff: iv.dk_eff })
+    }
+
+    /// The measured crack once `cycle` cycles are counted: the least-squares line through the last readings (the
+    /// initial crack before the first; the one reading itself after it).
+    pub fn a_at(&self, cycle: u64) -> f64 {
+        let r = &self.readings[self.readings.len().saturating_sub(self.fitted)..];
+        match r.len() {
+            0 => self.a0,
+            1 => r[0].a_m,
+            2 => r[1].a_m + (r[1].a_m - r[0].a_m) / (r[1].cycle - r[0].cycle) * (cycle as f64 - r[1].cycle),
+            _ => {
+                let x: Vec<f64> = r.iter().map(|r| r.cycle).collect();
+                let y: Vec<f64> = r.iter().map(|r| r.a_m).collect();
+                match meas::ls_line(&x, &y) {
+                    Some((c1, c0, _)) => c0 + c1 * cycle as f64,
+                    None => r[r.len() - 1].a_m,
+                }
+            }
+        }
+    }
+
+    pub fn last(&self) -> Option<Reading> {
+        self.readings.last().copied()
+    }
+
+    /// The opening force [N]: the mean over the readings the crack is fitted through (E647 X2
+    /// allows averaging; one interval's is noisy); NaN without one.
+    pub fn opening_force_n(&self) -> f64 {
+        let r = &self.readings[self.readings.len().saturating_sub(self.fitted)..];
+        let v: Vec<f64> = r.iter().map(|r| r.opening_force_n).filter(|f| f.is_finite()).collect();
+        if v.is_empty() { f64::NAN } else { v.iter().sum::<f64>() / v.len() as f64 }
+    }
+
+    /// A cycle jump moved the crack to `a` (simulation): the readings start again from it.
+    pub fn restart(&mut self, a: f64) {
+        self.discard();
+        self.readings.clear();
+        self.a0 = a;
+    }
+}
+
+/// Uniform and normal draws from a small reproducible generator (splitmix64).
+#[derive(serde::Serialize, serde::Deserialize, Debug, Clone, Copy, PartialEq)]
+pub struct Rng(pub u64);
+
+impl Rng {
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    pub fn uniform(&mut self) -> f64 {
+        ((self.next_u64() >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+    }
+    pub fn normal(&mut self) -> f64 {
+        let (u1, u2) = (self.uniform(), self.uniform());
+        (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
+    }
+}
+
+/// Closure depth of a simulated specimen: the compliance offset far below the opening force.
+pub const CLOSURE_DEPTH: f64 = 0.5;
+/// Width of the simulated closure transition, as a share of Fmax.
+pub const CLOSURE_WIDTH: f64 = 0.01;
+
+/// The measurement chain of a specimen (its truth) as a gauge sees it: the one copy the
+/// simulator and the virtual rig read the specimen through.
+#[derive(serde::Serialize, serde::Deserialize, Debug, Clone)]
+pub struct GaugeChain {
+    pub source: CrackSource,
+    pub method: Method,
+    pub noise: f64,
+    pub resolution: f64,
+    pub drift_per_cycle: f64,
+    pub closure_opening_fraction: f64,
+    rng: Rng,
+    /// potential of the specimen at its initial crack [V] (potential drop)
+    pub v0: f64,
+    /// accumulated gauge drift [m] or [-]
+    pub drift: f64,
+    /// a gauge slip: a sudden offset of the opening [m]
+    pub offset: f64,
+}
+
+impl GaugeChain {
+    /// The chain of a `Measurement` on `spec` with the initial crack `a0_m` (None for the model).
+    pub fn new(meas: &Measurement, spec: &Specimen, material: &Material, a0_m: f64) -> Option<Self> {
+        let mut method = meas.method(spec, material, a0_m)?;
+        if let Method::Johnson { v_ref, .. } = &mut method {
+            *v_ref = 1.0;
+        }
+        Some(GaugeChain {
+            source: meas.crack, method, noise: meas.noise, resolution: meas.resolution, drift_per_cycle: meas.drift_per_cycle,
+            closure_opening_fraction: meas.closure_opening_fraction, rng: Rng(meas.seed ^ 0x5EED), v0: 1.0, drift: 0.0, offset: 0.0,
+        })
+    }
+
+    /// The opening [m] (compliance) or the potential [V] (potential drop) of the specimen with
+    /// true crack `a_true` [m] at force `f` [N]; `fmax` the cycle's peak force (closure scales
+    /// with it). NaN when the crack is outside the expression's range.
+    pub fn read(&mut self, spec: &Specimen, a_true: f64, f: f64, fmax: f64) -> f64 {
+        match &self.method {
+            Method::Johnson { y_m, a_ref_m, width_m, .. } => {
+                let v = self.v0 * meas::johnson_v_ratio(a_true, *width_m, *y_m, *a_ref_m);
+                let v = v * (1.0 + self.noise * self.rng.normal() + self.drift);
+                quantize(v, self.resolution * self.v0)
+            }
+            _ => {
+                let c = match compliance(spec, &self.method, a_true) {
+                    Ok(c) => c,
+                    Err(_) => return f64::NAN,
+                };
+                let v = c * closed_force(f, fmax, self.closure_opening_fraction) + self.noise * self.rng.normal() + self.drift + self.offset;
+                quantize(v, self.resolution)
+            }
+        }
+    }
+
+    /// One load cycle passed: the drift moves on.
+    pub fn cycle(&mut self) {
+        self.drift += self.drift_per_cycle;
+    }
+}
+
+fn quantize(v: f64, q: f64) -> f64 {
+    if q > 0.0 { (v / q).round() * q } else { v }
+}
+
+/// The compliance C = v/F [m/N] of a crack `a` by the measurement's expression (the forward form).
+pub fn compliance(spec: &Specimen, method: &Method, a: f64) -> Result<f64> {
+    let (w, b) = (spec.width_m, spec.thickness_m);
+    match method {
+        Method::ComplianceCt { x_over_w, modulus_pa } => Ok(meas::ct_compliance_from_alpha(a / w, *x_over_w)? / (modulus_pa * b)),
+        Method::ComplianceMt { y_m, modulus_pa, poisson_ratio } => Ok(meas::mt_compliance_dimensionless(2.0 * a / w, y_m / w, *poisson_ratio) / (modulus_pa * b)),
+        _ => Err(Error::Input("a potential method has no compliance".into())),
+    }
+}
+
+/// The force the opening follows, closure included: the local compliance is
+/// C·(1 − d·σ((F_t − F)/w)) (`crack_measure::ClosureFit`'s curve), with F_t placed so that the
+/// 2 % compliance offset falls at `frac`·Fmax. Returns the "effective" force whose product with
+/// C is the opening.
+pub fn closed_force(f: f64, fmax: f64, frac: f64) -> f64 {
+    if !(frac > 0.0 && fmax > 0.0) {
+        return f;
+    }
+    let (d, w) = (CLOSURE_DEPTH, CLOSURE_WIDTH * fmax);
+    let p = 0.02 / d;
+    let f_t = frac * fmax + w * (p / (1.0 - p)).ln();
+    let z = (f_t - f) / w;
+    let softplus = z.max(0.0) + (-z.abs()).exp().ln_1p();
+    f + d * w * softplus
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::crack_measure::ClosureFit;
+
+    #[test]
+    fn the_chain_s_closure_opens_at_its_declared_force() {
+        // the ClosureFit with the chain's parameters puts the 2 % offset at frac·Fmax
+        let fmax = 5000.0;
+        let frac = 0.3;
+        let (d, w) = (CLOSURE_DEPTH, CLOSURE_WIDTH * fmax);
+        let p = 0.02 / d;
+        let f_t = frac * fmax + w * (p / (1.0 - p)).ln();
+        let fit = ClosureFit { c_open: 1.0, depth: d, f_t, w };
+        assert!((fit.opening_force(0.02, 0.0, fmax) - frac * fmax).abs() < 1e-6);
+        // and the local slope of the chain's opening is that curve's compliance
+        let h = 0.1;
+        for f in [500.0, 1400.0, 1600.0, 3000.0] {
+            let slope = (closed_force(f + h, fmax, frac) - closed_force(f - h, fmax, frac)) / (2.0 * h);
+            assert!((slope - (1.0 - fit.offset(f))).abs() < 1e-6, "{f}: {slope}");
+        }
+    }
+
+    #[test]
+    fn a_reader_recovers_a_ct_crack_with_noise_and_closure() {
+        let spec = Specimen::new(Geometry::CT, 0.0508, 0.00635).unwrap();
+        let mat = Material::default();
+        let m = Measurement { crack: CrackSource::Compliance, noise: 0.2e-6, resolution: 0.02e-6, closure_opening_fraction: 0.3, ..Measurement::model() };
+        let mut chain = GaugeChain::new(&m, &spec, &mat, 0.015).unwrap();
+        let mut reader = CrackReader::new(&m, &spec, &mat, 0.015).unwrap();
+        let a_true = 0.02;
+        let (fmax, fmin, n) = (4000.0, 400.0, 50);
+        let mut got = None;
+        for c in 1..=5u64 {
+            for k in 0..n {
+                let x = k as f64 / n as f64;
+                let f = 0.5 * (fmax + fmin) + 0.5 * (fmax - fmin) * (2.0 * std::f64::consts::PI * x).sin();
+                let v = chain.read(&spec, a_true, f, fmax);
+                reader.sample(f, v, c);
+            }
+            got = reader.cycle_closed(&spec, c).or(got);
+        }
+        let r = got.expect("a reading after five cycles");
+        assert!((r.a_m - a_true).abs() < 1e-4, "a {} vs {a_true}", r.a_m);
+        assert!((r.opening_force_n - 0.3 * fmax).abs() < 0.05 * fmax, "F_op {}", r.opening_force_n);
+    }
+}

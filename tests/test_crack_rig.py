@@ -1,0 +1,101 @@
+"""The crack measured on the rig (issue 29): a K-decreasing test through `htm.Session` on a
+virtual rig whose specimen grows by a law the spec does not know, run on the clip gauge's
+compliance; the gauges' faults hold the test with a named event and it resumes; the spec's
+`[measurement]` and the rig's crack channels are checked before anything runs."""
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import pytest
+
+from htm.control.session import Session, specimen_of
+from htm.devices.config import virtual_config
+from htm.errors import DeviceError, HtmError
+from htm.spec import SpecError, parse
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+import crack_rig  # noqa: E402
+
+
+def test_k_decreasing_on_the_measured_crack_holds_delta_k_on_the_true_crack():
+    """C(T) of examples/ct_constant_force.toml, ΔK 14 → 7 MPa·√m at C = −0.08 mm⁻¹, the rig's
+    law C × 1.4, closure at 30 % of Fmax (both laws × 600: about 1100 cycles)."""
+    r = crack_rig.run("ct", 600.0, 0.1, "compliance", 3, 0.3)
+    assert r["end"] == "target_crack_length" and r["trips"] == [], r
+    assert r["dk_true_err_max_pct"] < 2.0, r
+    assert r["a_err_max_mm"] < r["a_resolution_mm"], r
+    assert r["opening_force_err_max_pct_fmax"] < 5.0, r
+
+
+def _rig(**virtual):
+    return virtual_config("lockstep", analog={"channels": {"cod": "ai4", "dcpd": "ai5", "dcpd_current": "ai6"}},
+                          virtual={"specimen": {"c_factor": 1.4}, **virtual})
+
+
+@pytest.mark.parametrize(("crack", "fault", "detector"), [
+    ("compliance", "gauge_slip", "gauge_slip"),
+    ("compliance", "gauge_out_of_range", "gauge_range"),
+    ("potential_drop", "dcpd_current_lost", "dcpd_current"),
+])
+def test_a_gauge_fault_holds_the_test_and_it_resumes(crack, fault, detector):
+    doc = crack_rig.spec_doc("ct", 100.0, 0.1, crack)
+    spec = parse(doc, "faults", check=False)
+    s = Session().open(_rig(), virtual=True, specimen=specimen_of(spec), thread=False)
+    try:
+        s.step(5)
+        s.start(spec, record=False)
+        s.step(50 * 40)
+        ctrl = s.loop.ctrl
+        assert ctrl.state == "running", [e["message"] for e in s.events_since(0)]
+        n0 = ctrl.cycle
+        s.rig.inject(fault)
+        s.step(50 * 4)
+        trips = [e for e in s.events_since(0) if e["kind"] == "trip"]
+        assert [e["detector"] for e in trips] == [detector], [e["message"] for e in trips]
+        assert ctrl.state == "holding"
+        held = ctrl.cycle
+        assert held <= n0 + 2, "the hold came within the cycle of the fault"
+        s.step(50 * 5)
+        assert ctrl.cycle == held, "held cycles are not counted"
+        s.rig.clear_faults()
+        s.step(10)
+        assert s.reset() == []
+        s.resume()
+        s.step(50 * 30)
+        assert ctrl.state == "running" and ctrl.cycle > held + 20
+        rows = [c for c in s.cycles_since(0)]
+        cycles = [c["cycle"] for c in rows]
+        assert cycles == list(range(1, len(cycles) + 1)), "no cycle lost or repeated"
+        # the crack reading goes on after the fault: the measured crack follows the true one
+        assert abs(ctrl.a_m - s.rig.plant.a_m) < 1e-4, (ctrl.a_m, s.rig.plant.a_m)
+    finally:
+        s.close()
+
+
+def test_measurement_spec_and_rig_channels_are_checked_before_anything_runs():
+    doc = crack_rig.spec_doc("ct", 1.0, 0.1, "compliance")
+    doc["measurement"]["crack"] = "laser"
+    with pytest.raises(SpecError, match="measurement.crack"):
+        parse(doc, "x", check=False)
+    doc["measurement"] = {"crack": "compliance", "gauge_x_over_w": -0.3}
+    with pytest.raises(SpecError, match="measurement.gauge_x_over_w"):
+        parse(doc, "x", check=False)
+    doc["measurement"] = {"crack": "potential_drop"}  # probes not placed
+    with pytest.raises(SpecError, match="measurement.gauge_y_m"):
+        parse(doc, "x", check=False)
+    with pytest.raises(DeviceError, match="dcpd_current"):
+        virtual_config("lockstep", analog={"channels": {"dcpd": "ai5"}})
+    with pytest.raises(DeviceError, match="ai0..ai7"):
+        virtual_config("lockstep", analog={"channels": {"cod": "ai8"}})
+    # a compliance test on a rig without a clip gauge is refused before it starts
+    spec = parse(crack_rig.spec_doc("ct", 100.0, 0.1, "compliance"), "x", check=False)
+    s = Session().open(virtual_config("lockstep"), virtual=True, specimen=specimen_of(spec), thread=False)
+    try:
+        with pytest.raises(HtmError, match="analog.channels.cod"):
+            s.start(spec, record=False)
+    finally:
+        s.close()
+    assert math.isfinite(spec.config.params["supply_pressure_pa"])
