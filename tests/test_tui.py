@@ -84,6 +84,32 @@ def test_spec_saves_and_loads_back(tmp_path, store):
     run(go())
 
 
+def test_setup_edits_the_crack_measurement_and_saves_it(tmp_path, store):
+    """[measurement] from the Setup tab: the crack source chosen, its reading interval shown only
+    for a measured crack, the spec built with it, saved and loaded back."""
+    from textual.widgets import Select
+
+    async def go():
+        app = HtmApp(session_factory=lambda: None)
+        async with app.run_test(size=(140, 60)) as pilot:
+            pane = app.query_one(SetupPane)
+            assert pane.spec.measurement["crack"] == "model"
+            assert not app.query_one("#row-measurement-cycles_per_reading").display
+            app.query_one("#measurement-crack", Select).value = "compliance"
+            await pilot.pause()
+            assert app.query_one("#row-measurement-cycles_per_reading").display
+            app.query_one("#measurement-cycles_per_reading", Input).value = "20"
+            await pilot.pause()
+            assert pane.spec is not None, text(app, "#setup-status")
+            assert pane.spec.measurement["crack"] == "compliance" and pane.spec.measurement["cycles_per_reading"] == 20
+            app.query_one("#spec-path", Input).value = str(tmp_path / "measured.toml")
+            await pilot.pause()
+            await pilot.click("#save")
+            await pilot.pause()
+            assert 'crack = "compliance"' in (tmp_path / "measured.toml").read_text()
+    run(go())
+
+
 def test_install_jog_is_force_limited_by_specimen_protect(store):
     async def go():
         app = HtmApp()

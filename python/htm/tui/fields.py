@@ -58,6 +58,11 @@ FIELDS: tuple[Field, ...] = (
     Field(("end", "a_over_w"), "end at a/W"),
     Field(("end", "max_cycles"), "cycle limit", integer=True),
     Field(("end", "size_criterion"), "E647 size criterion", choices=("flag", "stop")),
+    # [measurement]: the crack the test runs on (ΔK, shedding, end) — measured on the rig, or the
+    # law's own prediction (simulation only: a real rig refuses "model")
+    Field(("measurement", "crack"), "crack size from", choices=("model", "compliance", "potential_drop")),
+    Field(("measurement", "cycles_per_reading"), "cycles per reading", integer=True,
+          when=(("measurement", "crack"), ("compliance", "potential_drop"))),
 )
 
 # material presets (SI) and specimen presets (SI): what a lab keeps on a card
