@@ -291,6 +291,10 @@ def write_outputs(out_dir: Path, spec: TestSpec, out: core.Outcome | dict[str, A
     else:
         table = out["table"]
         pq.write_table(pa.table({k: np.asarray(v) for k, v in table.items()}), out_dir / "cycles.parquet")
+    m = measured_crack(spec, table)
+    if m is not None:
+        s["measurement"] = m
+        m["plot"] = crack_vs_law_plot(out_dir / "crack_vs_law.png", spec, table).name
     (out_dir / "summary.json").write_text(json.dumps(s, indent=2, default=float))
     text = summary_text(spec, s)
     (out_dir / "summary.txt").write_text(text + "\n")
@@ -299,6 +303,50 @@ def write_outputs(out_dir: Path, spec: TestSpec, out: core.Outcome | dict[str, A
     title = f"Simulated test {spec.name}" + (f" on the twin {spec.twin['path']}" if spec.twin else "")
     s["report"] = spec_test_report(out_dir, spec, table, title)
     return s
+
+
+def measured_crack(spec: TestSpec, table: dict[str, Any]) -> dict[str, Any] | None:
+    """How the crack the test ran on (measured: compliance or potential drop) compares with the
+    law's prediction beside it, from the per-cycle table; None for a test on the law's crack."""
+    crack = spec.measurement.get("crack", "model")
+    if crack == "model" or "a_law_m" not in table or not len(table["a_m"]):
+        return None
+    a, law = np.asarray(table["a_m"], dtype=float), np.asarray(table["a_law_m"], dtype=float)
+    ev = np.asarray(table["events"]).astype(np.uint32)
+    ok = np.isfinite(a) & np.isfinite(law)
+    if not ok.any():
+        return None
+    i = int(np.flatnonzero(ok)[-1])
+    grown, law_grown = a[i] - spec.a0_m, law[i] - spec.a0_m
+    op = np.asarray(table.get("opening_force_n", np.full(len(a), np.nan)), dtype=float)
+    dk, dke = (np.asarray(table.get(c, np.full(len(a), np.nan)), dtype=float) for c in ("delta_k_pa_sqrt_m", "delta_k_eff_pa_sqrt_m"))
+    ratio = dke / np.where(dk > 0, dk, np.nan)
+    fin = np.isfinite(op)
+    return {"crack": crack, "readings": int(((ev & core.EVENTS["reading"]) != 0).sum()),
+            "failed_readings": int(((ev & core.EVENTS["reading_failed"]) != 0).sum()),
+            "a_end_m": float(a[i]), "a_law_end_m": float(law[i]), "at_cycle": int(np.asarray(table["cycle"])[i]),
+            # the law's crack extension over the measured one, minus 1: how far the material departs
+            # from the law the spec assumed
+            "law_extension_error_pct": float(100 * (law_grown / grown - 1)) if grown > 0 else None,
+            "opening_force_n": [float(op[fin].min()), float(op[fin].max())] if fin.any() else None,
+            "delta_k_eff_ratio": [float(np.nanmin(ratio)), float(np.nanmax(ratio))] if np.isfinite(ratio).any() else None}
+
+
+def crack_vs_law_plot(path: Path, spec: TestSpec, table: dict[str, Any]) -> Path:
+    """a–N of the crack the test ran on (measured) and the law's crack beside it."""
+    from htm.report import pyplot, save
+
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(7, 4))
+    n = np.asarray(table["cycle"], dtype=float)
+    ax.plot(n, 1e3 * np.asarray(table["a_m"], dtype=float), label=f"measured ({spec.measurement['crack'].replace('_', ' ')})")
+    ax.plot(n, 1e3 * np.asarray(table["a_law_m"], dtype=float), "--", label="the spec's law")
+    ax.set_xlabel("cycles N")
+    ax.set_ylabel("crack size a [mm]")
+    ax.set_title(f"{spec.name}: measured crack and the law's prediction")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    return save(fig, path)
 
 
 def summary_text(spec: TestSpec, s: dict[str, Any]) -> str:
@@ -311,6 +359,7 @@ def summary_text(spec: TestSpec, s: dict[str, Any]) -> str:
         ("crack", f"a = {spec.a0_m * 1e3:.2f} → {s['final_a_m'] * 1e3:.2f} mm (a/W {s['final_a_over_w']:.3f})"),
         ("force error", f"max |ΔF| {s['max_abs_df_err_pct']:.3f} %, max |peak| {s['max_abs_peak_err_pct']:.3f} %: "
                         f"{'inside' if s['force_in_band'] else 'OUTSIDE'} the ISO 12108 band ±{s['force_tolerance_pct']:g} %"),
+        *((("measured crack", _measured_text(s["measurement"])),) if s.get("measurement") else ()),
         ("rig model", _twin_label(spec)),
         ("rig limits", s["feasibility"] + (" (run anyway: override_limits)" if s["override_limits"] else "")),
         *(("convergence", convergence.describe(e)) for e in s.get("convergence", [])),
@@ -320,6 +369,16 @@ def summary_text(spec: TestSpec, s: dict[str, Any]) -> str:
     ]
     w = max(len(k) for k, _ in rows)
     return "\n".join(f"{k:<{w}}  {v}" for k, v in rows)
+
+
+def _measured_text(m: dict[str, Any]) -> str:
+    text = (f"{m['crack'].replace('_', ' ')}, {m['readings']:,} readings; at cycle {m['at_cycle']:,} measured "
+            f"{m['a_end_m'] * 1e3:.2f} mm, the law's {m['a_law_end_m'] * 1e3:.2f} mm")
+    if m["law_extension_error_pct"] is not None:
+        text += f" (law's extension {m['law_extension_error_pct']:+.1f} %)"
+    if m["opening_force_n"]:
+        text += f"; opening force {m['opening_force_n'][0] / 1e3:.2f}–{m['opening_force_n'][1] / 1e3:.2f} kN"
+    return text + f"; plot {m['plot']}"
 
 
 def _twin_label(spec: TestSpec) -> str:
