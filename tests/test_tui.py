@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from textual.widgets import DataTable, Input, Static
 
+from htm.record import Store
 from htm.tui.app import HtmApp
 from htm.tui.setup import SetupPane
 
@@ -270,6 +271,20 @@ def test_results_lists_tests_opens_the_report_and_exports(store, tmp_path):
             app.query_one("#export-dir", Input).value = str(tmp_path / "export")
             await pilot.click("#export")
             await until(pilot, lambda: (tmp_path / "export" / "cycles.parquet").exists())
+            # the visual crack fronts: the measured sizes corrected, E647 redone, both kept
+            app.query_one("#a0-visual", Input).value = "15.0"
+            app.query_one("#af-visual", Input).value = "31.0"
+            await pilot.click("#correct-visual")
+            await until(pilot, lambda: "a0_visual" in text(app, "#results-summary") or "a0 visual" in text(app, "#results-summary"))
+            with Store(store) as st:
+                t = st.get(older)
+            assert t["results"]["a0_visual_m"] == pytest.approx(15.0e-3) and t["results"]["af_visual_m"] == pytest.approx(31.0e-3)
+            assert {"e647_measured", "e647_corrected"} <= set(t["files"])
+            app.query_one("#af-visual", Input).value = "10"  # below a0: refused, nothing changed
+            await pilot.click("#correct-visual")
+            await pilot.pause(0.3)
+            with Store(store) as st:
+                assert st.get(older)["results"]["af_visual_m"] == pytest.approx(31.0e-3)
     run(go())
 
 

@@ -80,6 +80,8 @@ class ResultsPane(Vertical):
     ResultsPane #lb-data { width: 1fr; }
     ResultsPane #lb-upto { width: 26; }
     ResultsPane #lb-spec { width: 30; }
+    ResultsPane #visual-bar { height: 3; }
+    ResultsPane #visual-bar Input { width: 24; }
     ResultsPane #results-detail { height: 1fr; border: round $accent; }
     """
 
@@ -105,6 +107,10 @@ class ResultsPane(Vertical):
             yield Input(placeholder="early: up to cycles", id="lb-upto")
             yield Input(placeholder="spec (blank: the test's)", id="lb-spec")
             yield Button("Life band (b)", id="lifeband")
+        with Horizontal(id="visual-bar"):  # E647: the measured sizes corrected to the fracture surface's
+            yield Input(placeholder="visual a0 [mm]", id="a0-visual")
+            yield Input(placeholder="visual a_f [mm]", id="af-visual")
+            yield Button("Correct to visual", id="correct-visual")
         with VerticalScroll(id="results-detail"):
             yield Static("", id="lifeband-result")
             yield Static("", id="results-summary")
@@ -224,6 +230,33 @@ class ResultsPane(Vertical):
             self.notify(f"export failed: {e}", severity="error")
             return
         self.notify(f"exported {self.selected} to {out}")
+
+    # ---- the visual crack fronts -------------------------------------------------------------
+    @on(Button.Pressed, "#correct-visual")
+    def correct_visual(self) -> None:
+        """Correct the selected test's measured crack sizes to the visually measured initial and
+        final fronts (E647, `htm db correct`): the E647 reduction and report redone from the
+        corrected sizes, both kept."""
+        from htm.correct import correct_test
+
+        if self.selected is None:
+            self.notify("select a test first", severity="warning")
+            return
+        try:
+            a0, af = (float(self.query_one(f"#{w}", Input).value.replace(",", ".")) for w in ("a0-visual", "af-visual"))
+        except ValueError:
+            self.notify("type the visual initial and final crack sizes in millimetres", severity="warning")
+            return
+        try:
+            with self._store() as st:
+                r = correct_test(st, self.selected, a0 * 1e-3, af * 1e-3)
+        except (HtmError, OSError) as e:
+            self.notify(f"correction refused: {e}", severity="error", timeout=10)
+            return
+        vc = r["visual_correction"]
+        self.notify(f"{self.selected}: crack sizes corrected to the visual fronts (a0 {vc['offset_a0_m'] * 1e3:+.3f} mm, "
+                    f"a_f {vc['offset_af_m'] * 1e3:+.3f} mm); E647 redone, measured and corrected both kept", timeout=10)
+        self.show(self.selected)
 
     # ---- life band ---------------------------------------------------------------------------
     @on(Button.Pressed, "#lifeband")
