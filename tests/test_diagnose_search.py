@@ -75,6 +75,28 @@ def test_a_changed_setting_changes_the_decision_that_depends_on_it_and_the_trace
     assert all(d["outcome"] == "does not pay off" and "dcost < -min_gain" in d["rule"] for d in judged)
 
 
+def test_a_pass_within_close_margin_of_its_threshold_is_no_claim_and_the_trace_names_both_sides():
+    """min_share set just under the share of the p_a residual the offset explains with the
+    defaults: the offset still meets the rule, but only within close_margin of it — a decision
+    that rounding, a thread count or a seed could flip. It is not made for the effect: the
+    offset is not claimed, and the trace marks the decision close, names the model without it
+    as the other side and carries the numbers and the thresholds compared."""
+    share = _finding_decision(default_report())["numbers"]["explained"]
+    near = dataclasses.replace(DEFAULT, min_share=share / (1.0 + 0.5 * DEFAULT.close_margin))
+    report = diagnose(offset_record()[0], settings=near)
+    assert ("sensor_offset", "p_a") not in [(f["effect"], f["channel"]) for f in report["findings"]]
+    close = [d for d in report["trace"] if d["candidate"] == "sensor_offset on p_a" and d.get("close")]
+    assert close, "the offset's decision is marked close"
+    for d in close:
+        assert d["outcome"] in ("does not pay off", "polished away: kept the model without it")
+        assert "explained >= min_share" in d["rule"] and "close_margin" in d["rule"]
+        assert d["other"] == "the model without it"
+        assert d["numbers"]["min_share"] == pytest.approx(near.min_share)
+        assert d["numbers"]["explained"] >= near.min_share  # it met the rule, by less than close_margin
+    # clear of the band (the default), the same evidence is a claim
+    assert ("sensor_offset", "p_a") in [(f["effect"], f["channel"]) for f in default_report()["findings"]]
+
+
 _CHILD = """
 import json, sys
 from threadpoolctl import threadpool_info
