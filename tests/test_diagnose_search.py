@@ -75,6 +75,28 @@ def test_a_changed_setting_changes_the_decision_that_depends_on_it_and_the_trace
     assert all(d["outcome"] == "does not pay off" and "dcost < -min_gain" in d["rule"] for d in judged)
 
 
+def test_a_pass_within_close_margin_of_its_threshold_is_no_claim_and_the_trace_names_both_sides():
+    """min_share set just under the share of the p_a residual the offset explains with the
+    defaults: the offset still meets the rule, but only within close_margin of it — a decision
+    that rounding, a thread count or a seed could flip. It is not made for the effect: the
+    offset is not claimed, and the trace marks the decision close, names the model without it
+    as the other side and carries the numbers and the thresholds compared."""
+    share = _finding_decision(default_report())["numbers"]["explained"]
+    near = dataclasses.replace(DEFAULT, min_share=share / (1.0 + 0.5 * DEFAULT.close_margin))
+    report = diagnose(offset_record()[0], settings=near)
+    assert ("sensor_offset", "p_a") not in [(f["effect"], f["channel"]) for f in report["findings"]]
+    close = [d for d in report["trace"] if d["candidate"] == "sensor_offset on p_a" and d.get("close")]
+    assert close, "the offset's decision is marked close"
+    for d in close:
+        assert d["outcome"] in ("does not pay off", "polished away: kept the model without it")
+        assert "explained >= min_share" in d["rule"] and "close_margin" in d["rule"]
+        assert d["other"] == "the model without it"
+        assert d["numbers"]["min_share"] == pytest.approx(near.min_share)
+        assert d["numbers"]["explained"] >= near.min_share  # it met the rule, by less than close_margin
+    # clear of the band (the default), the same evidence is a claim
+    assert ("sensor_offset", "p_a") in [(f["effect"], f["channel"]) for f in default_report()["findings"]]
+
+
 _CHILD = """
 import json, sys
 from threadpoolctl import threadpool_info
@@ -121,3 +143,60 @@ def test_htm_diagnose_prints_a_plain_line_per_stage_on_stderr(tmp_path, capsys):
     report = json.loads((Path(tmp_path) / "out" / "report.json").read_text())
     assert report["trace"] and report["settings"] == DEFAULT.to_json()
     assert "## Decisions" in (tmp_path / "out" / "report.md").read_text()
+
+
+def test_a_valve_lag_is_claimed_only_clear_of_the_spools_own_lag():
+    """The base model has a second-order spool (declared, or a typical 150 Hz at damping 0.7):
+    its low-frequency lag is 2*zeta/omega_n. A first-order lag shorter than that is the spool's
+    own form (sub-millisecond lags claimed on clean records of other rigs): not claimable; one
+    clear of it is, and min_valve_lag moves the line."""
+    import numpy as np
+
+    from htm.ident.features import measured_channels
+    from htm.ident.valve import ValveFamily, spool_lag
+
+    rec, _ = offset_record()
+    channels = measured_channels(rec.columns)
+    scales = dict.fromkeys(channels, 1.0)
+
+    def lag_claim(meta_rig: dict, settings: SearchSettings = DEFAULT):
+        meta = json.loads(json.dumps(rec.meta))
+        meta["rig"].update(meta_rig)
+        fam = ValveFamily(type(rec)(rec.columns, meta, rec.name), channels, settings=settings)
+        [cand] = [c for c in fam.candidates(scales, 500.0) if c.effect == "valve_dynamics"]
+        return fam, cand.claimable
+
+    fam, claim = lag_claim({})
+    typical = 2 * 0.7 / (2 * np.pi * 150.0)
+    assert spool_lag(fam.nominal) == pytest.approx(typical)
+    assert not claim({"tau_s": 0.5 * typical}) and claim({"tau_s": 1.5 * typical})
+    fam, claim = lag_claim({"valve_natural_hz": 40.0, "valve_damping": 0.9})
+    slow = 2 * 0.9 / (2 * np.pi * 40.0)
+    assert not claim({"tau_s": 0.8 * slow}) and claim({"tau_s": 1.2 * slow})
+    _, claim = lag_claim({"valve_natural_hz": 40.0, "valve_damping": 0.9}, dataclasses.replace(DEFAULT, min_valve_lag=0.5))
+    assert claim({"tau_s": 0.8 * slow})
+
+
+def test_a_channel_not_followed_while_the_position_is_leaves_the_record_unexplained_not_refused():
+    """Both chamber readings carry a back-pressure over the top quarter of the stroke (an end
+    cushion's, 80 bar at the end) that no model of the vocabulary makes: the position is
+    followed, the stated rig stays inside its bounds, so the record is reported — the channels
+    kept, `unexplained` true, a warning naming them — not refused."""
+    import numpy as np
+
+    from htm.ident.records import Record
+
+    rec, _ = proving.make_record({}, seed=3, duration_s=6)
+    cols = dict(rec.columns)
+    y = np.asarray(cols["y"])
+    hi = float(np.percentile(y, 75))
+    cushion = 8e6 * np.clip((y - hi) / (float(np.max(y)) - hi), 0.0, 1.0)
+    cols["p_b"] = np.asarray(cols["p_b"]) + cushion
+    cols["p_a"] = np.asarray(cols["p_a"]) - cushion
+    stats: dict = {}
+    report = diagnose(Record(cols, rec.meta, "cushion"), stats=stats)
+    assert report["unexplained"] is True
+    assert {"p_a", "p_b"} <= set(stats["unexplained_channels"])
+    assert set(report["final"]["rmse"]) >= {"p_a", "p_b"}, "the channels are kept"
+    assert any("cannot follow" in w and "kept" in w for w in report["warnings"])
+    assert any(d["stage"] == "verdict" and d["outcome"] == "kept it: the record is unexplained" for d in report["trace"])

@@ -109,8 +109,21 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
             fitting = _Fitting(rec, channels, {c: sigma[c] for c in channels}, rate, horizon_s, verbose, t_start, st)
         fitted = fitting.search(trace, stages)
         bad = _not_followed(fitting.prob, fitted, st.cannot_follow)
+    unfollowed: dict[str, float] = {}
     if bad:
-        raise IdentificationError(_refusal(rec, bad))
+        pinned_rig = [k for k in fitted.model.pinned(len(fitting.family.base_frees)) if k in fitting.family.rig_keys]
+        if "y" in bad or pinned_rig:
+            # The motion itself missed, or a stated rig parameter at its bound: another rig.
+            raise IdentificationError(_refusal(rec, bad))
+        # The position followed with the stated rig inside its bounds, a channel not: structure
+        # outside the model over part of the record (an end cushion's pressure, a force over part
+        # of the stroke) or a sensor of another form. The channel is kept and the record reported,
+        # unexplained — refusing would throw away what does fit.
+        unfollowed = bad
+        warnings.append(_refusal(rec, bad, kept=True))
+        trace.add("verdict", None, "the model cannot follow a channel (error > cannot_follow x its variation) while it "
+                  "follows the position with the stated rig inside its bounds", "kept it: the record is unexplained",
+                  ratio=bad, cannot_follow=st.cannot_follow)
     prob, free, family, nominal, log, closed = (fitting.prob, fitting.free, fitting.family, fitting.nominal, fitting.log,
                                                fitting.closed)
     quantum = {c: ft.declared_resolution(rec.meta, c) or 0.0 for c in channels}
@@ -170,7 +183,7 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
         "baseline": {"params": res.base.values(), "rmse": every.prob.rmse(res.base_pred)},
         "findings": [f.to_json() for f in res.findings],
         "final": {"params": res.model.values(), "rmse": every.prob.rmse(res.pred)},
-        "unexplained": bool(left) or bool(dropped),
+        "unexplained": bool(left) or bool(dropped) or bool(unfollowed),
         "predictions": "predictions.csv",
         "settings": st.to_json(),
         "trace": trace.to_json(),
@@ -182,7 +195,7 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
     log("done", report["final"]["rmse"], "unexplained" if left else "")
     info = {"simulations": simulations, "seconds": time.perf_counter() - t_start, "noise_floor": sigma,
             "systematic_ratio": ratios, "own_floor": floor, "form_ratio": form,
-            "unexplained_channels": sorted(set(left) | set(dropped)),
+            "unexplained_channels": sorted(set(left) | set(dropped) | set(unfollowed)),
             "outside": outside, "fitted_on": fitted_on, "trace": trace,
             "family": family.name}  # model.json says which simulator re-runs the model
     if out_dir is not None:
@@ -290,8 +303,12 @@ def _not_followed(prob: Problem, res: Result, cannot_follow: float = CANNOT_FOLL
     return bad
 
 
-def _refusal(rec: Record, bad: dict[str, float], left_out: bool = False) -> str:
+def _refusal(rec: Record, bad: dict[str, float], left_out: bool = False, kept: bool = False) -> str:
     what = ", ".join(f"{c} (its error is {r:.0%} of the signal's variation)" for c, r in bad.items())
+    if kept:
+        return (f"the model of the declared rig cannot follow {what} even with every base parameter and effect "
+                "fitted, while it follows the position: kept, and the record reported unexplained (structure the "
+                "model lacks over part of the record, or check that channel's units, sign and bandwidth)")
     if left_out:
         return (f"the model of the declared rig cannot follow {what} even with every base parameter and effect "
                 "fitted: left out of the fit, and the record reported unexplained; check that channel's units, "

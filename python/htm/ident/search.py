@@ -52,7 +52,11 @@ class Verdict:
     `ablation_dcost` (against itself switched off, other parameters kept), `explained` (share of
     a channel's systematic residual removed), `claimable` (its size is worth claiming).
     `failed` names the rules it does not meet; `close`, whether a deciding number lies within
-    the settings' close_margin of its threshold. Indexable like the dict it replaces."""
+    the settings' close_margin of its threshold; `close_rules`, the rules it meets only by such a
+    margin. A pass that close is no claim (`ok` false): the record's evidence for the effect is
+    not clear of the search's own threshold, and the simpler model — without it — stands (a
+    decision that rounding, a thread count or a seed could flip is not made for the effect).
+    Indexable like the dict it replaces."""
 
     ok: bool
     dbic: float
@@ -62,6 +66,7 @@ class Verdict:
     claimable: bool = True
     failed: tuple[str, ...] = ()
     close: bool = False
+    close_rules: tuple[str, ...] = ()
     alternative: str = ""
 
     def __getitem__(self, key: str) -> Any:
@@ -76,11 +81,16 @@ class Verdict:
 
     @property
     def rule(self) -> str:
-        return "pays off: " + ", ".join(RULES) if self.ok else "fails: " + ", ".join(self.failed)
+        if self.ok:
+            return "pays off: " + ", ".join(RULES)
+        if not self.failed:
+            return "close: meets " + ", ".join(self.close_rules) + " only within close_margin: the model without it stands"
+        return "fails: " + ", ".join(self.failed)
 
     def __repr__(self) -> str:
         return (f"Verdict(ok={self.ok}, dbic={self.dbic:.4g}, dcost={self.dcost:+.4f}, ablation_dcost={self.ablation_dcost:+.4f}, "
-                f"explained={self.explained:.3f}, claimable={self.claimable}{', failed=' + str(list(self.failed)) if self.failed else ''})")
+                f"explained={self.explained:.3f}, claimable={self.claimable}{', failed=' + str(list(self.failed)) if self.failed else ''}"
+                f"{', close on ' + str(list(self.close_rules)) if self.close_rules else ''})")
 
 
 # The rules of `pays_off`, by the names the trace uses.
@@ -261,7 +271,7 @@ class Selector:
                 self.pred, self.jac = prob.whole(self.model, self.work_pred), chosen.jac[:, : len(self.model.x)]
                 log("polished away", chosen.cand.label, chosen.verdict)
                 tr.add("break ties", chosen.cand.label, chosen.verdict.rule, "polished away: kept the model without it",
-                       close=chosen.verdict.close, **chosen.verdict.numbers())
+                       close=chosen.verdict.close, **chosen.verdict.numbers(), **_against(chosen.verdict, st))
                 continue
             if not self.findings:  # the baseline is the base model as fitted just before the first finding
                 self.base, self.base_pred = self.model, self.pred
@@ -333,7 +343,7 @@ class Selector:
             cand, trial, twork, verdict = t.cand, t.model, t.work, t.verdict
             self.log("refit", cand.label, cand.report(trial.params()), verdict)
             tr.add("judge", cand.label, verdict.rule, "pays off" if verdict.ok else "does not pay off", close=verdict.close,
-                   params=cand.report(trial.params()), **verdict.numbers())
+                   params=cand.report(trial.params()), **verdict.numbers(), **_against(verdict, st))
             if verdict.ok:
                 good.append(t)
                 continue
@@ -363,7 +373,8 @@ class Selector:
             else:
                 self.log("not against the better base", g.cand.label)
             self.trace.add("judge", g.cand.label, "pays off against the better base parameters of " + better_base.cand,
-                           "kept" if v.ok else "dropped: only the base's convergence", close=v.close, **v.numbers())
+                           "kept" if v.ok else "dropped: only the base's convergence", close=v.close, **v.numbers(),
+                           **_against(v, self.st))
         return settled
 
     def polish(self, g: Trial) -> Trial:
@@ -448,11 +459,15 @@ class Selector:
             wmodel, wpred, wwork, wjac = refit_without(f)
             dbic, dcost = prob.bic_delta(wpred, self.pred, max(1, len(f.cand.frees)))
             self.log("backward check", f.cand.label, f"dBIC {dbic:.0f} dcost {dcost:+.3f}")
-            keep = not small and dbic < 0 and dcost < -st.min_gain
-            tr.add("backward check", f.cand.label, "below a claimable size" if small else "dBIC < 0 and dcost < -min_gain "
-                   "against the model refitted without it", "kept" if keep else "dropped",
-                   close=not small and abs(dcost + st.min_gain) < st.close_margin * st.min_gain,
-                   dbic=dbic, dcost=dcost, min_gain=st.min_gain)
+            # As in `pays_off`: a finding kept only by a margin within close_margin of min_gain is
+            # a close decision, and the simpler model (without it) stands.
+            close = not small and abs(dcost + st.min_gain) < st.close_margin * st.min_gain
+            keep = not small and dbic < 0 and dcost < -st.min_gain and not close
+            rule = ("below a claimable size" if small else "dBIC < 0 and dcost < -min_gain (by more than close_margin) "
+                    "against the model refitted without it")
+            tr.add("backward check", f.cand.label, rule, "kept" if keep else "dropped", close=close,
+                   other="the model refitted without it" if close else None, dbic=dbic, dcost=dcost, min_gain=st.min_gain,
+                   **({"close_margin": st.close_margin} if close else {}))
             if not keep:
                 self.findings.remove(f)
                 self.model, self.pred, self.work_pred, self.jac = wmodel, wpred, wwork, wjac
@@ -646,7 +661,9 @@ def pays_off(prob: Problem, pred0: dict, trial: Model, tpred: dict, before: Mode
     information criterion and by min_gain of the cost, and so must it against its own refit
     with the effect switched off (else it only helped the base parameters converge); and it
     must remove min_share of some channel's systematic residual (its own signature, not a
-    sliver of a misfit it does not account for). The rules are named in `RULES`."""
+    sliver of a misfit it does not account for). The rules are named in `RULES`. Each graded
+    rule must be met by more than close_margin of its threshold: a pass within it is close
+    and no claim (`Verdict`)."""
     st = prob.settings
     k = max(1, len(cand.frees))
     dbic, dcost = prob.bic_delta(pred0, tpred, k)
@@ -659,14 +676,31 @@ def pays_off(prob: Problem, pred0: dict, trial: Model, tpred: dict, before: Mode
     share = prob.explained(pred0, tpred, only=own)
     big = cand.claimable is None or cand.claimable(cand.report(trial.params()))
     met = (dbic < 0, dcost < -st.min_gain, abic < 0, acost < -st.min_gain, share >= st.min_share, big)
-    # Close: a verdict that passes with one of its measured margins within close_margin of its
-    # threshold, or that fails only by such margins (the ΔBIC and the size are not graded).
-    m = st.close_margin
-    near = (False, abs(dcost + st.min_gain) < m * st.min_gain, False, abs(acost + st.min_gain) < m * st.min_gain,
-            abs(share - st.min_share) < m * st.min_share, False)
+    near = _near(st, dcost, acost, share)
     failed = [i for i, ok in enumerate(met) if not ok]
+    # Close: a graded number within close_margin of its threshold (the ΔBIC and the size are not
+    # graded). A verdict that fails only by such margins, or that passes with one of them, is
+    # close; a close pass is no claim (`close_rules`): the model without the effect stands.
     close = any(near) if not failed else all(near[i] for i in failed)
-    return Verdict(all(met), dbic, dcost, acost, share, bool(big), tuple(RULES[i] for i in failed), bool(close))
+    close_rules = tuple(RULES[i] for i, n in enumerate(near) if n and met[i])
+    return Verdict(all(met) and not close_rules, dbic, dcost, acost, share, bool(big), tuple(RULES[i] for i in failed),
+                   bool(close), close_rules=close_rules)
+
+
+def _against(v: Verdict, st: SearchSettings) -> dict[str, Any]:
+    """For a close verdict's trace entry: the other side of the decision (the model without the
+    effect, which its numbers are relative to) and the thresholds they were held against."""
+    if not v.close:
+        return {}
+    return {"other": "the model without it", "min_gain": st.min_gain, "min_share": st.min_share,
+            "close_margin": st.close_margin}
+
+
+def _near(st: SearchSettings, dcost: float, acost: float, share: float) -> tuple[bool, ...]:
+    """Per rule of `RULES`: does its graded number lie within close_margin of its threshold?"""
+    m = st.close_margin
+    return (False, abs(dcost + st.min_gain) < m * st.min_gain, False, abs(acost + st.min_gain) < m * st.min_gain,
+            abs(share - st.min_share) < m * st.min_share, False)
 
 
 def screen(prob: Problem, model: Model, work_pred: dict, jac: np.ndarray,

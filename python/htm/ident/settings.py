@@ -109,6 +109,10 @@ class SearchSettings:
     min_null_bias: float = knob(0.002, "share of the rated command", "a servo-valve's null is set to about 0.1 % of it")
     min_leakage: float = knob(0.005, "share of the rated flow at supply", "a valve's own null leakage is 1-3 % of it; the "
                                                                           "underlap takes a leak that small")
+    min_valve_lag: float = knob(1.0, "x the spool's own lag 2*zeta/omega_n", "a first-order valve lag shorter than the lag "
+                                                                             "of the base model's own second-order spool "
+                                                                             "(declared, or typical) is the spool's form, "
+                                                                             "not a lag of its own")
 
     def describe(self) -> dict[str, dict[str, Any]]:
         """{name: {value, unit, reason}} of every setting."""

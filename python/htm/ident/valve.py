@@ -21,6 +21,7 @@ MIN_ASYMMETRY = DEFAULT.min_asymmetry
 MIN_GAIN_ERROR = DEFAULT.min_gain_error
 MIN_NULL_BIAS = DEFAULT.min_null_bias
 MIN_LEAKAGE = DEFAULT.min_leakage
+MIN_VALVE_LAG = DEFAULT.min_valve_lag
 # Base-model parameters stated by the metadata (nominal; bounds say how far a rig may be off).
 RIG_FREES = [
     logf("moving_mass_kg", 0.4, 2.5, prior=0.3),
@@ -170,7 +171,8 @@ class ValveFamily(Family):
         out += [
             cand("valve_null_bias", None, (lin("valve_null_bias_v", 0.02, -50.0, 50.0),), "small |u|",
                  claimable=_share_of("bias_v", st.min_null_bias * p["valve_max_command_v"])),
-            cand("valve_dynamics", None, (lin("valve_tau_s", 1e-3, 0.0, 100.0, step=2.0),), "du/dt"),
+            cand("valve_dynamics", None, (lin("valve_tau_s", 1e-3, 0.0, 100.0, step=2.0),), "du/dt",
+                 claimable=_share_of("tau_s", st.min_valve_lag * spool_lag(p))),
             cand("valve_deadband", None, (lin("valve_deadband_half_width_v", 0.05, 0.0, 40.0),), "small |u|",
                  claimable=wider_than_null),
             cand("valve_hysteresis", None, (lin("valve_hysteresis_half_width_v", 0.05, 0.0, 40.0),), "sign(du/dt)",
@@ -230,6 +232,13 @@ class ValveFamily(Family):
                                      fields=(("sin_pa", "supply_ripple_sin_pa"), ("cos_pa", "supply_ripple_cos_pa"),
                                              ("frequency_hz", "supply_ripple_hz"))))
         return [c for c in out if all(has_key(p, f.key) for f in c.frees)]
+
+
+def spool_lag(p: Any) -> float:
+    """The lag [s] of the base model's own second-order spool at low frequency, 2*zeta/omega_n
+    (0 for a static valve): a first-order lag shorter than it is the spool's form."""
+    hz = float(p["valve_natural_hz"])
+    return 2.0 * float(p["valve_damping"]) / (2.0 * np.pi * hz) if hz > 0 else 0.0
 
 
 def _calibrated_off(least: float) -> Callable[[dict[str, float]], bool]:
