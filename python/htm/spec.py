@@ -379,7 +379,7 @@ def parse(doc: dict, name: str = "test", base: Path | None = None, *, check: boo
     )
     # the one configuration of the test: the core reads the spec, takes its defaults and checks
     # every value (naming the spec's field), once
-    spec.config = _config(spec)
+    spec.config = build_config(spec)
     if check and not spec.override_limits:
         feas = spec.feasibility()
         if not feas.feasible:
@@ -409,7 +409,9 @@ def _measurement(m: dict) -> dict[str, Any]:
     return out
 
 
-def _config(spec: TestSpec) -> core.TestConfig:
+def build_config(spec: TestSpec) -> core.TestConfig:
+    """The core `TestConfig` of `spec` on its rig (preset + overrides): the core reads the spec by its
+    own names, fills the defaults and checks every value once; errors name the spec field."""
     try:
         params = with_overrides(core.Params(spec.rig_preset), spec.rig_overrides, validate=False)
     except HtmError as e:

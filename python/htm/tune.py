@@ -72,7 +72,7 @@ def _variant(spec: specmod.TestSpec, amplitude_cycles: float, frequency_hz: floa
     start = {**spec.start, "amplitude_cycles": amplitude_cycles}
     end = {**spec.end, "max_cycles": int(math.ceil(start["mean_cycles"] + amplitude_cycles)) + JUDGED + 5}
     v = replace(spec, start=start, end=end, mode="full", frequency_hz=frequency_hz or spec.frequency_hz, twin=None)
-    v.config = specmod._config(v)
+    v.config = specmod.build_config(v)
     return v
 
 
@@ -150,7 +150,7 @@ def highest_frequency(spec: specmod.TestSpec, twin: core.Params, c: Candidate) -
     while f <= spec.control_rate_hz / 16.0 + 1e-9:
         try:
             v = _variant(spec, c.amplitude_cycles, f)
-            feasible = specmod._config(v).with_params(twin) is not None and \
+            feasible = specmod.build_config(v).with_params(twin) is not None and \
                 all(ch.status != "refused" for ch in _feas(v, twin))
             kv = rig_velocity_gain(v)
             w = evaluate(v, [twin], kv, c.factor, c.amplitude_cycles)[0] if feasible else math.inf
@@ -166,7 +166,7 @@ def highest_frequency(spec: specmod.TestSpec, twin: core.Params, c: Candidate) -
 def _feas(v: specmod.TestSpec, twin: core.Params) -> list[Any]:
     from htm.feasibility import assess
 
-    return [c for c in assess(specmod._config(v).with_params(twin)).checks if c.name in ("force_tension", "force_compression",
+    return [c for c in assess(specmod.build_config(v).with_params(twin)).checks if c.name in ("force_tension", "force_compression",
                                                                                            "valve_flow", "frequency", "stroke")]
 
 

@@ -27,7 +27,7 @@ def _design_kp2(spec: specmod.TestSpec, params: core.Params, kv: float | None) -
     """(velocity gain, the demodulation design's inner gain kp2 = ω_c/(K_eff·k_v)) of `spec`'s
     first cycles on `params` (`kv` None: measured there)."""
     probe = dataclasses.replace(spec, controller={"type": "demodulation", **({} if kv is None else {"velocity_gain_m_s_per_v": kv})})
-    probe.config = specmod._config(probe).with_params(params)
+    probe.config = specmod.build_config(probe).with_params(params)
     c = core.CyclicController(spec.control_rate_hz, None)
     c.start_test(probe.config, 0.0)
     info = c.info()
@@ -57,9 +57,9 @@ def twin_config(spec: specmod.TestSpec, plant: core.Params, kv_rig: float | None
     its velocity gain `kv_rig` (default `rig_velocity_gain`) carried over to `plant`'s K_eff."""
     kv = rig_velocity_gain(spec) if kv_rig is None else kv_rig
     if kv is None:
-        return specmod._config(spec).with_params(plant)
+        return specmod.build_config(spec).with_params(plant)
     ctrl = {**spec.controller, "velocity_gain_m_s_per_v": kv * keff_ratio(spec, plant)}
-    return specmod._config(dataclasses.replace(spec, controller=ctrl)).with_params(plant)
+    return specmod.build_config(dataclasses.replace(spec, controller=ctrl)).with_params(plant)
 
 
 def on_model(spec: specmod.TestSpec, model: str | Path, *, check: bool = True) -> specmod.TestSpec:

@@ -325,7 +325,7 @@ def on_model(c: Campaign, model: str | Path) -> Campaign:
     twin_hash = None
     for i, d in enumerate(c.docs):
         spec = test_spec.parse(d, f"{c.name}[{i}]", c.path.parent, check=False)
-        twin, info = load_twin(str(model), test_spec._config(dataclasses.replace(spec, rig_overrides={})).params)
+        twin, info = load_twin(str(model), test_spec.build_config(dataclasses.replace(spec, rig_overrides={})).params)
         if twin.valve_map[0]:
             raise ModelError(f"model {info['path']} has a valve map (knots): a campaign's test documents carry scalar "
                              "parameters only; run its tests one by one with `htm run --model`")
