@@ -104,8 +104,12 @@ class LifeCampaign:
 
 
 def _check_level(spec: lifetest.LifeSpec, level: float, where: str) -> None:
-    try:
-        core.virtual_life(specimen_config(spec, level, 1.0))
+    sf = spec.config.get("sigma_f_pa")
+    if spec.mode == "force_life" and sf and level >= sf:
+        raise SpecError(f"{where} = {level:g}: at or above the material's σf′ = {sf / 1e6:.0f} MPa (fatigue_strength_coefficient_pa): "
+                        "no fatigue life there; give stress amplitudes in Pa")
+    try:  # the core judges the whole test at this level (its validation runs before the first cycle)
+        core.run_life({**specimen_config(spec, level, 1.0), "runout_cycles": 1})
     except core.ParameterError as e:
         raise SpecError(f"{where} = {level:g}: the test's {e.field} = {e.value:g} is outside {e.allowed}") from None
 
