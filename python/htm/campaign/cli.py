@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from htm.campaign import cluster
-from htm.errors import HtmError
+from htm.errors import HtmError, SpecError
 from htm.terminal import add_json_flag, emit_json, path
 
 
@@ -43,7 +43,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     lc = None
     if life_campaign.is_life_campaign(args.campaign):  # S-N, ε-N or staircase of life tests
         if args.model:
-            raise HtmError(f"{args.campaign}: --model runs crack-growth campaigns on a rig's twin; a life campaign "
+            raise SpecError(f"{args.campaign}: --model runs crack-growth campaigns on a rig's twin; a life campaign "
                            "runs the virtual round bar of its test spec")
         lc = life_campaign.load(args.campaign)
         c = lc.campaign

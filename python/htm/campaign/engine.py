@@ -5,6 +5,10 @@ What makes it safe to stop and start again: the plan is fixed by the campaign fi
 keyed by (campaign id, test index) and written with `ON CONFLICT DO NOTHING` in one transaction per
 chunk, and a re-started campaign only submits the indices the store does not hold yet. A chunk lost
 with its worker is simply run again (Dask reschedules it); it cannot be written twice.
+
+Life-test campaigns (`life.py`: S-N, ε-N, staircase) go through the same chunks, runners and table:
+`run_chunk` runs their specimens through the core's life engine, and a staircase, whose next level
+follows the last outcome, sends one specimen per chunk and writes it before choosing the next.
 """
 from __future__ import annotations
 
@@ -117,6 +121,7 @@ def local_runner(threads: int = 0) -> Callable[[list[Chunk], str], Iterator[list
 # ---- the catalogue side --------------------------------------------------------------------------
 
 TABLE_COLUMNS = ("campaign_id", "idx", "inputs_hash", "inputs", *RESULT_COLUMNS, "written_utc", "results")
+
 
 def register(store: Any, c: Campaign) -> None:
     """Record the campaign itself (once; a re-start finds it)."""
