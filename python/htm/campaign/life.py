@@ -349,7 +349,7 @@ def load(path: str | Path) -> LifeCampaign:
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
         raise SpecError(f"{p}: not a campaign file ({str(e).splitlines()[0]})") from None
     where = "life_campaign"
-    c = doc["life_campaign"]
+    c = doc.get("life_campaign")
     if not isinstance(c, dict):
         raise SpecError(f"{p}: [{where}] must be a table")
     allowed = {"kind", "name", "test", "seed", "chunk_tests", "levels_pa", "levels_strain", "specimens_per_level",
