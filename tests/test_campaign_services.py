@@ -3,6 +3,7 @@ server, both on localhost, started by tools/services.sh (`make test` and .ci/run
 these tests fail: they are never skipped."""
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -213,3 +214,141 @@ def test_fleet_records_added_to_postgresql_are_diagnosed_on_dask(tmp_path):
         with Store(pg) as s:  # the database outlives this test
             s.db.execute("DELETE FROM fleet_params WHERE machine = 'frame-s'")
             s.db.execute("DELETE FROM fleet_records WHERE machine = 'frame-s'")
+
+
+# ---- life campaigns (S-N, ε-N, staircase) on the cluster --------------------------------------------
+
+FORCE_LIFE = ROOT / "examples" / "force_life.toml"
+STRAIN_LIFE = ROOT / "examples" / "strain_life.toml"
+LIFE_RESULTS = ("idx", "loading.stress_amplitude_pa", "loading.strain_amplitude", "material.life_factor", "life_cycles",
+                "end_reason", "valid", "error", "results")
+
+
+def life_file(tmp_path: Path, name: str, body: str) -> Path:
+    p = tmp_path / f"{name}.toml"
+    p.write_text(f'[life_campaign]\nname = "{name}"\n{body}')
+    return p
+
+
+def same_life(rows_a, rows_b) -> None:
+    assert [tuple(r.get(k) for k in LIFE_RESULTS) for r in rows_a] == [tuple(r.get(k) for k in LIFE_RESULTS) for r in rows_b]
+
+
+def on_workers(rows, client) -> None:
+    """Every row was run by one of the cluster's worker processes (not here, not in a CLI process)."""
+    pids = {str(p) for p in client.run(os.getpid).values()}
+    assert {r["worker"].split(":")[1] for r in rows} <= pids, ([r["worker"] for r in rows], pids)
+
+
+def test_sn_campaign_on_dask_into_postgresql_gives_the_local_data_and_fit(tmp_path, client):
+    """`htm campaign` of an S-N campaign (3 levels × 2 force_life specimens, run-outs at 10⁷ at the
+    lowest level) on the Dask workers into PostgreSQL, against the same file run here into SQLite:
+    the same specimens, lives, run-out flags and fit.json; run again, it runs nothing."""
+    from htm.campaign import life
+
+    pg, dask = service("HTM_TEST_PG"), service("HTM_TEST_DASK")
+    name = f"sn-{os.getpid()}-{time.time_ns()}"  # the database outlives the test: a campaign of its own
+    p = life_file(tmp_path, name, f'kind = "sn"\ntest = "{FORCE_LIFE}"\nseed = 3\nchunk_tests = 2\n'
+                                  "levels_pa = [320e6, 400e6, 460e6]\nspecimens_per_level = 2\n")
+    env = dict(os.environ, HTM_STORE_FILES=str(tmp_path / "files"))
+    lc = life.load(p)  # here: the same functions `htm campaign` calls, into SQLite
+    with Store(tmp_path / "sqlite") as s:
+        ran_here = life.run(lc, s, engine.local_runner(), progress=False)["ran"]
+        loc = life.outputs(lc, engine.table(s, lc.campaign.id), tmp_path / "local")
+    cmd = [sys.executable, "-m", "htm.cli", "campaign", str(p), "--out", str(tmp_path / "dask"), "--quiet", "--json",
+           "--store", pg, "--cluster", dask]
+    c = lc.campaign
+    try:
+        r = subprocess.run(cmd, capture_output=True, text=True, timeout=180, env=env)
+        assert r.returncode == 0, r.stderr
+        rem = json.loads(r.stdout)
+        assert rem["where"].startswith("Dask") and rem["session"]["ran"] == 6 == ran_here
+        assert (rem["specimens"], rem["failures"], rem["runouts"]) == (loc["specimens"], loc["failures"], loc["runouts"])
+        assert rem["runouts"] >= 1 and rem["failures"] >= 3  # run-outs flagged, a curve to fit
+        assert (tmp_path / "dask" / "sn.csv").read_text() == (tmp_path / "local" / "sn.csv").read_text()
+        fits = [json.loads((tmp_path / w / "fit.json").read_text()) for w in ("local", "dask")]
+        for f in fits:
+            f.pop("data")
+        assert fits[0] == fits[1] and fits[0]["method"] == "maximum_likelihood" and fits[0]["b"] < -3
+        with Store(pg) as s:
+            rows = engine.table(s, c.id)
+        with Store(tmp_path / "sqlite") as s:
+            same_life(rows, engine.table(s, c.id))
+        assert len(rows) == 6 and [r["loading.stress_amplitude_pa"] for r in rows] == [320e6] * 2 + [400e6] * 2 + [460e6] * 2
+        assert [r["results"]["runout"] for r in rows] == [r["end_reason"] == "runout" for r in rows]
+        assert all(r["life_cycles"] == 10_000_000 for r in rows if r["results"]["runout"])
+        on_workers(rows, client)
+        again = subprocess.run(cmd, capture_output=True, text=True, timeout=180, env=env)
+        assert again.returncode == 0, again.stderr
+        a = json.loads(again.stdout)
+        assert (a["session"]["skipped"], a["session"]["ran"]) == (6, 0)
+    finally:
+        with Store(pg) as s:  # the database outlives this test
+            s.db.execute("DELETE FROM campaign_tests WHERE campaign_id = ?", (c.id,))
+            s.db.execute("DELETE FROM campaigns WHERE id = ?", (c.id,))
+
+
+def test_strain_life_campaign_on_dask_gives_the_local_loops_and_fit(tmp_path, client):
+    """An ε-N campaign (strain_life specimens at three strain amplitudes) on the workers: the same
+    lives, stabilised loops and ε-N fit as on this machine's cores."""
+    from htm.campaign import life
+
+    p = life_file(tmp_path, "en", f'kind = "sn"\ntest = "{STRAIN_LIFE}"\nseed = 4\nchunk_tests = 1\n'
+                                  "levels_strain = [0.005, 0.006, 0.008]\nspecimens_per_level = 1\n")
+    got = {}
+    for where, runner in (("local", engine.local_runner()), ("dask", cluster.runner(client))):
+        lc = life.load(p)
+        with Store(tmp_path / f"store-{where}") as s:
+            out = life.run(lc, s, runner, progress=False)
+            rows = engine.table(s, lc.campaign.id)
+        assert out["ran"] == 3
+        summary = life.outputs(lc, rows, tmp_path / where)
+        got[where] = (rows, summary, json.loads((tmp_path / where / "fit.json").read_text()))
+    (lrows, lsum, lfit), (rrows, rsum, rfit) = got["local"], got["dask"]
+    same_life(lrows, rrows)
+    on_workers(rrows, client)
+    keys = ("specimens", "failures", "runouts", "truth")
+    assert [lsum[k] for k in keys] == [rsum[k] for k in keys] and rsum["failures"] == 3
+    assert all(r["end_reason"] in ("load_drop", "separation") and r["results"]["stabilised"]["stress_amplitude_pa"] > 3e8 for r in rrows)
+    assert (tmp_path / "dask" / "en.csv").read_text() == (tmp_path / "local" / "en.csv").read_text()
+    lfit.pop("data"), rfit.pop("data")
+    assert lfit == rfit and "sigma_f_pa" in rfit and "K_prime_pa" in rfit
+
+
+def test_staircase_on_dask_one_specimen_per_task_follows_the_local_sequence_and_resumes(tmp_path, client):
+    """A staircase on the cluster: every specimen one task, its level from the outcome before it;
+    stopped after four specimens and started again, it replays the stored outcomes, runs the rest,
+    and ends with the sequence (levels, lives, run-outs) the local run gives."""
+    from htm.campaign import life
+
+    p = life_file(tmp_path, "stair", f'kind = "staircase"\ntest = "{FORCE_LIFE}"\nseed = 4\n'
+                                     "start_pa = 365e6\nstep_pa = 15e6\nspecimens = 8\n")
+    lc = life.load(p)
+    with Store(tmp_path / "local") as s:
+        life.run(lc, s, engine.local_runner(), progress=False)
+        local = engine.table(s, lc.campaign.id)
+    tasks = []
+
+    def stopping(runner, after: int):
+        def run(chunks, mode):
+            tasks.append([i for ch in chunks for i, _ in ch])
+            if len(tasks) > after:
+                raise KeyboardInterrupt
+            yield from runner(chunks, mode)
+        return run
+
+    with Store(tmp_path / "dask") as s:
+        with pytest.raises(KeyboardInterrupt):
+            life.run(life.load(p), s, stopping(cluster.runner(client), 4), progress=False)
+        assert len(engine.held(s, lc.campaign.id)) == 4
+        again = life.run(life.load(p), s, cluster.runner(client), progress=False)
+        remote = engine.table(s, lc.campaign.id)
+    assert tasks[:4] == [[0], [1], [2], [3]]  # one specimen per task, in order
+    assert (again["skipped"], again["ran"]) == (4, 4)
+    same_life(local, remote)
+    on_workers(remote, client)
+    lv = [r["loading.stress_amplitude_pa"] for r in remote]
+    ro = [r["results"]["runout"] for r in remote]
+    assert any(ro) and not all(ro)
+    for i in range(1, len(lv)):
+        assert lv[i] == pytest.approx(lv[i - 1] + (15e6 if ro[i - 1] else -15e6))

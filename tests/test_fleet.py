@@ -170,7 +170,7 @@ def test_a_version_4_catalogue_gains_the_records_table_and_keeps_its_diagnoses(t
     db.commit()
     db.close()
     with Store(root) as s:
-        assert s.db.version() == SCHEMA_VERSION == 5
+        assert s.db.version() == SCHEMA_VERSION == 6
         assert catalogue.stored(s) == {} and catalogue.history(s, "frame-a") == {"moving_mass_kg": [("2026-01-01", 52.0)]}
 
 

@@ -203,6 +203,8 @@ def test_an_sn_campaign_feeds_htm_sn_fit(tmp_path):
     b_true = (math.log10(n2) - math.log10(n1)) / (math.log10(520e6) - math.log10(400e6))
     assert fit["b_ci90"][0] < b_true < fit["b_ci90"][1], (fit["b"], fit["b_ci90"], b_true)
     assert fit["b"] < -3
+    # the campaign wrote the same fit.json itself (its `data` names the same CSV)
+    assert json.loads((tmp_path / "o" / "fit.json").read_text()) == fit
 
 
 def test_strain_life_acceptance_on_the_rig_path():
@@ -216,3 +218,25 @@ def test_strain_life_acceptance_on_the_rig_path():
         assert lv["end_reason"] in ("load_drop", "separation"), lv
         assert abs(lv["stress_err_pct"]) < 3 and abs(lv["life_err_pct"]) < 2, lv
     assert abs(r["k_prime_err_pct"]) < 10 and abs(r["n_prime_err_pct"]) < 10, r
+
+
+@pytest.mark.parametrize("body, names", [
+    (f'kind = "sn"\ntest = "{FORCE}"\nlevels_pa = [300e6, 400e3, 5e12]\n', "levels_pa = 5e+12"),
+    (f'kind = "sn"\ntest = "{STRAIN}"\nlevels_strain = [0.004, 0.5]\n', "loading.strain_amplitude = 0.5"),
+    (f'kind = "sn"\ntest = "{FORCE}"\nlevels_strain = [0.004, 0.006]\n', "give its levels as levels_pa"),
+    (f'kind = "staircase"\ntest = "{FORCE}"\nstart_pa = 300e6\nstep_pa = 400e6\n', "step_pa"),
+])
+def test_a_bad_life_campaign_is_one_line_and_runs_nothing(tmp_path, body, names):
+    """Found before the first specimen: one line naming the file and field, exit 2, the store untouched."""
+    from htm.record.store import Store
+
+    camp = tmp_path / "bad.toml"
+    camp.write_text(f"[life_campaign]\n{body}")
+    store = tmp_path / "store"
+    r = subprocess.run([sys.executable, "-m", "htm.cli", "campaign", str(camp), "--store", str(store), "--out", str(tmp_path / "o")],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and names in r.stderr and str(camp) in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+    if store.exists():
+        with Store(store) as s:
+            assert s.db.execute("SELECT COUNT(*) FROM campaign_tests").fetchone()[0] == 0

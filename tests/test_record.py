@@ -174,7 +174,7 @@ def test_catalogue_migrates_from_version_1_and_refuses_newer_or_garbage(tmp_path
     db.commit()
     db.close()
     with Store(root) as s:
-        assert s.db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 5
+        assert s.db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 6
         assert s.get("old")["host"] is None and [t["id"] for t in s.list_tests()] == ["old"]
     db = sqlite3.connect(root / "catalogue.sqlite")
     db.execute("PRAGMA user_version = 99")

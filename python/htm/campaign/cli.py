@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from htm.campaign import cluster
-from htm.errors import HtmError
+from htm.errors import HtmError, SpecError
 from htm.terminal import add_json_flag, emit_json, path
 
 
@@ -38,15 +38,21 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     from htm.campaign import spec as campaign_spec
     from htm.record.store import Store
 
-    if life_campaign.is_life_campaign(args.campaign):  # S-N or staircase of life tests
-        return life_campaign.cmd(args)
-
     # everything that can be wrong is found before the first test: the file, every test's spec,
     # the store and the cluster
-    c = campaign_spec.load(args.campaign)
+    lc = None
+    if life_campaign.is_life_campaign(args.campaign):  # S-N, ε-N or staircase of life tests
+        if args.model:
+            raise SpecError(f"{args.campaign}: --model runs crack-growth campaigns on a rig's twin; a life campaign "
+                           "runs the virtual round bar of its test spec")
+        lc = life_campaign.load(args.campaign)
+        c = lc.campaign
+    else:
+        c = campaign_spec.load(args.campaign)
     if args.model:  # every test on the rig's identified twin
         c = campaign_spec.on_model(c, args.model)
     out = Path(args.out or f"out/campaign-{c.id}")
+    n = c.planned or len(c)
     with Store(args.store) as store:
         if args.cluster:
             client = cluster.connect(args.cluster)
@@ -55,18 +61,30 @@ def cmd_campaign(args: argparse.Namespace) -> int:
             client, runner, where = None, engine.local_runner(args.threads), "this machine"
         if not args.json:
             on = f" on the twin {args.model}" if args.model else ""
-            print(f"campaign {c.id}{on}: {len(c):,} tests ({c.mode} mode, {c.chunk_tests} per chunk) on {where}; "
+            how = "one at a time, each level after the last outcome" if lc and lc.kind == "staircase" else f"{c.chunk_tests} per chunk"
+            print(f"campaign {c.id}{on}: {n:,} tests ({c.mode} mode, {how}) on {where}; "
                   f"store {path(store.path) if '://' not in str(store.path) else store.path}")
         try:
-            s = engine.run(c, store, runner, progress=not args.quiet)
+            s = life_campaign.run(lc, store, runner, progress=not args.quiet) if lc else engine.run(c, store, runner, progress=not args.quiet)
         except KeyboardInterrupt:
-            held = len(engine.done(store, c))
-            raise HtmError(f"interrupted with {held:,}/{len(c):,} tests in the store; the same command continues") from None
+            held = len(engine.held(store, c.id))
+            raise HtmError(f"interrupted with {held:,}/{n:,} tests in the store; the same command continues") from None
         finally:
             if client is not None:
                 client.close()
         rows = engine.table(store, c.id)
     out.mkdir(parents=True, exist_ok=True)
+    if lc is not None:
+        write_table(out / "campaign.parquet", life_campaign.parquet_rows(rows))
+        ls = life_campaign.outputs(lc, rows, out)
+        if args.json:
+            emit_json(dict(ls, session=s, where=where, outputs=[str(out / "campaign.parquet"), ls["data"], ls["fit"]]))
+            return 0
+        print(f"campaign {c.id}: {len(rows):,}/{n:,} tests in the store ({s['skipped']:,} already there, "
+              f"{s['ran']:,} run now on {where} in {s['wall_s']:.1f} s)")
+        for line in life_campaign.summary_lines(ls):
+            print(line)
+        return 0
     write_table(out / "campaign.parquet", rows)
     png = plot.life_plot(out / "life.png", rows, c.swept + c.scattered, f"{c.name}: life vs campaign fields")
     if args.json:
@@ -82,18 +100,23 @@ def cmd_campaign(args: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("campaign", help="run a virtual test campaign (sweeps, Latin hypercube, material scatter) into the store",
-                       description="Expand a campaign file (a base test spec plus [grid], [lhs] and [scatter]) into "
-                                   "simulated tests, run them in chunks on all local cores or a Dask cluster, and write "
-                                   "one table (inputs, life, end reason, force errors, validity) into the store. "
-                                   "Running it again continues where it stopped.",
-                       epilog="see examples/campaign_ct.toml and docs/guide/campaigns.md")
+    p = sub.add_parser("campaign", help="run a virtual test campaign (sweeps, Latin hypercube, material scatter; S-N, ε-N, "
+                                        "staircase) into the store",
+                       description="Expand a campaign file (a base test spec plus [grid], [lhs] and [scatter]; or a "
+                                   "[life_campaign]: an S-N / ε-N campaign over levels with specimen scatter, or an ISO "
+                                   "12107 staircase) into simulated tests, run them in chunks on all local cores or a Dask "
+                                   "cluster (a staircase one specimen at a time), and write one table (inputs, life, end "
+                                   "reason, validity) into the store; a life campaign also writes its data CSV and "
+                                   "fit.json. Running it again continues where it stopped.",
+                       epilog="see examples/campaign_ct.toml, campaign_sn.toml, campaign_en.toml, campaign_staircase.toml "
+                              "and docs/guide/campaigns.md")
     p.add_argument("campaign", help="campaign file (TOML)")
     p.add_argument("--cluster", metavar="tcp://HOST:PORT", default=cluster.default_address(),
                    help="run the chunks on this Dask scheduler's workers (default $HTM_CLUSTER; unset: this machine)")
     p.add_argument("--store", help="test store: a folder, or postgresql://USER@HOST:PORT/DB (password from PGPASSWORD "
                                    "or ~/.pgpass); default $HTM_STORE or ~/.local/share/htm/store")
-    p.add_argument("--out", help="folder for campaign.parquet and life.png (default out/campaign-ID)")
+    p.add_argument("--out", help="folder for campaign.parquet and life.png, or a life campaign's CSV, fit.json and report "
+                                 "(default out/campaign-ID)")
     p.add_argument("--model", metavar="MODEL.json",
                    help="run every test on the twin: an identified rig model (`htm rig identify`'s model.json) instead "
                         "of the nominal rig (the store keeps it as a campaign of its own)")

@@ -55,6 +55,9 @@ class Campaign:
     scattered: list[str]  # fields drawn by [scatter]
     inputs: list[dict[str, float]]
     docs: list[dict[str, Any]]
+    # tests planned when the plan grows as it runs (a staircase: each level follows the last
+    # outcome); None: the plan is `inputs`
+    planned: int | None = None
 
     def __len__(self) -> int:
         return len(self.inputs)

@@ -13,22 +13,31 @@ def _dump(path: Path, doc: dict[str, Any]) -> None:
     path.write_text(json.dumps(doc, indent=2, default=float))
 
 
-def cmd_sn_fit(args: argparse.Namespace) -> int:
+def sn_fit_files(data: str | Path, out: Path, method: str = "auto", runouts_as_failures: bool = False) -> tuple[dict[str, Any], Any, Path, Path]:
+    """Fit the S-N CSV `data` and write `out`/fit.json with the report beside it (what `htm sn fit`
+    writes; `htm campaign` writes the same for its S-N campaigns). Returns (fit.json, fit, md, html)."""
     from htm.fatigue import sn
-    from htm.fatigue.sn_report import sn_report, sn_summary_lines
+    from htm.fatigue.sn_report import sn_report
 
-    d = sn.read_sn(args.data)
-    fit = sn.sn_fit(d, args.method, args.runouts_as_failures)
-    out = Path(args.out)
+    d = sn.read_sn(data)
+    fit = sn.sn_fit(d, method, runouts_as_failures)
     doc = fit.to_json()
-    doc["data"] = str(args.data)
+    doc["data"] = str(data)
     extra = {}
-    if d.n_runouts and not args.runouts_as_failures:
+    if d.n_runouts and not runouts_as_failures:
         extra = {"e739 (run-outs left out)": sn.fit_e739(d), "e739 (run-outs as failures, biased)": sn.fit_e739(d, True)}
         if fit.method != "maximum_likelihood":
             extra["maximum likelihood (run-outs censored)"] = sn.fit_ml(d)
     _dump(out / "fit.json", doc)
     md, html = sn_report(out, d, fit, extra)
+    return doc, fit, md, html
+
+
+def cmd_sn_fit(args: argparse.Namespace) -> int:
+    from htm.fatigue.sn_report import sn_summary_lines
+
+    out = Path(args.out)
+    doc, fit, md, html = sn_fit_files(args.data, out, args.method, args.runouts_as_failures)
     if args.json:
         print(json.dumps(doc, indent=2, default=float))
         return 0
@@ -37,16 +46,25 @@ def cmd_sn_fit(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_sn_staircase(args: argparse.Namespace) -> int:
+def staircase_files(data: str | Path, out: Path, step_pa: float | None = None) -> tuple[dict[str, Any], Any, Path, Path]:
+    """The staircase estimate of `data` written to `out`/fit.json with its report (`htm sn
+    staircase`'s files; `htm campaign` writes the same for a staircase). Returns (fit.json, estimate, md, html)."""
     from htm.fatigue import staircase
-    from htm.fatigue.sn_report import staircase_lines, staircase_report
+    from htm.fatigue.sn_report import staircase_report
 
-    s, ro = staircase.read_staircase(args.data)
-    st = staircase.dixon_mood(s, ro, args.step_pa, str(args.data))
-    out = Path(args.out)
-    doc = st.to_json() | {"data": str(args.data)}
+    s, ro = staircase.read_staircase(data)
+    st = staircase.dixon_mood(s, ro, step_pa, str(data))
+    doc = st.to_json() | {"data": str(data)}
     _dump(out / "fit.json", doc)
-    md, html = staircase_report(out, str(args.data), s, ro, st)
+    md, html = staircase_report(out, str(data), s, ro, st)
+    return doc, st, md, html
+
+
+def cmd_sn_staircase(args: argparse.Namespace) -> int:
+    from htm.fatigue.sn_report import staircase_lines
+
+    out = Path(args.out)
+    doc, st, md, html = staircase_files(args.data, out, args.step_pa)
     if args.json:
         print(json.dumps(doc, indent=2, default=float))
         return 0
@@ -84,16 +102,25 @@ def cmd_sn_damage(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_en_fit(args: argparse.Namespace) -> int:
+def en_fit_files(data: str | Path, out: Path, modulus_pa: float | None = None) -> tuple[dict[str, Any], Any, Path, Path]:
+    """Fit the strain-life CSV `data` and write `out`/fit.json with its report (`htm en fit`'s
+    files; `htm campaign` writes the same for its strain_life campaigns). Returns (fit.json, fit, md, html)."""
     from htm.fatigue import strainlife
-    from htm.fatigue.sn_report import en_lines, en_report
+    from htm.fatigue.sn_report import en_report
 
-    d = strainlife.read_en(args.data, args.modulus_pa)
+    d = strainlife.read_en(data, modulus_pa)
     fit = strainlife.en_fit(d)
-    out = Path(args.out)
-    doc = fit.to_json() | {"data": str(args.data)}
+    doc = fit.to_json() | {"data": str(data)}
     _dump(out / "fit.json", doc)
     md, html = en_report(out, d, fit)
+    return doc, fit, md, html
+
+
+def cmd_en_fit(args: argparse.Namespace) -> int:
+    from htm.fatigue.sn_report import en_lines
+
+    out = Path(args.out)
+    doc, fit, md, html = en_fit_files(args.data, out, args.modulus_pa)
     if args.json:
         print(json.dumps(doc, indent=2, default=float))
         return 0

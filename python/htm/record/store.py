@@ -82,6 +82,11 @@ MIGRATIONS = [
         columns TEXT NOT NULL, samples INTEGER NOT NULL, bytes INTEGER NOT NULL, added_utc TEXT NOT NULL,
         PRIMARY KEY(machine, date, record));
     """,
+    # 5 -> 6: life-test campaigns (htm.campaign.life): a test's own results beyond the crack-growth
+    # columns (run-out, the 10 % / 50 % drop cycles, the stabilised loop) as JSON
+    """
+    ALTER TABLE campaign_tests ADD COLUMN results TEXT;
+    """,
 ]
 SCHEMA_VERSION = len(MIGRATIONS)
 STATUSES = ("running", "finished", "stopped", "failed", "interrupted")
