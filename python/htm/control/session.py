@@ -529,7 +529,7 @@ class Session:
         life = None
         if getattr(c, "is_life", False):  # a life test: its mode, trend, threshold and live loop
             e, st = c.live_loop()
-            life = {"mode": c.mode, "drop": c.drop, "trend": at("trend"), "threshold": at("threshold"), "strain_max": at("strain_max"),
+            life = {"mode": c.mode, "drop": c.drop, "area_m2": c.area_m2, "trend": at("trend"), "threshold": at("threshold"), "strain_max": at("strain_max"),
                     "strain_min": at("strain_min"), "stress_max_pa": at("stress_max_pa"), "stress_min_pa": at("stress_min_pa"),
                     "stiffness_n_m": at("stiffness_n_m"), "n_drop10": c.n_drop10, "n_drop50": c.n_drop50,
                     "loop_strain": list(map(float, e)), "loop_stress_pa": list(map(float, st))}

@@ -134,6 +134,7 @@ class VirtualRig:
     def __init__(self, cfg: RigConfig, specimen: dict | None = None, threaded: bool = True):
         self.cfg = cfg
         self.params = plant_params(cfg)
+        self.gripped = specimen  # the specimen dict as given (the spec's; the rig's truth departs from it)
         # a life test's round bar (`{"life": core dict}`), else a cracking specimen (or none)
         self.bar: BarPlant | None = None
         if specimen is not None and "life" in specimen:

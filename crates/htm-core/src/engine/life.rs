@@ -773,23 +773,25 @@ pub fn run_life(cfg: &LifeConfig, progress: Option<&AtomicU64>, cancel: Option<&
             lm.end = Some(LifeEnd::Cancelled);
             break;
         }
-        for _ in 0..lm.n {
+        // the rig's per-period step (`LifeMachine::step`), period by period until a cycle closes
+        let row = loop {
             let (f, eps, y) = vb.measure();
-            let u = lm.command(cfg, f, eps, y);
+            let (u, closed) = lm.step(cfg, f, eps, y);
             vb.step(u, lm.dt)?;
-        }
+            if let Some(r) = closed {
+                break r;
+            }
+        };
         simulated += 1;
         let spec = &mut vb.spec;
-        let row = lm.close(cfg);
         if row.keep_loop {
-            for (e, s) in lm.loop_samples() {
+            for &(s, e) in &lm.last_loop {
                 loops.cycle.push(row.cycle);
                 loops.strain.push(e);
                 loops.stress_pa.push(s);
             }
         }
         push(&mut rec, &row, area);
-        lm.next_cycle();
         if let Some(pg) = progress {
             pg.store(lm.cycle, Ordering::Relaxed);
         }

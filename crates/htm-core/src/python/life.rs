@@ -143,7 +143,9 @@ fn run_life_batch<'py>(py: Python<'py>, specs: Vec<Bound<'py, PyDict>>, params: 
 /// the cyclic curve): (N_init, N_50, N_sep) [cycles].
 #[pyfunction]
 fn virtual_life(spec: &Bound<'_, PyDict>) -> PyResult<(f64, f64, f64)> {
-    Ok(vlife(&config(spec, None)?))
+    let cfg = config(spec, None)?;
+    cfg.validate()?; // every value judged (the spec's checker calls this)
+    Ok(vlife(&cfg))
 }
 
 /// Stress amplitude [Pa] of the cyclic curve ε_a = σ_a/E + (σ_a/K′)^(1/n′) at strain amplitude `ea`.
