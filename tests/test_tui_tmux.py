@@ -4,6 +4,7 @@ virtual rig; both tests end up in the store with their end reasons. `.ci/run` in
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -180,8 +181,8 @@ def test_every_tab_by_keyboard_alone_in_tmux(tmp_path):
 
 
 def test_a_strain_life_test_in_tmux_shows_its_loop_and_threshold_and_is_recorded(tmp_path):
-    """`htm-tui --spec` with a strain_life spec: Run starts it on the built-in virtual rig (a round
-    bar gripped for it, an extensometer on its channel), the screen shows the life numbers (the
+    """`htm-tui --spec` with a strain_life spec: Run starts it on the built-in virtual rig (gripping
+    a round bar for it, an extensometer on its channel), the screen shows the life numbers (the
     tensile peak, its trend, the failure threshold), the live stress–strain loop and the trend
     plot; stopped by key, the test is in the store with its per-cycle table from cycle 1."""
     import pyarrow.parquet as pq
@@ -199,12 +200,18 @@ def test_a_strain_life_test_in_tmux_shows_its_loop_and_threshold_and_is_recorded
         t.wait_for("connected to the virtual rig")
         t.wait_for("strain_life, ε_a 0.6 %")  # the Setup status of the spec given
         t.keys("F4")
+        t.wait_for("state idle")
         t.keys("s")
-        t.wait_for("a round bar gripped for en_short")
         screen = t.wait_for("mode strain_life", timeout=30)
         screen = t.wait_for("(50 % drop)", timeout=30)
         assert "tensile peak" in screen and "failure at" in screen and "σ_a" in screen, screen
         assert "stress–strain loop" in screen and "failure threshold" in screen, screen
+        t0 = time.monotonic()
+        while not re.search(r"cycles (\d{2,}|[\d,]{4,})", t.screen()):  # ten cycles and more: the trend is judged
+            assert time.monotonic() - t0 < 60, t.screen()
+            time.sleep(0.3)
+        screen = t.screen()
+        assert re.search(r"trend \d+\.\d{3} kN", screen) and re.search(r"failure at \d+\.\d{3} kN", screen), screen
         t.keys("x")
         t.wait_for("state idle", timeout=20)
         t.keys("q")
@@ -217,6 +224,6 @@ def test_a_strain_life_test_in_tmux_shows_its_loop_and_threshold_and_is_recorded
     with Store(store) as s:
         (x,) = s.list_tests()
         d = s.test_dir(x["id"])
-    assert (x["kind"], x["mode"], x["status"], x["end_reason"]) == ("device", "strain_life", "stopped", "operator stop"), x
+    assert (x["kind"], x["mode"], x["status"], x["end_reason"]) == ("strain_life", "device", "stopped", "operator stop"), x
     c = pq.read_table(d / "cycles.parquet").column("cycle").to_numpy()
     assert len(c) >= 5 and np.array_equal(c, np.arange(1, len(c) + 1))

@@ -41,30 +41,47 @@ class LifeTest:
         self.drop = float(config.get("drop", 0.5))
         hi, lo = self.core.targets
         self.amplitude = 0.5 * (hi - lo)
+        # what other threads read (the console, the recorder), written only by the loop's thread:
+        # the core object is called from that thread alone (a call from another thread while the
+        # loop steps it would find it borrowed)
+        self._state, self._cycle, self._results, self._end = self.core.state, 0, 0, None
+        self._info = {"rate_hz": rate_hz, "frequency_hz": self.core.frequency_hz, "samples_per_cycle": self.core.samples_per_cycle,
+                      "velocity_gain_m_s_per_v": self.core.velocity_gain_m_s_per_v}
+        self._loop: tuple[Any, Any] = ((), ())
+        self._drops: tuple[int | None, int | None] = (None, None)
 
     # -- the loop's calls ----------------------------------------------------------------------
     def step(self, f: float, y: float, strain: float = math.nan) -> float:
         if self._idle:
             return 0.0
-        u = self.core.step(f, strain, y)
+        c = self.core
+        u = c.step(f, strain, y)
         u = max(-self.command_limit_v, min(self.command_limit_v, u))
         self.u_last_v = u
+        self._sync()
         return u
+
+    def _sync(self) -> None:
+        c = self.core
+        self._state, self._cycle, self._results, self._end = c.state, c.cycle, c.results, c.end_reason
 
     @property
     def state(self) -> str:
-        return "idle" if self._idle else self.core.state
+        return "idle" if self._idle else self._state
 
     def hold(self) -> None:
         if not self.core.hold():
             raise HtmError(f"hold needs a running test (state is {self.state})")
+        self._sync()
 
     def resume(self) -> None:
         if not self.core.resume():
             raise HtmError(f"resume needs a held test (state is {self.state})")
+        self._sync()
 
     def stop(self) -> None:
         self.core.stop()
+        self._sync()
 
     def idle(self) -> None:
         self._idle = True
@@ -74,15 +91,15 @@ class LifeTest:
 
     @property
     def cycle(self) -> int:
-        return self.core.cycle
+        return self._cycle
 
     @property
     def results(self) -> int:
-        return self.core.results
+        return self._results
 
     @property
     def end_reason(self) -> str | None:
-        return self.core.end_reason
+        return self._end
 
     @property
     def u_null_v(self) -> float:
@@ -101,8 +118,7 @@ class LifeTest:
     supply_demand_pa = 0.0
 
     def info(self) -> dict[str, Any]:
-        return {"rate_hz": self.rate_hz, "frequency_hz": self.core.frequency_hz, "samples_per_cycle": self.core.samples_per_cycle,
-                "velocity_gain_m_s_per_v": self.core.velocity_gain_m_s_per_v}
+        return dict(self._info)
 
     def convergence(self) -> list:
         return []
@@ -111,9 +127,11 @@ class LifeTest:
         """The last counted cycle's row: the life table's columns, the amplitude error of the
         controlled signal, whether it was judged, the end-criterion threshold and, for a kept
         loop, its samples (`loop_strain`, `loop_stress_pa`)."""
-        r = self.core.last_cycle()
+        r = self.core.last_cycle()  # (the loop's thread)
         if r is None:
             return None
+        self._loop = self.core.last_loop()
+        self._drops = (self.core.n_drop10, self.core.n_drop50)
         lo_hi = (r["strain_min"], r["strain_max"]) if self.mode == "strain_life" else (r["fmin_n"], r["fmax_n"])
         r["df_err_pct"] = 100.0 * (0.5 * (lo_hi[1] - lo_hi[0]) / self.amplitude - 1.0)
         r["peak_err_pct"] = math.nan
@@ -121,18 +139,17 @@ class LifeTest:
         r["starting"] = bool(r["events"] & START)
         r["threshold"] = (1.0 - self.drop) * r["trend"] if self.drop > 0 else math.nan
         if r["keep_loop"]:
-            e, s = self.core.last_loop()
-            r["loop_strain"], r["loop_stress_pa"] = e, s
+            r["loop_strain"], r["loop_stress_pa"] = self._loop
         return r
 
     def live_loop(self) -> tuple[Any, Any]:
         """The last counted cycle's (strain, stress [Pa]) samples: the console's live loop."""
-        return self.core.last_loop()
+        return self._loop
 
     @property
     def n_drop10(self) -> int | None:
-        return self.core.n_drop10
+        return self._drops[0]
 
     @property
     def n_drop50(self) -> int | None:
-        return self.core.n_drop50
+        return self._drops[1]

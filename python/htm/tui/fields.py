@@ -47,6 +47,13 @@ LIFE_KEYS: dict[str, set[str]] = {
     "record": {"loops_per_decade"},
     "run": {"mode", "rtol"},
 }
+# the keys only a life test has
+LIFE_ONLY: dict[str, set[str]] = {
+    "specimen": {"diameter_m", "gauge_length_m", "a_init_m", "load_train_n_m"},
+    "material": (set(lifetest._MATERIAL) | {"life_scatter_log10", "seed", "life_factor"}) - {"youngs_modulus_pa", "fracture_toughness_pa_sqrt_m"},
+    "loading": {"stress_amplitude_pa", "force_amplitude_n", "strain_amplitude", "mean_cycles", "amplitude_cycles"},
+    "end": {"drop", "modulus_ratio_drop", "separation", "runout_cycles"},
+}
 
 FIELDS: tuple[Field, ...] = (
     Field(("specimen", "geometry"), "geometry", choices=("ct", "mt"), when=CRACK),
@@ -146,6 +153,13 @@ def show(f: Field, doc: dict[str, Any]) -> str:
     return str(v)
 
 
+def choice(f: Field, doc: dict[str, Any]) -> str:
+    """The value a choice field's selector shows: the document's, or its first choice when the
+    document has none of them (a life test's round bar in the crack test's geometry field)."""
+    v = show(f, doc)
+    return v if v in f.choices else f.choices[0]
+
+
 def parse_value(f: Field, text: str) -> Any:
     """Operator text → SI value for the document; SpecError (a ValueError) with a short reason."""
     text = text.strip()
@@ -178,6 +192,11 @@ def effective(doc: dict[str, Any]) -> dict[str, Any]:
     """The document without the values of fields that are hidden (another mode's ΔF, ...); a
     life test's without the crack test's tables."""
     out = {k: dict(v) if isinstance(v, dict) else v for k, v in doc.items()}
+    if not is_life(doc):  # a crack test: without a life test's own keys (kept in the form's document)
+        for sec, keys in LIFE_ONLY.items():
+            for k in keys:
+                out.get(sec, {}).pop(k, None)
+        out.pop("record", None)
     if is_life(doc):  # the keys a life spec takes (a crack test's others stay in the form's document)
         out = {k: {kk: vv for kk, vv in v.items() if kk in LIFE_KEYS[k]} for k, v in out.items() if k in LIFE_KEYS and isinstance(v, dict)}
         law = out.get("law", {})

@@ -94,7 +94,7 @@ class SetupPane(Vertical):
                 with Horizontal(classes="row", id=f"row-{f.id}"):
                     yield Label(f.label)
                     if f.choices:
-                        yield Select([(c, c) for c in f.choices], allow_blank=False, value=F.show(f, self.doc) or f.choices[0], id=f.id)
+                        yield Select([(c, c) for c in f.choices], allow_blank=False, value=F.choice(f, self.doc), id=f.id)
                     else:
                         yield Input(F.show(f, self.doc), id=f.id)
                     yield Static(f.unit, classes="unit")
@@ -134,11 +134,13 @@ class SetupPane(Vertical):
         else:
             self.bad.pop(f.id, None)
             self.doc = F.with_value(self.doc, f, value)
-            if f.path == ("loading", "mode") and F.is_life(self.doc):
-                # into a life mode: its values where the document has none yet, shown in the form
+            if f.path == ("loading", "mode"):
+                # into a life mode (or back to a crack test's): its values where the document has
+                # none yet, shown in the form
                 doc = {k: dict(v) if isinstance(v, dict) else v for k, v in self.doc.items()}
                 missing = False
-                for sec, vals in F.LIFE_DEFAULTS.items():
+                fill = F.LIFE_DEFAULTS if F.is_life(self.doc) else {k: v for k, v in default_doc().items() if isinstance(v, dict)}
+                for sec, vals in fill.items():
                     for k, v in vals.items():
                         if k not in doc.setdefault(sec, {}):
                             doc[sec][k], missing = v, True
@@ -157,7 +159,7 @@ class SetupPane(Vertical):
             w = self.query_one(f"#{f.id}")
             with self.prevent(Input.Changed, Select.Changed):
                 if isinstance(w, Select):
-                    w.value = F.show(f, doc) or f.choices[0]
+                    w.value = F.choice(f, doc)
                 else:
                     w.value = F.show(f, doc)
         self._refresh()
