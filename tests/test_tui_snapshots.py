@@ -110,10 +110,11 @@ def test_run_screen_cycling(snap_compare, store):
 def test_run_screen_life_test(snap_compare, store):
     """A strain_life test on the lock-step virtual rig (a round bar, an extensometer on ai7): the
     life numbers, the live stress–strain loop and the tensile peak's trend with its threshold."""
+    from test_tui_life import SHORT_LIFE
+
     from htm.control.session import Session, specimen_of
     from htm.devices.config import virtual_config
     from htm.fatigue import lifetest
-    from test_tui_life import SHORT_LIFE
 
     spec = lifetest.parse(SHORT_LIFE, "snapshot_life")
     holder = {}

@@ -186,9 +186,9 @@ def test_a_strain_life_test_in_tmux_shows_its_loop_and_threshold_and_is_recorded
     tensile peak, its trend, the failure threshold), the live stress–strain loop and the trend
     plot; stopped by key, the test is in the store with its per-cycle table from cycle 1."""
     import pyarrow.parquet as pq
+    from test_tui_life import SHORT_LIFE
 
     from htm import spec as specmod
-    from test_tui_life import SHORT_LIFE
 
     store = tmp_path / "store"
     spec = tmp_path / "en_short.toml"

@@ -35,6 +35,7 @@ class LifeRecorder:
         self.root = store_root
         self.recording = recording
         self.rows: list[dict[str, Any]] = []
+        self.periods: list[int] = []  # the loop period each row closed at
         self.loops: dict[str, list] = {"cycle": [], "strain": [], "stress_pa": []}
         self.event = first_event
         self.period0 = session.loop.k
@@ -97,16 +98,17 @@ class LifeRecorder:
         new = [r for r in list(lp.cycles) if r["test"] == self.test_no and r["cycle"] > last]
         for r in new:
             self.rows.append({k: r[k] for k in TABLE})
+            self.periods.append(r.get("period", 0))
             if "loop_strain" in r:
                 n = len(r["loop_strain"])
                 self.loops["cycle"] += [r["cycle"]] * n
                 self.loops["strain"] += list(map(float, r["loop_strain"]))
                 self.loops["stress_pa"] += list(map(float, r["loop_stress_pa"]))
         events = self.s.log.since(self.event)
-        for e in events:
-            c = max((r["cycle"] for r in self.rows if r.get("period", 0) <= e["period"]), default=None)
-            self.st.add_event(self.id, e["kind"], e["message"], cycle=c if c is not None else (self.rows[-1]["cycle"] if self.rows else None),
-                              time_s=max((e["period"] - self.period0) * lp.dt, 0.0), source="device")
+        for e in events:  # dated by the last cycle of this test that closed before it
+            c = max((r["cycle"] for r, k in zip(self.rows, self.periods) if k <= e["period"]), default=None)
+            self.st.add_event(self.id, e["kind"], e["message"], cycle=c, time_s=max((e["period"] - self.period0) * lp.dt, 0.0),
+                              source="device")
         self.event += len(events)
         if new:
             self._tables()
