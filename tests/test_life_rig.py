@@ -139,6 +139,47 @@ def test_strain_life_through_the_session_on_the_virtual_rig(tmp_path):
     assert (d / "recording.rrd").stat().st_size > 1000
 
 
+@pytest.mark.parametrize(("mode", "amplitude", "frequency_hz"), [("strain_life", 0.008, 5.0), ("force_life", 18.5e3, 10.0)])
+def test_another_level_and_force_control_on_another_bar(mode, amplitude, frequency_hz):
+    """Levels nobody tuned for, on a bar of another seed: a larger strain amplitude, and force
+    control (E466 with the secant-stiffness drop: the force loop fed the load cell, the same
+    machine). Each ends by its criterion judged on the measured rows."""
+    doc = life_doc(mode, amplitude)
+    if mode == "force_life":
+        doc["loading"]["force_amplitude_n"] = doc["loading"].pop("stress_amplitude_pa")
+    doc["loading"]["frequency_hz"] = frequency_hz
+    spec = lifetest.parse(doc, "level")
+    cfg = rig(seed=5)
+    truth_cfg = true_bar(cfg, spec.config)
+    s = Session().open(cfg, virtual=True, specimen=spec, thread=False)
+    try:
+        s.step(5)
+        s.start(spec, record=False)
+        lp = s.loop
+        run_until(s, lambda: lp.ctrl.state == "stopped" or not lp.powered, 2000 * 100)
+        assert lp.ctrl.end_reason == "load_drop", [e["message"] for e in s.events_since(0)][-3:]
+        rows = s.cycles_since(0)
+        life = rows[-1]["cycle"]
+        assert [r["cycle"] for r in rows] == list(range(1, life + 1))
+        truth = s.rig.bar.truth()
+        mid = min(rows, key=lambda r: abs(r["cycle"] - life / 2))
+        ea = 0.5 * (mid["strain_max"] - mid["strain_min"])
+        sa = 0.5 * (mid["stress_max_pa"] - mid["stress_min_pa"])
+        curve = core.cyclic_stress(ea, truth_cfg["e_pa"], truth_cfg["k_prime_pa"], truth_cfg["n_prime"])
+        print(f"{mode} {amplitude:g}: life {life}, truth {truth}, σ_a {sa / 1e6:.1f} MPa vs curve {curve / 1e6:.1f} MPa at ε_a {ea:.5f}")
+        assert abs(sa / curve - 1) < 0.03, (sa, curve)
+        if mode == "strain_life":
+            assert abs(ea / amplitude - 1) < 0.02, ea
+            assert abs(life / truth["n_phi50"] - 1) < 0.02, (life, truth)
+        else:
+            assert abs(0.5 * (mid["fmax_n"] - mid["fmin_n"]) / amplitude - 1) < 0.01, mid
+            # the secant stiffness halves once the crack has taken its tenth of the section, before
+            # the bar's tensile stiffness is halved or it separates
+            assert truth["n_phi10"] < life < core.virtual_life(truth_cfg)[1], (life, truth)
+    finally:
+        s.close()
+
+
 def test_extensometer_out_of_range_holds_and_strain_life_needs_one():
     spec = lifetest.parse(life_doc(), "x")
     s = Session().open(rig(), virtual=True, specimen=spec, thread=False)

@@ -306,15 +306,21 @@ class ControlLoop:
         """|position change − integrated speed| [m] over the fresh samples of the last
         PLAUS_WINDOW periods (trapezoid): a frozen or jumping position adds up period by period,
         so a transducer stuck at a slow move shows within a few periods, while the quantisation
-        of one sample does not grow. A silence breaks the window (its own detector's business)."""
+        of one sample does not grow. A silence breaks the window (its own detector's business).
+        What the trapezoid cannot know is taken off: where within a period the speed changed
+        (half of each change times the period; nothing at a steady speed, so a stuck transducer
+        at a steady move shows as before, while a strain-controlled bar's yield or a crack
+        closing turns the piston within a period without a false trip)."""
         w = self._fresh
         if w and w[-1][0] != self.k - 1:
             w.clear()
         w.append((self.k, y, v))
         if len(w) < 2:
             return 0.0
-        dist = sum(0.5 * (a[2] + b[2]) * self.dt for a, b in zip(w, list(w)[1:]))
-        return abs((w[-1][1] - w[0][1]) - dist)
+        pairs = list(zip(w, list(w)[1:]))
+        dist = sum(0.5 * (a[2] + b[2]) * self.dt for a, b in pairs)
+        slack = sum(0.5 * abs(b[2] - a[2]) * self.dt for a, b in pairs)
+        return max(abs((w[-1][1] - w[0][1]) - dist) - slack, 0.0)
 
     # -- schedulers ---------------------------------------------------------------------------------
     def run_lockstep(self, periods: int) -> None:
