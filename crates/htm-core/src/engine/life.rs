@@ -931,6 +931,50 @@ mod tests {
         }
     }
 
+    /// A rig's hold: the amplitude ramps to zero within a cycle, held cycles are not counted (nor
+    /// cycled on the bar), a resume ramps back in, and its cycles are counted but not judged.
+    #[test]
+    fn a_hold_stops_counting_and_a_resume_is_not_judged() {
+        let cfg = bar(LifeMode::Strain, 0.006);
+        let mut vb = VirtualBar::new(&cfg).unwrap();
+        let (f, eps, _) = vb.measure();
+        let mut lm = LifeMachine::new(&cfg, lm_signal(&cfg, f, eps)).unwrap();
+        let n = lm.n;
+        let mut rows = vec![];
+        let run = |lm: &mut LifeMachine, vb: &mut VirtualBar, periods: usize, rows: &mut Vec<LifeRow>| {
+            for _ in 0..periods {
+                let (f, e, y) = vb.measure();
+                let (u, r) = lm.step(&cfg, f, e, y);
+                vb.step(u, lm.dt).unwrap();
+                rows.extend(r);
+            }
+        };
+        run(&mut lm, &mut vb, 20 * n, &mut rows);
+        assert_eq!(lm.cycle, 20);
+        assert!(lm.hold());
+        assert_eq!(lm.stage, Stage::Holding);
+        let n0 = vb.spec.n;
+        run(&mut lm, &mut vb, 10 * n, &mut rows);
+        assert!(lm.cycle <= 21, "held cycles counted: {}", lm.cycle);
+        assert!(vb.spec.n - n0 <= 2.0, "a held bar cycled: {}", vb.spec.n - n0);
+        let held = lm.cycle;
+        assert!(lm.resume(&cfg));
+        run(&mut lm, &mut vb, 15 * n, &mut rows);
+        assert_eq!(lm.cycle, held + 15);
+        let cycles: Vec<u64> = rows.iter().map(|r| r.cycle).collect();
+        assert_eq!(cycles, (1..=lm.cycle).collect::<Vec<_>>(), "every cycle once");
+        // the resume's ramp (5 cycles) and the two after it are not judged, the ones after are
+        for r in &rows[held as usize..held as usize + 7] {
+            assert!(r.trend.is_nan(), "cycle {} judged during the resume", r.cycle);
+        }
+        assert!(rows.last().unwrap().trend.is_finite());
+        let last = rows.last().unwrap();
+        assert!((0.5 * (last.strain_max - last.strain_min) / 0.006 - 1.0).abs() < 0.02);
+        lm.stop(&cfg);
+        run(&mut lm, &mut vb, 3 * n, &mut rows);
+        assert_eq!(lm.stage, Stage::Stopped);
+    }
+
     #[test]
     fn strain_life_holds_the_amplitude_and_detects_the_load_drop() {
         let cfg = bar(LifeMode::Strain, 0.008);
