@@ -105,3 +105,34 @@ def test_run_screen_cycling(snap_compare, store):
         await drive(pilot)
 
     assert snap_compare(app, terminal_size=SIZE, run_before=go)
+
+
+def test_run_screen_life_test(snap_compare, store):
+    """A strain_life test on the lock-step virtual rig (a round bar, an extensometer on ai7): the
+    life numbers, the live stress–strain loop and the tensile peak's trend with its threshold."""
+    from test_tui_life import SHORT_LIFE
+
+    from htm.control.session import Session, specimen_of
+    from htm.devices.config import virtual_config
+    from htm.fatigue import lifetest
+
+    spec = lifetest.parse(SHORT_LIFE, "snapshot_life")
+    holder = {}
+
+    def factory():
+        cfg = virtual_config("lockstep", bus={"channel": "htm-snapshot-life"}, analog={"device": "htm-snapshot-life",
+                             "channels": {"extensometer": "ai7"}}, position={"protect_force_n": 2000.0})
+        holder["s"] = Session().open(cfg, virtual=True, specimen=specimen_of(spec), thread=False)
+        return holder["s"]
+
+    app = HtmApp(session_factory=factory, poll=False, store=store)
+
+    async def go(pilot):
+        await pilot.press("f4")
+        s = holder["s"]
+        s.start(spec, record=False)
+        s.step(100 * 40)
+        pilot.app.poll()
+        await pilot.pause()
+
+    assert snap_compare(app, terminal_size=SIZE, run_before=go)

@@ -4,6 +4,7 @@ virtual rig; both tests end up in the store with their end reasons. `.ci/run` in
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -177,3 +178,52 @@ def test_every_tab_by_keyboard_alone_in_tmux(tmp_path):
             time.sleep(0.2)
     finally:
         subprocess.run(t.base + ["kill-server"], capture_output=True)
+
+
+def test_a_strain_life_test_in_tmux_shows_its_loop_and_threshold_and_is_recorded(tmp_path):
+    """`htm-tui --spec` with a strain_life spec: Run starts it on the built-in virtual rig (gripping
+    a round bar for it, an extensometer on its channel), the screen shows the life numbers (the
+    tensile peak, its trend, the failure threshold), the live stress–strain loop and the trend
+    plot; stopped by key, the test is in the store with its per-cycle table from cycle 1."""
+    import pyarrow.parquet as pq
+    from test_tui_life import SHORT_LIFE
+
+    from htm import spec as specmod
+
+    store = tmp_path / "store"
+    spec = tmp_path / "en_short.toml"
+    spec.write_text(specmod.dumps(SHORT_LIFE))
+    t = Tmux(f"htm-life-{os.getpid()}")
+    t("new-session", "-d", "-s", "tui", "-x", "170", "-y", "50",
+      f"env -u COLUMNS -u LINES HTM_STORE={store} {HTM_TUI} --store {store} --spec {spec}")
+    try:
+        t.wait_for("connected to the virtual rig")
+        t.wait_for("strain_life, ε_a 0.6 %")  # the Setup status of the spec given
+        t.keys("F4")
+        t.wait_for("state idle")
+        t.keys("s")
+        screen = t.wait_for("mode strain_life", timeout=30)
+        screen = t.wait_for("(50 % drop)", timeout=30)
+        assert "tensile peak" in screen and "failure at" in screen and "σ_a" in screen, screen
+        assert "stress–strain loop" in screen and "failure threshold" in screen, screen
+        t0 = time.monotonic()
+        while not re.search(r"cycles (\d{2,}|[\d,]{4,})", t.screen()):  # ten cycles and more: the trend is judged
+            assert time.monotonic() - t0 < 60, t.screen()
+            time.sleep(0.3)
+        screen = t.screen()
+        assert re.search(r"trend \d+\.\d{3} kN", screen) and re.search(r"failure at \d+\.\d{3} kN", screen), screen
+        t.keys("x")
+        t.wait_for("state idle", timeout=20)
+        t.keys("q")
+        t0 = time.monotonic()
+        while _alive(t):
+            assert time.monotonic() - t0 < 15, "the console did not quit on q"
+            time.sleep(0.2)
+    finally:
+        subprocess.run(t.base + ["kill-server"], capture_output=True)
+    with Store(store) as s:
+        (x,) = s.list_tests()
+        d = s.test_dir(x["id"])
+    assert (x["kind"], x["mode"], x["status"], x["end_reason"]) == ("strain_life", "device", "stopped", "operator stop"), x
+    c = pq.read_table(d / "cycles.parquet").column("cycle").to_numpy()
+    assert len(c) >= 5 and np.array_equal(c, np.arange(1, len(c) + 1))

@@ -62,6 +62,10 @@ class ControlLoop:
         # and the clip gauge's slip watch: compliance from the recent periods, last (cod, force)
         self.crack_channel: str | None = None
         self._slip = [0.0, 0.0, math.nan, math.nan]  # Σ Δv·ΔF, Σ ΔF², last v, last F
+        # the extensometer's slip watch: Σ of Δy², Δy·ΔF, ΔF², Δl·Δy, Δl·ΔF over the recent
+        # periods, and the last (elongation, force, position)
+        self._ext = [0.0] * 5 + [math.nan] * 3
+        self._ext_range = self._limit("extensometer_range")
         self._decim = max(1, round(self.rate_hz / FEED_HZ))
         # how long to wait for this SYNC's TPDO: a share of the period in real time; in lock-step
         # nothing when the rig is pumped here, else long enough for another process to answer
@@ -75,7 +79,8 @@ class ControlLoop:
         self.cycles: deque[dict[str, Any]] = deque(maxlen=100_000)
         self.feed: deque[dict[str, Any]] = deque(maxlen=400)
         self.commands: deque[Callable[[], None]] = deque()
-        self.meas = {"y": math.nan, "v": math.nan, "f": math.nan, "p_a": math.nan, "p_b": math.nan, "p_s": math.nan, "u": 0.0}
+        self.meas = {"y": math.nan, "v": math.nan, "f": math.nan, "p_a": math.nan, "p_b": math.nan, "p_s": math.nan, "u": 0.0,
+                     "e": math.nan}
         self.max_abs_u_after_trip = 0.0
         self.trip_period: int | None = None
         self.stop_requested = False
@@ -147,7 +152,10 @@ class ControlLoop:
         f_ref = c.force_ref_n if fed else math.nan  # the setpoint at this period's force (set by the last step)
         crack = self.io.read_crack()
         src = self.crack_channel
-        u = c.step(f, y, crack[src][0] if src in crack else math.nan)
+        m_src = crack[src][0] if src in crack else math.nan
+        if src == "extensometer" and not self._ext_range[0] < crack[src][1] < self._ext_range[1]:
+            m_src = math.nan  # out of its range: no strain to control by (the controller commands no flow)
+        u = c.step(f, y, m_src)
         st = c.state
         # watched values (see htm.devices.config.CHANNELS)
         val = self.safety.values
@@ -200,6 +208,8 @@ class ControlLoop:
         val[CH["load_plausibility_n"]] = abs(f - f_hyd) if self.powered else 0.0
         if crack:
             self._watch_gauges(crack, f, st)
+            if "extensometer" in crack:
+                self._watch_extensometer(crack["extensometer"], f, y, st)
         worst = self.safety.check(self.k)
         if worst is not None:
             self._act(worst, y)
@@ -222,6 +232,7 @@ class ControlLoop:
             self.max_abs_u_after_trip = max(self.max_abs_u_after_trip, abs(u))
         mm = self.meas
         mm["y"], mm["v"], mm["f"], mm["p_a"], mm["p_b"], mm["p_s"], mm["u"] = y, v, f, p_a, p_b, p_s, u
+        mm["e"] = crack["extensometer"][0] if "extensometer" in crack else math.nan
         if fed:
             self.feed.append({"period": self.k, "t_s": self.k * self.dt, "state": c.state, "cycle": c.cycle, "f_ref": f_ref, **mm})
         return u
@@ -254,6 +265,37 @@ class ControlLoop:
         s[2], s[3] = cod, f
         val[CH["gauge_jump_m"]] = jump
 
+    def _watch_extensometer(self, reading: tuple[float, float], f: float, y: float, st: str) -> None:
+        """The extensometer's watches: its signal [V] (out of range near ±10 V) and its jump [m]:
+        the elongation's change less what the piston's motion and the force's change explain.
+        The bar and the load train are in series, so the piston's travel is the gauge's
+        elongation (times the bar's length over the gauge's) plus the load train's stretch:
+        Δl = a·Δy + b·ΔF with a, b fitted over the recent periods — a linear relation however
+        the bar yields. A knife edge slipping on the bar is a step the piston does not make."""
+        strain, volts = reading
+        val = self.safety.values
+        val[CH["extensometer_v"]] = volts
+        w = self._ext
+        lo, hi = self._limit("extensometer_range")
+        l_m = strain * self.cfg.analog.extensometer_gauge_length_m if lo < volts < hi else math.nan
+        jump = 0.0
+        if st in FRACTURE_STATES and all(math.isfinite(x) for x in (l_m, f, y, w[5], w[6], w[7])):
+            dl, df, dy = l_m - w[5], f - w[6], y - w[7]
+            syy, syf, sff, sly, slf = w[:5]
+            det = syy * sff - syf * syf
+            # judged once the piston's motion is well beyond its transducer's resolution
+            if det > 1e-9 * syy * sff and syy > 100.0 * self.cfg.transducer.resolution_m ** 2:
+                a = (sly * sff - slf * syf) / det
+                b = (slf * syy - sly * syf) / det
+                jump = abs(dl - a * dy - b * df)
+            if jump < self._limit("extensometer_slip")[1]:  # a slip does not teach the relation
+                k = 0.995
+                w[0], w[1], w[2], w[3], w[4] = k * syy + dy * dy, k * syf + dy * df, k * sff + df * df, k * sly + dl * dy, k * slf + dl * df
+        elif st not in FRACTURE_STATES:
+            w[:5] = [0.0] * 5
+        w[5], w[6], w[7] = l_m, f, y
+        val[CH["extensometer_jump_m"]] = jump
+
     def _limit(self, name: str) -> tuple[float, float]:
         for lim in self.cfg.limits:
             if lim.name == name:
@@ -264,15 +306,21 @@ class ControlLoop:
         """|position change − integrated speed| [m] over the fresh samples of the last
         PLAUS_WINDOW periods (trapezoid): a frozen or jumping position adds up period by period,
         so a transducer stuck at a slow move shows within a few periods, while the quantisation
-        of one sample does not grow. A silence breaks the window (its own detector's business)."""
+        of one sample does not grow. A silence breaks the window (its own detector's business).
+        What the trapezoid cannot know is taken off: where within a period the speed changed
+        (half of each change times the period; nothing at a steady speed, so a stuck transducer
+        at a steady move shows as before, while a strain-controlled bar's yield or a crack
+        closing turns the piston within a period without a false trip)."""
         w = self._fresh
         if w and w[-1][0] != self.k - 1:
             w.clear()
         w.append((self.k, y, v))
         if len(w) < 2:
             return 0.0
-        dist = sum(0.5 * (a[2] + b[2]) * self.dt for a, b in zip(w, list(w)[1:]))
-        return abs((w[-1][1] - w[0][1]) - dist)
+        pairs = list(zip(w, list(w)[1:]))
+        dist = sum(0.5 * (a[2] + b[2]) * self.dt for a, b in pairs)
+        slack = sum(0.5 * abs(b[2] - a[2]) * self.dt for a, b in pairs)
+        return max(abs((w[-1][1] - w[0][1]) - dist) - slack, 0.0)
 
     # -- schedulers ---------------------------------------------------------------------------------
     def run_lockstep(self, periods: int) -> None:

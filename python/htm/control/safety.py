@@ -134,8 +134,9 @@ class Safety:
         self.det = core.Detectors(cfg.detector_specs())
         self._specs = cfg.detector_specs()
         # a crack gauge not wired has nothing to watch
-        wired = cfg.crack_channels
-        for name, needs in (("gauge_range", "cod"), ("gauge_slip", "cod"), ("dcpd_current", "dcpd_current")):
+        wired = cfg.crack_channels + (("extensometer",) if cfg.has_extensometer else ())
+        for name, needs in (("gauge_range", "cod"), ("gauge_slip", "cod"), ("dcpd_current", "dcpd_current"),
+                            ("extensometer_range", "extensometer"), ("extensometer_slip", "extensometer")):
             if needs not in wired and any(s["name"] == name for s in self._specs):
                 self.det.set_enabled(name, False)
         self.estop = False

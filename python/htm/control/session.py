@@ -48,8 +48,19 @@ SUPPLY_TIMEOUT_S = 3.0
 FIRST_READING_S = 2.0
 
 
+def is_life(spec: Any) -> bool:
+    """The spec is a life test (`htm.fatigue.lifetest.LifeSpec`: force_life or strain_life)."""
+    from htm.fatigue.lifetest import LifeSpec
+
+    return isinstance(spec, LifeSpec)
+
+
 def specimen_of(spec) -> dict[str, Any]:
-    """The virtual rig's specimen dict for a `TestSpec`."""
+    """The virtual rig's specimen dict for a `TestSpec` (a cracking specimen), or for a life
+    test's `LifeSpec` its round bar (``{"life": its core dict}``: the virtual rig grips a bar of
+    that geometry and nominal material, with its own truth, `htm.devices.rig.true_bar`)."""
+    if is_life(spec):
+        return {"life": dict(spec.config)}
     return {"geometry": spec.geometry, "width_m": spec.width_m, "thickness_m": spec.thickness_m, "a0_m": spec.a0_m,
             **spec.material, "law": dict(spec.law)}
 
@@ -330,6 +341,8 @@ class Session:
 
         def f() -> None:
             self._motion_allowed()
+            if getattr(lp.ctrl, "is_life", False):  # after a life test: the position controller again
+                lp.ctrl = core.CyclicController(lp.rate_hz, lp.position_settings)
             if lp.ctrl.state != "position" or fn is None:
                 # bumpless from the present command when powered; from cold the controller's start-up
                 lp.ctrl.position(self._reading("y", what), lp.ctrl.u_last_v if lp.powered else 0.0)
@@ -368,7 +381,8 @@ class Session:
 
     def start(self, spec, f0_n: float | None = None, *, record: bool = True, store: Any = None,
               recording: bool = True) -> None:
-        """Start the test `spec` (htm.spec.TestSpec) with a smooth ramp-in from the present force.
+        """Start the test `spec` (htm.spec.TestSpec, or a life test's htm.fatigue.lifetest.LifeSpec:
+        force_life / strain_life) with a smooth ramp-in from the present force.
         The controller is built here (its gain design takes milliseconds), then swapped in.
         With `record` the test goes into the test store (`store`: root folder, default
         $HTM_STORE) with a rerun recording (`recording`), see `htm.control.recorder`."""
@@ -378,6 +392,9 @@ class Session:
             # the working pressure, once the start-up is through (the supply limit would trip)
             self._started_up()
         self._load_supply()
+        if is_life(spec):
+            self._start_life(spec, f0_n, record=record, store=store, recording=recording)
+            return
         crack = spec.measurement.get("crack", "model")
         if crack == "model" and self.cfg.analog.backend != "simulated":
             raise HtmError(f"test {spec.name}: [measurement] crack = \"model\" grows the crack by the law, which a real specimen "
@@ -407,6 +424,39 @@ class Session:
             from htm.control.recorder import LiveRecorder
 
             self.recorder = LiveRecorder(self, store, spec, test_no, first_event, recording=recording)
+
+    def _start_life(self, spec: Any, f0_n: float | None, *, record: bool, store: Any, recording: bool) -> None:
+        """Start a life test (`LifeSpec`): the core's life controller (`engine::life::LifeMachine`,
+        the simulator's code) on the loop's rate, fed the load cell, the extensometer's strain and
+        the piston position; its rows and kept loops go to the store (`LifeRecorder`)."""
+        from htm.control.lifectl import LifeTest
+        from htm.devices.config import life_on_loop
+
+        if spec.mode == "strain_life" and not self.cfg.has_extensometer:
+            raise HtmError(f"test {spec.name}: strain_life controls the strain: it needs analog.channels.extensometer in the rig configuration")
+        if self.rig is not None and self.rig.bar is None:
+            raise HtmError(f"test {spec.name}: the virtual rig grips no round bar: open the session with the life spec as its specimen")
+        lp = self.loop
+        params = with_overrides(core.Params(self.cfg.rig_preset), self.cfg.rig_overrides)
+        f0 = lp.meas["f"] if f0_n is None else f0_n
+        ctrl = LifeTest(life_on_loop(spec.config, lp.rate_hz), params, 0.0 if math.isnan(f0) else f0, lp.meas["e"], lp.rate_hz)
+
+        def f() -> int:
+            self._motion_allowed()
+            lp.ctrl = ctrl
+            lp.crack_channel = "extensometer" if self.cfg.has_extensometer else None
+            lp.test_no += 1
+            lp.energise()
+            return lp.test_no
+        if self.recorder is not None:
+            self.recorder.stop()
+            self.recorder = None
+        first_event = self.log.count
+        test_no = self._do(f, f"start {spec.mode} test {spec.name}")
+        if record:
+            from htm.control.liferecorder import LifeRecorder
+
+            self.recorder = LifeRecorder(self, store, spec, test_no, first_event, recording=recording)
 
     def hold(self) -> None:
         """Hold the running test: the amplitude ramps to zero over one cycle and the actuator
@@ -473,6 +523,16 @@ class Session:
         c = lp.ctrl
         last = lp.cycles[-1] if lp.cycles and lp.cycles[-1]["test"] == lp.test_no else None
         info = c.info()
+
+        def at(k: str) -> float:
+            return last.get(k, math.nan) if last else math.nan
+        life = None
+        if getattr(c, "is_life", False):  # a life test: its mode, trend, threshold and live loop
+            e, st = c.live_loop()
+            life = {"mode": c.mode, "drop": c.drop, "area_m2": c.area_m2, "trend": at("trend"), "threshold": at("threshold"), "strain_max": at("strain_max"),
+                    "strain_min": at("strain_min"), "stress_max_pa": at("stress_max_pa"), "stress_min_pa": at("stress_min_pa"),
+                    "stiffness_n_m": at("stiffness_n_m"), "n_drop10": c.n_drop10, "n_drop50": c.n_drop50,
+                    "loop_strain": list(map(float, e)), "loop_stress_pa": list(map(float, st))}
         return {
             "period": lp.k, "t_s": lp.k * lp.dt, "test": lp.test_no, "state": c.state, "mode": self.cfg.loop.mode, "rate_hz": lp.rate_hz,
             "amplifier": lp.powered, "interlock": lp.safety.latched(), "estop": lp.safety.estop,
@@ -480,12 +540,10 @@ class Session:
             # the crack the test runs on (`crack`: compliance, potential_drop or model) beside the law's,
             # and the last reading's opening force and ΔK_eff (NaN without a compliance reading)
             "crack": {"cod": "compliance", "dcpd": "potential_drop"}.get(lp.crack_channel or "", "model"), "a_law_m": c.a_law_m,
-            "opening_force_n": last["opening_force_n"] if last else math.nan,
-            "delta_k_eff_pa_sqrt_m": last["delta_k_eff_pa_sqrt_m"] if last else math.nan,
-            "delta_k_pa_sqrt_m": last["delta_k_pa_sqrt_m"] if last else math.nan,
-            "k_sp_n_m": last["k_sp_n_m"] if last else math.nan,
-            "peak_err_pct": last["peak_err_pct"] if last else math.nan, "df_err_pct": last["df_err_pct"] if last else math.nan,
-            "last_peak_n": last["fmax_n"] if last else math.nan, "last_valley_n": last["fmin_n"] if last else math.nan,
+            "opening_force_n": at("opening_force_n"), "delta_k_eff_pa_sqrt_m": at("delta_k_eff_pa_sqrt_m"),
+            "delta_k_pa_sqrt_m": at("delta_k_pa_sqrt_m"), "k_sp_n_m": at("k_sp_n_m"),
+            "peak_err_pct": at("peak_err_pct"), "df_err_pct": at("df_err_pct"), "last_peak_n": at("fmax_n"), "last_valley_n": at("fmin_n"),
+            "life": life,
             "targets": c.targets, "protecting": c.protecting, "reference_m": c.reference_m,
             **{f"{k}": v for k, v in lp.meas.items()}, "timing": lp.timing.stats(),
         }

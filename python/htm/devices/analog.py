@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from htm.devices.config import ANALOG_INPUTS, CRACK_INPUTS, PHYSICAL, AnalogConfig
+from htm.devices.config import ANALOG_INPUTS, GAUGE_INPUTS, PHYSICAL, AnalogConfig
 from htm.errors import DeviceError
 
 FULL_SCALE_V = 10.0
@@ -133,7 +133,8 @@ class AnalogIO:
         self._supply = _index(cfg.channels["supply_setpoint"])
         self._supply_cal = cfg.calibration["supply_setpoint"]
         self._relay = _index(cfg.channels["amplifier_enable"])
-        self._crack = [(s, _index(cfg.channels[s]), cfg.calibration[s]) for s in CRACK_INPUTS if s in cfg.channels]
+        self._crack = [(s, _index(cfg.channels[s]), cfg.calibration[s]) for s in GAUGE_INPUTS if s in cfg.channels]
+        self._gauge_m = cfg.extensometer_gauge_length_m
         self.valve_v = 0.0
         self.amplifier = False
 
@@ -144,11 +145,16 @@ class AnalogIO:
         return (c[0].to_value(v[0]), c[1].to_value(v[1]), c[2].to_value(v[2]), c[3].to_value(v[3]))
 
     def read_crack(self) -> dict[str, tuple[float, float]]:
-        """The crack gauges wired: name -> (value [SI], volts)."""
+        """The specimen's gauges wired: name -> (value [SI], volts); the crack gauges' value as
+        calibrated, the extensometer's the strain (its elongation over its gauge length)."""
         if not self._crack:
             return {}
         v = self.daq.read_inputs([i for _, i, _ in self._crack])
-        return {s: (c.to_value(x), x) for (s, _, c), x in zip(self._crack, v)}
+        out = {s: (c.to_value(x), x) for (s, _, c), x in zip(self._crack, v)}
+        if "extensometer" in out:
+            e, x = out["extensometer"]
+            out["extensometer"] = (e / self._gauge_m, x)
+        return out
 
     def write_valve(self, u_v: float) -> None:
         """Valve command [V] (clipped to ±10 V)."""

@@ -35,6 +35,10 @@ ANALOG_INPUTS = ("p_a", "p_b", "p_s", "load")
 # direct-current potential drop (`dcpd`, the amplified potential after current reversal) and its
 # current monitor (`dcpd_current`); on a second 4-channel input module (ai4..ai7)
 CRACK_INPUTS = ("cod", "dcpd", "dcpd_current")
+# the specimen's strain gauges (ASTM E606): an axial extensometer's elongation (calibration V → m,
+# over its gauge length `analog.extensometer_gauge_length_m` the strain), wired when the rig has one
+STRAIN_INPUTS = ("extensometer",)
+GAUGE_INPUTS = CRACK_INPUTS + STRAIN_INPUTS
 ANALOG_OUTPUTS = ("valve", "supply_setpoint")
 RELAYS = ("amplifier_enable",)
 # the thesis rig's wiring (Table 3.2): NI 9215 inputs, NI 9263 outputs, NI 9481 relay
@@ -47,9 +51,9 @@ INTERFACES = ("virtual", "udp_multicast", "socketcan")
 CHANNELS = ("position_m", "velocity_m_s", "force_n", "p_a_pa", "p_b_pa", "p_s_pa", "following_error_m",
             "amplitude_error_pct", "force_band", "transducer_age_periods", "transducer_fault", "heartbeat_age_s",
             "can_error_frames", "bus_off", "position_plausibility_m", "load_plausibility_n", "force_unexplained",
-            "gauge_v", "gauge_jump_m", "dcpd_current_a")
+            "gauge_v", "gauge_jump_m", "dcpd_current_a", "extensometer_v", "extensometer_jump_m")
 # the crack gauges' watches when a channel is not wired: inside every limit
-GAUGE_ABSENT = {"gauge_v": 0.0, "gauge_jump_m": 0.0}
+GAUGE_ABSENT = {"gauge_v": 0.0, "gauge_jump_m": 0.0, "extensometer_v": 0.0, "extensometer_jump_m": 0.0}
 DEFAULT_LIMITS: dict[str, dict[str, Any]] = {
     "position": {"channel": "position_m", "lo": 0.002, "hi": 0.198, "action": "stop"},
     "velocity": {"channel": "velocity_m_s", "lo": -0.3, "hi": 0.3, "action": "power_off"},
@@ -78,6 +82,11 @@ DEFAULT_LIMITS: dict[str, dict[str, Any]] = {
     "gauge_range": {"channel": "gauge_v", "lo": -9.8, "hi": 9.8, "action": "hold"},
     "gauge_slip": {"channel": "gauge_jump_m", "lo": 0.0, "hi": 20e-6, "action": "hold"},
     "dcpd_current": {"channel": "dcpd_current_a", "lo": 1.0, "hi": 100.0, "action": "hold"},
+    # the extensometer (E606): its signal near the converter's end (out of range: the arms opened
+    # past their travel or came off), an elongation that jumps by more than the piston's motion
+    # and the force's change explain (a knife edge slipped on the bar) hold the test
+    "extensometer_range": {"channel": "extensometer_v", "lo": -9.8, "hi": 9.8, "action": "hold"},
+    "extensometer_slip": {"channel": "extensometer_jump_m", "lo": 0.0, "hi": 20e-6, "action": "hold"},
 }
 ACTIONS = ("indicate", "hold", "stop", "power_off")
 
@@ -109,6 +118,8 @@ class AnalogConfig:
     device: str = "htm-sim"
     channels: dict[str, str] = field(default_factory=lambda: dict(THESIS_CHANNELS))
     calibration: dict[str, Channel] = field(default_factory=lambda: load_calibration(None))
+    # the extensometer's gauge length [m]: its elongation over this is the strain
+    extensometer_gauge_length_m: float = 0.025
 
 
 @dataclass(frozen=True)
@@ -162,6 +173,11 @@ class RigConfig:
         """The crack gauges wired (`cod`, `dcpd`, `dcpd_current`)."""
         return tuple(s for s in CRACK_INPUTS if s in self.analog.channels)
 
+    @property
+    def has_extensometer(self) -> bool:
+        """An extensometer is wired (`analog.channels.extensometer`)."""
+        return "extensometer" in self.analog.channels
+
     def detector_specs(self) -> list[dict[str, Any]]:
         """The limits as `htm.core.Detectors` items."""
         return [{"name": lim.name, "channel": CHANNELS.index(lim.channel), "lo": lim.lo, "hi": lim.hi, "action": lim.action,
@@ -201,13 +217,13 @@ def check_eds(path: Path, node_id: int) -> None:
 
 
 def _channel_map(channels: dict[str, Any]) -> dict[str, str]:
-    known = ANALOG_INPUTS + CRACK_INPUTS + ANALOG_OUTPUTS + RELAYS
+    known = ANALOG_INPUTS + GAUGE_INPUTS + ANALOG_OUTPUTS + RELAYS
     _keys(channels, set(known), "analog.channels")
     out = dict(THESIS_CHANNELS)
     out.update({k: str(v) for k, v in channels.items()})
     seen: dict[str, str] = {}
     for sig, ch in out.items():
-        kind = "ai" if sig in ANALOG_INPUTS + CRACK_INPUTS else "ao" if sig in ANALOG_OUTPUTS else "relay"
+        kind = "ai" if sig in ANALOG_INPUTS + GAUGE_INPUTS else "ao" if sig in ANALOG_OUTPUTS else "relay"
         num = ch[len(kind):]
         if not (ch.startswith(kind) and num.isdigit() and int(num) < PHYSICAL[kind]):
             raise _err(f"analog.channels.{sig} = {ch!r}: allowed {kind}0..{kind}{PHYSICAL[kind] - 1}")
@@ -242,18 +258,18 @@ def parse_config(doc: dict[str, Any], base: Path | None = None) -> RigConfig:
                           _num(t, "sdo_timeout_s", "transducer", 0.5, 0.01, 10.0, "s"))
 
     a = doc.get("analog", {})
-    _keys(a, {"backend", "device", "channels", "calibration"}, "analog")
+    _keys(a, {"backend", "device", "channels", "calibration", "extensometer_gauge_length_m"}, "analog")
     backend = a.get("backend", "simulated")
     if backend not in ("simulated", "nidaqmx"):
         raise _err(f"analog.backend = {backend!r}: use simulated or nidaqmx")
     channels = _channel_map(dict(a.get("channels", {})))
     cal_path = a.get("calibration", "builtin")
     cal = load_calibration(cal_path if cal_path == "builtin" else base / str(cal_path))
-    missing = [s for s in ANALOG_INPUTS + ANALOG_OUTPUTS + tuple(c for c in CRACK_INPUTS if c in channels) if s not in cal]
+    missing = [s for s in ANALOG_INPUTS + ANALOG_OUTPUTS + tuple(c for c in GAUGE_INPUTS if c in channels) if s not in cal]
     if missing:
         raise _err(f"analog.calibration has no entry for {', '.join(missing)}")
     device = str(a.get("device", "htm-sim" if backend == "simulated" else "cRIO1"))
-    analog = AnalogConfig(backend, device, channels, cal)
+    analog = AnalogConfig(backend, device, channels, cal, _num(a, "extensometer_gauge_length_m", "analog", 0.025, 1e-3, 0.5, "m"))
 
     lp = doc.get("loop", {})
     _keys(lp, {"rate_hz", "mode", "safe_command_v", "tpdo_wait", "priority"}, "loop")
@@ -304,12 +320,24 @@ def parse_config(doc: dict[str, Any], base: Path | None = None) -> RigConfig:
 
 
 # `[virtual.specimen]` and `[virtual.gauges]` keys: (default, lo, hi), SI
-SPECIMEN_KEYS = {"c_factor": (1.0, 0.01, 100.0), "m": (math.nan, 1.0, 10.0), "c_scatter": (0.0, 0.0, 1.0), "seed": (1, 0, 2**31)}
+# (a life test's bar: `life_scatter_log10` the σ of log10 of its initiation life drawn from `seed`,
+# `k_prime_factor` its cyclic K′ against the spec's, `c_factor` its short crack's Paris C)
+SPECIMEN_KEYS = {"c_factor": (1.0, 0.01, 100.0), "m": (math.nan, 1.0, 10.0), "c_scatter": (0.0, 0.0, 1.0), "seed": (1, 0, 2**31),
+                 "life_scatter_log10": (0.0, 0.0, 1.0), "k_prime_factor": (1.0, 0.5, 2.0)}
 GAUGE_KEYS = {
     "cod": {"noise_m": (0.2e-6, 0.0, 1e-4), "resolution_m": (0.0, 0.0, 1e-4), "drift_m_per_cycle": (0.0, -1e-6, 1e-6),
             "closure_opening_fraction": (0.0, 0.0, 0.8), "gauge_x_over_w": (-0.25, -0.345, 0.0)},
     "dcpd": {"noise": (1e-4, 0.0, 0.1), "resolution": (0.0, 0.0, 0.1), "probe_y_m": (0.004, 1e-4, 1.0), "current_a": (10.0, 0.1, 100.0)},
+    "extensometer": {"noise_m": (0.0, 0.0, 1e-5)},
 }
+
+
+def life_on_loop(config: dict[str, Any], rate_hz: float) -> dict[str, Any]:
+    """A life test's core dict (`htm.fatigue.lifetest.LifeSpec.config`) on a loop of fixed rate:
+    a whole number of periods per cycle, the frequency run accordingly."""
+    f = float(config.get("frequency_hz", 5.0))
+    n = max(1, round(rate_hz / f))
+    return {**config, "frequency_hz": rate_hz / n, "control_rate_hz": float(rate_hz), "jump": False}
 
 
 def _effects(table: Any) -> dict[str, dict[str, Any]]:

@@ -23,7 +23,63 @@ from htm.params import with_overrides
 SENSOR = {"p_a": (4.0e6, 4.0e5), "p_b": (4.0e6, 0.0), "p_s": (4.0e6, 0.0), "load": (2500.0, 0.0)}
 SUPPLY_PA_PER_V = 2.5e6
 FAULTS = ("transducer_silent", "transducer_stuck", "transducer_nan", "heartbeat_lost", "can_error_frames", "bus_off",
-          "supply_loss", "valve_stuck", "load_drift", "fracture", "gauge_slip", "gauge_out_of_range", "dcpd_current_lost")
+          "supply_loss", "valve_stuck", "load_drift", "fracture", "gauge_slip", "gauge_out_of_range", "dcpd_current_lost",
+          "extensometer_slip", "extensometer_out_of_range")
+
+
+def true_bar(cfg: RigConfig, life: dict) -> dict:
+    """The virtual rig's own life specimen: the spec's bar (`life`: a life test's core dict) with
+    the rig's truth the spec does not know (`[virtual.specimen]`): its own life factor
+    10^(σ·z) drawn from its `seed` with σ = `life_scatter_log10` (1 without), its cyclic K′ times
+    `k_prime_factor`, its short crack's Paris C times `c_factor`; run on the rig's loop rate."""
+    from htm.devices.config import life_on_loop
+
+    vs = cfg.virtual_specimen
+    out = life_on_loop(life, cfg.loop.rate_hz)
+    sigma = vs.get("life_scatter_log10", 0.0)
+    z = random.Random(int(vs.get("seed", 1))).gauss(0.0, 1.0) if sigma > 0.0 else 0.0
+    out["life_factor"] = 10.0 ** (sigma * z)
+    if "k_prime_factor" in vs:
+        out["k_prime_pa"] = float(life.get("k_prime_pa", 1200e6)) * vs["k_prime_factor"]
+    if "c_factor" in vs:
+        out["paris_c"] = float(life.get("paris_c", 1e-29)) * vs["c_factor"]
+    return out
+
+
+class BarPlant:
+    """The plant of a life test's virtual rig, as `RigPlant` offers it to `VirtualRig`: the
+    machine with the virtual bar on it (`core.LifeRig`: its own cyclic material, life and crack),
+    the load cell reading the bar's force; the extensometer's strain is `strain`."""
+
+    def __init__(self, params: core.Params, life: dict):
+        self.life = life
+        self.rig = core.LifeRig(life, params)
+        self.strain = self.rig.outputs()[6]
+        self.gauge_readings: list[float] = []
+
+    def step(self, u: float, dt: float) -> tuple[float, ...]:
+        o = self.rig.step_all(u, dt)
+        self.strain = o[6]
+        return o[:6]
+
+    def outputs(self) -> tuple[float, ...]:
+        return self.rig.outputs()[:6]
+
+    @property
+    def supply_setpoint_pa(self) -> float:
+        return self.rig.supply_setpoint_pa
+
+    @supply_setpoint_pa.setter
+    def supply_setpoint_pa(self, v: float) -> None:
+        self.rig.supply_setpoint_pa = v
+
+    @property
+    def valve_null_bias_v(self) -> float:
+        return self.rig.valve_null_bias_v
+
+    def truth(self) -> dict:
+        """The bar's hidden state (cycles, damage, crack, milestones): for tests, never the controller."""
+        return self.rig.truth()
 
 
 def true_specimen(cfg: RigConfig, specimen: dict | None) -> dict | None:
@@ -78,7 +134,15 @@ class VirtualRig:
     def __init__(self, cfg: RigConfig, specimen: dict | None = None, threaded: bool = True):
         self.cfg = cfg
         self.params = plant_params(cfg)
-        self.plant = core.RigPlant(self.params, true_specimen(cfg, specimen))
+        self.gripped = specimen  # the specimen dict as given (the spec's; the rig's truth departs from it)
+        # a life test's round bar (`{"life": core dict}`), else a cracking specimen (or none)
+        self.bar: BarPlant | None = None
+        if specimen is not None and "life" in specimen:
+            self.bar = BarPlant(self.params, true_bar(cfg, specimen["life"]))
+            self.plant = self.bar
+            specimen = None
+        else:
+            self.plant = core.RigPlant(self.params, true_specimen(cfg, specimen))
         self.dt = 1.0 / cfg.loop.rate_hz
         ch = cfg.analog.channels
         self._ai = {s: _idx(ch[s]) for s in SENSOR}
@@ -98,6 +162,12 @@ class VirtualRig:
             self._gauges["dcpd"] = (self.plant.add_gauge("potential_drop", noise=d.get("noise", 1e-4), resolution=d.get("resolution", 0.0),
                                                          gauge_y_m=d.get("probe_y_m", 0.004), seed=2 * seed + 2), _idx(ch["dcpd"]))
         self._current = (_idx(ch["dcpd_current"]), g.get("dcpd", {}).get("current_a", 10.0)) if "dcpd_current" in ch else None
+        # the extensometer on the bar: its elongation over its gauge length, its slips [m]
+        self._ext = _idx(ch["extensometer"]) if "extensometer" in ch and self.bar is not None else None
+        self._ext_gauge_m = cfg.analog.extensometer_gauge_length_m
+        self._ext_noise = g.get("extensometer", {}).get("noise_m", 0.0)
+        self._ext_rng = random.Random(3 * seed + 1)
+        self.extensometer_offset_m = 0.0
         self._valve, self._supply, self._relay = _idx(ch["valve"]), _idx(ch["supply_setpoint"]), _idx(ch["amplifier_enable"])
         self.daq = SimulatedDaq(cfg.analog.device, create=True)
         try:
@@ -143,9 +213,15 @@ class VirtualRig:
         for name, val in (("p_a", p_a), ("p_b", p_b), ("p_s", p_s), ("load", force + self.__dict__.get("load_offset_n", 0.0))):
             gain, offset = s[name]
             d.set_input(self._ai[name], (val + offset) / gain)
+        f = self.__dict__.get("faults", {})
+        if self.__dict__.get("_ext") is not None:
+            dl = self.bar.strain * self._ext_gauge_m + self.extensometer_offset_m
+            if self._ext_noise > 0.0:
+                dl += self._ext_rng.gauss(0.0, self._ext_noise)
+            volts = 10.0 if "extensometer_out_of_range" in f else self._cal["extensometer"].to_volts(dl)
+            d.set_input(self._ext, volts)
         if not self._gauges and self._current is None:
             return
-        f = self.__dict__.get("faults", {})
         readings = self.plant.gauge_readings
         for name, (i, ai) in self._gauges.items():
             val = readings[i]
@@ -188,8 +264,14 @@ class VirtualRig:
         elif fault == "bus_off":
             self.bus.send(can.Message(is_error_frame=True, arbitration_id=CAN_ERR_BUSOFF, dlc=8, data=bytes(8)))
             dev.fault = "silent"
-        elif fault == "fracture":
+        elif fault == "fracture" and self.bar is None:
             self.plant.fracture()
+        elif fault == "extensometer_slip":
+            if self._ext is None:
+                raise InputError("extensometer_slip needs an extensometer on a life test's bar (analog.channels.extensometer)")
+            self.extensometer_offset_m += value if value != 1.0 else 50e-6
+        elif fault == "fracture" and self.bar is not None:
+            raise InputError("fracture: a life test's bar breaks by its own crack")
         elif fault == "gauge_slip":
             if "cod" not in self._gauges:
                 raise InputError("gauge_slip needs a clip gauge (analog.channels.cod)")
@@ -201,6 +283,7 @@ class VirtualRig:
         self.device.fault = None
         self.device.heartbeat = True
         self.load_offset_n = 0.0
+        self.extensometer_offset_m = 0.0  # the extensometer seated again on the bar
         if "cod" in self._gauges:  # the gauge seated again on its knife edges
             i = self._gauges["cod"][0]
             self.plant.slip_gauge(i, -self.plant_gauge_offset(i))

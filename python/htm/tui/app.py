@@ -38,10 +38,12 @@ EVENTS_HEADING = f"{'time [s]':>10}  {'event':<10} detail"
 
 
 def virtual_rig_config(rate_hz: float = 500.0):
-    """The built-in virtual rig: in-process, lock-step device path, specimen protect at 2 kN."""
+    """The built-in virtual rig: in-process, lock-step device path, specimen protect at 2 kN, an
+    extensometer on ai7 (a life test's round bar carries it)."""
     from htm.devices.config import virtual_config
 
-    return virtual_config("lockstep", rate_hz, position={"protect_force_n": PROTECT_FORCE_N})
+    return virtual_config("lockstep", rate_hz, position={"protect_force_n": PROTECT_FORCE_N},
+                          analog={"channels": {"extensometer": "ai7"}})
 
 KEYS = """\
 # htm-tui keys
@@ -111,7 +113,7 @@ class HtmApp(App[None]):
     """
 
     def __init__(self, *, config: Any = None, session: Any = None, session_factory: Callable[[], Any] | None = None,
-                 poll: bool = True, store: Any = None, **kw: Any) -> None:
+                 poll: bool = True, store: Any = None, spec: Any = None, **kw: Any) -> None:
         super().__init__(**kw)
         # the simulated DAQ lives in shared memory, whose tracker process must be forked while
         # the standard streams are still real files (Textual replaces them once it runs)
@@ -127,13 +129,14 @@ class HtmApp(App[None]):
         self._last_cycle = 0
         self._last_event = 0
         self.key_latency_ms: list[float] = []
+        self.spec_path = spec  # a spec file (TOML) the Setup tab starts with (--spec)
         self.pending: dict[int, str] = {}  # commands sent and not yet done (worker id -> command)
 
     def compose(self) -> ComposeResult:
         yield Header()
         with TabbedContent(initial="setup", id="tabs"):
             with TabPane("Setup F2", id="setup"):
-                yield SetupPane(id="setup-pane")
+                yield SetupPane(*self._spec_doc(), id="setup-pane")
             with TabPane("Install F3", id="install"):
                 yield InstallPane(id="install-pane")
             with TabPane("Run F4", id="run"):
@@ -148,6 +151,16 @@ class HtmApp(App[None]):
         yield RichLog(id="events", markup=True, max_lines=500)
         yield Footer()
 
+    def _spec_doc(self) -> tuple[Any, ...]:
+        """(document, name) of --spec, or nothing (the example C(T) test)."""
+        if self.spec_path is None:
+            return ()
+        import tomllib
+        from pathlib import Path
+
+        p = Path(self.spec_path)
+        return (tomllib.loads(p.read_text(encoding="utf-8")), p.stem)
+
     def on_mount(self) -> None:
         if self.session is None:
             self._open_session()
@@ -155,14 +168,14 @@ class HtmApp(App[None]):
             self.set_interval(1.0 / POLL_HZ, self.poll)
 
     # ---- the session (rig + loop) ------------------------------------------------------------
-    def _open_session(self) -> None:
+    def _open_session(self, spec: Any = None) -> None:
         from htm.control.session import Session, specimen_of
 
         try:
             if self._factory is not None:
                 self.session = self._factory()
             else:
-                spec = self.current_spec()
+                spec = spec or self.current_spec()
                 specimen = specimen_of(spec) if spec else None
                 if self.config:
                     self.session = Session().open(self.config, specimen=specimen)
@@ -226,6 +239,7 @@ class HtmApp(App[None]):
             color = {"trip": "red", "estop": "b red", "reset": "green"}.get(e.get("kind", ""), "white")
             self.log_event(f"[{color}]{e.get('period', 0) * dt:>10.2f}  {escape(e.get('kind', '')):<10} {escape(e.get('message', ''))}[/]")
         run = self.query_one(RunPane)
+        run.set_life(snap.get("life"))
         run.add_feed(feed)
         run.add_cycles(rows)
         snap["pending"] = self.pending_text(snap)
@@ -237,8 +251,31 @@ class HtmApp(App[None]):
             run.update_numbers(snap)
         self.query_one(InstallPane).update_live(snap)
 
+    def grip(self, spec: Any) -> None:
+        """The built-in virtual rig grips the specimen of `spec` before it starts: a life test's
+        round bar (or a crack test's specimen after a bar) means a specimen change, done with the
+        rig at rest: the session is opened again with it."""
+        from htm.control.session import is_life, specimen_of
+
+        s = self.session
+        if self.config is not None or self._factory is not None or s is None or getattr(s, "rig", None) is None:
+            return
+        want = specimen_of(spec)
+        gripped = getattr(s.rig, "gripped", None)
+        if (gripped == want) or (not is_life(spec) and s.rig.bar is None):
+            return
+        if s.loop is not None and s.loop.powered:
+            return  # never while energised: the start is refused by the session then
+        s.close()
+        self.session = None
+        self._last_period = self._last_cycle = self._last_event = 0
+        self._open_session(spec)
+        self.log_event(f"[yellow]virtual rig: {'a round bar' if is_life(spec) else 'the crack specimen'} gripped for {escape(spec.name)}[/]")
+
     def command(self, name: str, *args: Any) -> None:
         """Send session command `name` (a `Session` method) from a worker thread."""
+        if name == "start" and args:
+            self.grip(args[0])
         if self.session is None or getattr(self.session, "loop", None) is None:
             self.notify(f"{name}: no rig connected", severity="error")
             return
@@ -349,12 +386,22 @@ def build_parser() -> argparse.ArgumentParser:
                                  "or the hardware a rig configuration (TOML) names.")
     ap.add_argument("--config", help="rig configuration (TOML); default: the built-in virtual rig")
     ap.add_argument("--store", help="test store folder (default: $HTM_STORE or ~/.local/share/htm/store)")
+    ap.add_argument("--spec", help="a spec file (TOML) the Setup tab starts with: a crack-growth test or a life test "
+                                   "(force_life / strain_life)")
     return ap
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    HtmApp(config=args.config, store=args.store).run()
+    if args.spec:
+        import tomllib
+
+        try:
+            tomllib.loads(open(args.spec, encoding="utf-8").read())
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
+            print(f"htm-tui: --spec {args.spec}: {e}", file=sys.stderr)
+            return 2
+    HtmApp(config=args.config, store=args.store, spec=args.spec).run()
     return 0
 
 

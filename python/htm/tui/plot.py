@@ -47,6 +47,8 @@ class LinePlot(Widget):
         super().__init__(**kw)
         self.title = title
         self.series: list[tuple[np.ndarray, np.ndarray, str]] = []
+        # a path (a hysteresis loop: x goes back and forth) is drawn along its samples, not as y(x)
+        self.path = False
 
     def set_series(self, series: list[tuple[list[float] | np.ndarray, list[float] | np.ndarray, str]]) -> None:
         self.series = [(np.asarray(x, float), np.asarray(y, float), label) for x, y, label in series if len(x)]
@@ -72,9 +74,14 @@ class LinePlot(Widget):
         for i, (x, y) in enumerate(pts):
             if not len(x):
                 continue
-            # densify so lines stay connected: one point per dot column
-            xd = np.linspace(x0, x1, 2 * w) if len(x) > 1 else x
-            yd = np.interp(xd, x, y, left=np.nan, right=np.nan) if len(x) > 1 else y
+            # densify so lines stay connected: one point per dot column (a path: along its samples)
+            if self.path and len(x) > 1:
+                t = np.arange(len(x), dtype=float)
+                td = np.linspace(0.0, len(x) - 1.0, 8 * w)
+                xd, yd = np.interp(td, t, x), np.interp(td, t, y)
+            else:
+                xd = np.linspace(x0, x1, 2 * w) if len(x) > 1 else x
+                yd = np.interp(xd, x, y, left=np.nan, right=np.nan) if len(x) > 1 else y
             ok = np.isfinite(yd)
             cx = np.clip(((xd[ok] - x0) / (x1 - x0) * (2 * w - 1)).round().astype(int), 0, 2 * w - 1)
             cy = np.clip(((y1 - yd[ok]) / (y1 - y0) * (4 * h - 1)).round().astype(int), 0, 4 * h - 1)

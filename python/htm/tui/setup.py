@@ -66,10 +66,11 @@ class SetupPane(Vertical):
             self.spec = spec
             super().__init__()
 
-    def __init__(self, doc: dict[str, Any] | None = None, **kw: Any) -> None:
+    def __init__(self, doc: dict[str, Any] | None = None, name: str | None = None, **kw: Any) -> None:
         super().__init__(**kw)
         self.doc = doc or default_doc()
-        self.name_ = DEFAULT_SPEC.stem if doc is None else "spec"  # the test's name in the store and the event log
+        # the test's name in the store and the event log
+        self.name_ = name or (DEFAULT_SPEC.stem if doc is None else "spec")
         self.spec: specmod.TestSpec | None = None
         self.bad: dict[str, str] = {}  # field id -> reason (unparsable text)
 
@@ -93,7 +94,7 @@ class SetupPane(Vertical):
                 with Horizontal(classes="row", id=f"row-{f.id}"):
                     yield Label(f.label)
                     if f.choices:
-                        yield Select([(c, c) for c in f.choices], allow_blank=False, value=F.show(f, self.doc) or f.choices[0], id=f.id)
+                        yield Select([(c, c) for c in f.choices], allow_blank=False, value=F.choice(f, self.doc), id=f.id)
                     else:
                         yield Input(F.show(f, self.doc), id=f.id)
                     yield Static(f.unit, classes="unit")
@@ -133,6 +134,19 @@ class SetupPane(Vertical):
         else:
             self.bad.pop(f.id, None)
             self.doc = F.with_value(self.doc, f, value)
+            if f.path == ("loading", "mode"):
+                # into a life mode (or back to a crack test's): its values where the document has
+                # none yet, shown in the form
+                doc = {k: dict(v) if isinstance(v, dict) else v for k, v in self.doc.items()}
+                missing = False
+                fill = F.LIFE_DEFAULTS if F.is_life(self.doc) else {k: v for k, v in default_doc().items() if isinstance(v, dict)}
+                for sec, vals in fill.items():
+                    for k, v in vals.items():
+                        if k not in doc.setdefault(sec, {}):
+                            doc[sec][k], missing = v, True
+                if missing:
+                    self.load_doc(doc)
+                    return
         self._refresh()
 
     def load_doc(self, doc: dict[str, Any], name: str | None = None) -> None:
@@ -145,7 +159,7 @@ class SetupPane(Vertical):
             w = self.query_one(f"#{f.id}")
             with self.prevent(Input.Changed, Select.Changed):
                 if isinstance(w, Select):
-                    w.value = F.show(f, doc) or f.choices[0]
+                    w.value = F.choice(f, doc)
                 else:
                     w.value = F.show(f, doc)
         self._refresh()
@@ -161,7 +175,16 @@ class SetupPane(Vertical):
             status.update(f"[b red]✗[/] {len(self.bad)} field(s) unreadable")
         else:
             self.spec, fid, msg = F.validate(self.doc, self.name_)
-            if self.spec is not None:
+            if self.spec is not None and F.is_life(self.doc):
+                c = self.spec.config
+                amp = (f"ε_a {c['amplitude'] * 100:.3g} %" if self.spec.mode == "strain_life"
+                       else f"F_a {c['amplitude'] / 1e3:.3g} kN (σ_a {c['amplitude'] / self.spec.area_m2 / 1e6:.0f} MPa)")
+                ends = [f"{c.get('drop', 0.5) * 100:g} % drop" if c.get("drop", 0.5) > 0 else "",
+                        f"{c['modulus_ratio_drop'] * 100:g} % modulus ratio" if c.get("modulus_ratio_drop", 0) > 0 else "",
+                        f"run-out {c.get('runout_cycles', 1e7):,.0f}"]
+                status.update(f"[b green]✓[/] valid: round bar D {c.get('diameter_m', 6.35e-3) * 1e3:.2f} mm, {self.spec.mode}, {amp}, "
+                              f"sine {c.get('frequency_hz', 5.0):g} Hz; ends at {', '.join(e for e in ends if e)}")
+            elif self.spec is not None:
                 status.update(f"[b green]✓[/] valid: {self.spec.geometry.upper()} W {self.spec.width_m * 1e3:.1f} mm, "
                               f"{self.spec.phases[-1].mode}, {self.spec.waveform} {self.spec.frequency_hz:g} Hz")
                 self._check(self.spec)
@@ -202,7 +225,16 @@ class SetupPane(Vertical):
             self.notify("type a file name to save to", severity="warning")
             return
         try:
-            specmod.save(F.effective(self.doc), text, Path(text).stem)
+            doc = F.effective(self.doc)
+            if F.is_life(doc):  # a life test: its own rules (htm.fatigue.lifetest), the same TOML
+                from htm.fatigue import lifetest
+
+                lifetest.parse(doc, Path(text).stem)
+                if Path(text).exists():
+                    raise HtmError(f"{text} exists; refusing to overwrite a spec")
+                Path(text).write_text(specmod.dumps(doc))
+            else:
+                specmod.save(doc, text, Path(text).stem)
         except (HtmError, OSError) as e:
             self.notify(f"not saved: {e}", severity="error")
             return
@@ -219,10 +251,24 @@ class SetupPane(Vertical):
         self._simulate(self.spec, model)
 
     @work(thread=True, exclusive=True, group="simulate")
-    def _simulate(self, spec: specmod.TestSpec, model: str | None = None) -> None:
+    def _simulate(self, spec: Any, model: str | None = None) -> None:
         from htm.run import run_spec, summary
         from htm.twin import label, on_model
 
+        if F.is_life(self.doc):  # the life engine with the cycle jump (htm run of a life spec)
+            from htm.fatigue import lifetest
+
+            try:
+                out, wall = lifetest.run(spec)
+                s = lifetest.summary(spec, out, wall)
+                st = s["stabilised"]
+                text = (f"[b]predicted life[/] {s['cycles']:,} cycles → {s['end_reason']}"
+                        + (f"   [b]stabilised[/] σ_a {st['stress_amplitude_pa'] / 1e6:.1f} MPa at ε_a {st['strain_amplitude'] * 100:.3f} %" if st else "")
+                        + f"   [dim]{wall:.2f} s wall[/]")
+            except HtmError as e:
+                text = f"[red]simulation refused: {escape(str(e))}[/]"
+            self.app.call_from_thread(self.query_one("#sim-result", Static).update, text)
+            return
         try:
             if model:  # the identified plant (base parameters and every finding) instead of the nominal rig
                 spec = on_model(spec, model)

@@ -19,11 +19,13 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use crate::control::{Demod, DemodGains, ForceLoop, PeakValley, Setpoint};
 use crate::cyclic_material::{true_life, CyclicSpecimen};
 use crate::error::{Error, Result};
-use crate::machine::{Machine, Y};
+use crate::machine::Y;
 use crate::params::Params;
-use crate::waveform::{Envelope, Waveform};
+use crate::rig::RigPlant;
+use crate::waveform::{smoothstep, Envelope, Waveform};
 
 use super::config::{hydraulic_stiffness, measure_velocity_gain, series_stiffness};
+use super::cycle::{Stage, HOLD_CYCLES};
 
 /// What the loop controls.
 #[derive(serde::Serialize, serde::Deserialize, Debug, Clone, Copy, PartialEq, Eq)]
@@ -310,6 +312,19 @@ pub struct LifeMachine {
     /// largest tensile peak of the judged cycles [N]
     peak_max: f64,
     pub velocity_gain: f64,
+    /// what the test is doing (the cycle machine's stages: hold, resume and stop on a rig)
+    pub stage: Stage,
+    /// amplitude ramp of hold / resume / stop: scale = from + (to − from)·smoothstep(pos/len)
+    ramp: (f64, f64, u64, u64),
+    /// the smallest and largest amplitude scale of this cycle's periods
+    cycle_scale: (f64, f64),
+    /// cycles up to this one are not judged (a resume's ramp and the cycles after it)
+    judge_after: u64,
+    /// the valve command that holds the piston still once stopped [V]
+    pub u_null: f64,
+    /// the samples (stress [Pa], strain) of the last closed cycle, for a rig's live loop and
+    /// kept loops
+    pub last_loop: Vec<(f64, f64)>,
 }
 
 /// Peak-valley gain of a life test relative to the cycle machine's: a yielding bar changes its
@@ -384,7 +399,8 @@ impl LifeMachine {
         Ok(LifeMachine {
             drive, pv: PeakValley::new(), n, dt, k: 0, cycle: 0, f0: s0, start_cycles: cfg.envelope.start_cycles(), ea: cfg.ea(), area: cfg.specimen.area_m2(),
             buf: Vec::with_capacity(n), e_ref: f64::NAN, trend: Trend::default(), ratio_trend: Trend::default(), n_drop10: None,
-            n_drop50: None, n_modulus: None, end: None, kept_bucket: -1, peak_max: 0.0, velocity_gain: kv,
+            n_drop50: None, n_modulus: None, end: None, kept_bucket: -1, peak_max: 0.0, velocity_gain: kv, stage: Stage::Starting,
+            ramp: (1.0, 1.0, 0, 0), cycle_scale: (f64::MAX, f64::MIN), judge_after: 0, u_null: 0.0, last_loop: Vec::new(),
         })
     }
 
@@ -413,9 +429,15 @@ impl LifeMachine {
         let s_next = (tau * x1).sin();
         let (mid, amp) = self.setpoint_at(cfg, c + x);
         let (mid1, amp1) = self.setpoint_at(cfg, c + x1);
+        // hold / resume / stop: the amplitude ramps at the mean
+        let (g, g1) = (self.scale_at(self.ramp.2), self.scale_at(self.ramp.2 + 1));
+        if self.ramp.2 < self.ramp.3 {
+            self.ramp.2 += 1;
+        }
+        self.cycle_scale = (self.cycle_scale.0.min(g), self.cycle_scale.1.max(g));
         // the correction of each reversal (the peak in the first half, the valley in the second)
-        let (amp, amp1) = (self.pv.apply(amp, x <= 0.5), self.pv.apply(amp1, x1 <= 0.5));
-        let learn = cfg.envelope.start(c + x).1 >= 0.3;
+        let (amp, amp1) = (self.pv.apply(amp * g, x <= 0.5), self.pv.apply(amp1 * g1, x1 <= 0.5));
+        let learn = cfg.envelope.start(c + x).1 * g >= 0.3;
         let sp = Setpoint { mid_n: mid, mid_next_n: mid1 + (amp1 - amp) * s_next, amp_n: amp, s: sn, s_next, sin: sn, cos: cn, learn };
         let meas = self.signal(cfg, f, strain);
         let u = if meas.is_finite() { self.drive.command(&sp, meas) } else { 0.0 };
@@ -462,12 +484,14 @@ impl LifeMachine {
         let mut ev = if c <= self.start_cycles { life_events::START } else { 0 };
         let (thi, tlo) = cfg.targets();
         let fa = cfg.envelope.start(c as f64 - 0.5).1;
-        if fa >= PeakValley::MIN_AMPLITUDE_FRACTION && self.end.is_none() {
+        let full = self.cycle_scale.0 >= 1.0;
+        if fa >= PeakValley::MIN_AMPLITUDE_FRACTION && self.end.is_none() && full {
             let (mid, amp) = self.setpoint_at(cfg, c as f64 - 0.25);
             let gain = LIFE_PV_GAIN * if fa < 1.0 { PeakValley::RAMP_GAIN } else { PeakValley::GAIN };
             self.pv.update(mid + amp, mid - amp, smax, smin, 2.0 * amp, 2.0 * amp, gain);
         }
-        let judged = c > self.start_cycles + 2;
+        // judged: past the start, at full amplitude, not in or just after a resume's ramp
+        let judged = c > self.start_cycles + 2 && full && c > self.judge_after;
         if judged && !self.e_ref.is_finite() && ec.is_finite() {
             self.e_ref = ec;
         }
@@ -535,7 +559,89 @@ impl LifeMachine {
     pub fn next_cycle(&mut self) {
         self.buf.clear();
         self.k = 0;
+        self.cycle_scale = (f64::MAX, f64::MIN);
     }
+
+    #[inline]
+    fn scale_at(&self, pos: u64) -> f64 {
+        let (from, to, _, len) = self.ramp;
+        if pos >= len { to } else { from + (to - from) * smoothstep(pos as f64 / len as f64) }
+    }
+
+    fn ramp_to(&mut self, to: f64, cycles: f64) {
+        let from = self.scale_at(self.ramp.2);
+        self.ramp = (from, to, 0, (cycles.max(0.05) * self.n as f64).round() as u64);
+    }
+
+    /// Freeze at the mean (a rig's hold): the amplitude ramps to zero over `HOLD_CYCLES`; the
+    /// cycles held at zero amplitude are not counted. False when no test runs.
+    pub fn hold(&mut self) -> bool {
+        match self.stage {
+            Stage::Starting | Stage::Running => {
+                self.ramp_to(0.0, HOLD_CYCLES);
+                self.stage = Stage::Holding;
+                true
+            }
+            Stage::Holding => true,
+            _ => false,
+        }
+    }
+
+    /// Ramp the amplitude back in over the start's amplitude cycles after `hold`; the ramp's
+    /// cycles and the two after it are counted but not judged (the compensation settles again).
+    pub fn resume(&mut self, cfg: &LifeConfig) -> bool {
+        if self.stage != Stage::Holding {
+            return false;
+        }
+        let len = cfg.envelope.amplitude_cycles.max(1.0);
+        self.ramp_to(1.0, len);
+        self.judge_after = self.cycle + len.ceil() as u64 + 2;
+        self.stage = if self.cycle < self.start_cycles { Stage::Starting } else { Stage::Running };
+        true
+    }
+
+    /// Ramp the amplitude to zero at the mean over the spec's stop cycles, then the valve null.
+    pub fn stop(&mut self, cfg: &LifeConfig) {
+        if matches!(self.stage, Stage::Starting | Stage::Running | Stage::Holding) {
+            self.ramp_to(0.0, cfg.envelope.stop_cycles.max(0.5));
+            self.stage = Stage::Stopping;
+        }
+    }
+
+    /// One control period of a rig's loop (the same `command` and `close` as `run_life`'s):
+    /// measured force [N], extensometer strain and piston position [m] in; the valve command [V]
+    /// and, when a counted cycle closed with this period, its row out (its samples then in
+    /// `last_loop`). Cycles held at zero amplitude, and those after the end, are not counted;
+    /// an end criterion ramps the amplitude down (`stop`), then the valve goes to its null.
+    pub fn step(&mut self, cfg: &LifeConfig, f: f64, strain: f64, y: f64) -> (f64, Option<LifeRow>) {
+        if self.stage == Stage::Stopped {
+            return (self.u_null, None);
+        }
+        let u = self.command(cfg, f, strain, y);
+        if !self.at_end() {
+            return (u, None);
+        }
+        let mut row = None;
+        let counted = self.cycle_scale.1 > 0.0 && self.end.is_none() && self.stage != Stage::Stopping;
+        if counted {
+            let r = self.close(cfg);
+            self.last_loop.clear();
+            self.last_loop.extend(self.buf.iter().map(|p| (p.0, p.1)));
+            row = Some(r);
+            if self.end.is_some() {
+                self.stop(cfg);
+            } else if self.stage == Stage::Starting && self.cycle >= self.start_cycles {
+                self.stage = Stage::Running;
+            }
+        }
+        self.next_cycle();
+        if self.stage == Stage::Stopping && self.ramp.2 >= self.ramp.3 {
+            self.stage = Stage::Stopped;
+            self.u_null = self.drive.summary().1.clamp(-1.0, 1.0);
+        }
+        (u, row)
+    }
+
 
     /// A jump of `j` cycles (simulation): the counter moves on, the next cycle's loop is kept
     /// again when it opens a new logarithmic bucket.
@@ -578,22 +684,27 @@ impl Bar {
     }
 }
 
-/// Run a life test on the simulated rig to its end. `progress` receives the cycle count.
-/// The virtual rig of a life test: the plant with the virtual bar on it (the hidden truth). Its
-/// sensors are what a rig's would read; `step` applies a valve command for one control period.
+/// The virtual rig of a life test: the plant (with its supply, `rig::RigPlant`) with the virtual
+/// bar on it (the hidden truth). Its sensors are what a rig's would read; `step` applies a valve
+/// command for one control period.
 #[derive(Debug, Clone)]
 pub struct VirtualBar {
-    pub m: Machine,
+    pub rp: RigPlant,
     bar: Bar,
     pub spec: CyclicSpecimen,
     /// measured force [N], extensometer strain
     pub f: f64,
     pub eps: f64,
     /// control periods per load cycle and the count in this one: the bar closes its true loop
-    /// every cycle by itself (a rig's specimen needs no telling)
+    /// every cycle by itself (a rig's specimen needs no telling); a window in which the bar did
+    /// not move (a rig at rest or a held test) is no cycle of the material's
     n: usize,
     k: usize,
+    win: (f64, f64),
 }
+
+/// Strain range below which a window of a load cycle's periods is no cycle of the bar's.
+const REST_STRAIN_RANGE: f64 = 2e-5;
 
 impl VirtualBar {
     pub fn new(cfg: &LifeConfig) -> Result<Self> {
@@ -603,31 +714,44 @@ impl VirtualBar {
         p.specimen_stiffness_n_m = cfg.elastic_stiffness();
         p.specimen_closure_stiffness_n_m = 0.0;
         let y_zero = p.specimen_zero_force_position_m;
-        let m = Machine::new(p)?.with_rtol(cfg.rtol)?;
+        let mut rp = RigPlant::new(p, None)?;
+        rp.machine = rp.machine.clone().with_rtol(cfg.rtol)?;
         let mut bar = Bar { y_zero, l: cfg.gauge_length_m, k_lt: cfg.load_train_n_m, eps: 0.0 };
-        let (f, eps, _) = bar.settle(&mut spec, m.x[Y]);
+        let (f, eps, _) = bar.settle(&mut spec, rp.machine.x[Y]);
         let n = (cfg.control_rate_hz / cfg.frequency_hz).round() as usize;
-        Ok(VirtualBar { m, bar, spec, f, eps, n, k: 0 })
+        Ok(VirtualBar { rp, bar, spec, f, eps, n, k: 0, win: (f64::MAX, f64::MIN) })
     }
 
     /// (force [N], strain, piston position [m]) as the sensors read them now.
     pub fn measure(&self) -> (f64, f64, f64) {
-        (self.f, self.eps, self.m.x[Y])
+        (self.f, self.eps, self.rp.machine.x[Y])
+    }
+
+    /// Every sensor now: (position [m], velocity [m/s], p_a, p_b, p_s [Pa], force [N], strain).
+    pub fn outputs(&self) -> (f64, f64, f64, f64, f64, f64, f64) {
+        let o = self.rp.machine.outputs();
+        (o.y, o.v, o.p_a, o.p_b, o.p_s, self.f, self.eps)
     }
 
     /// One control period under valve command `u` [V] for `dt` [s]: the plant moves, the bar
     /// follows, its tangent becomes the plant's spring for the next period.
     pub fn step(&mut self, u: f64, dt: f64) -> Result<(f64, f64, f64)> {
-        self.m.step(u, dt)?;
-        let (f1, e1, k) = self.bar.settle(&mut self.spec, self.m.x[Y]);
-        self.m.plant.p.specimen_stiffness_n_m = k;
-        self.m.plant.p.specimen_zero_force_position_m = self.m.x[Y] - f1 / k;
+        self.rp.step(u, dt)?;
+        let y = self.rp.machine.x[Y];
+        let (f1, e1, k) = self.bar.settle(&mut self.spec, y);
+        let p = &mut self.rp.machine.plant.p;
+        p.specimen_stiffness_n_m = k;
+        p.specimen_zero_force_position_m = y - f1 / k;
         (self.f, self.eps) = (f1, e1);
+        self.win = (self.win.0.min(e1), self.win.1.max(e1));
         self.k += 1;
         if self.k == self.n {
             // a load cycle is over: the bar's damage and crack advance by its true loop
             self.k = 0;
-            self.spec.end_cycle();
+            if self.win.1 - self.win.0 >= REST_STRAIN_RANGE {
+                self.spec.end_cycle();
+            }
+            self.win = (f64::MAX, f64::MIN);
         }
         Ok(self.measure())
     }
@@ -649,23 +773,25 @@ pub fn run_life(cfg: &LifeConfig, progress: Option<&AtomicU64>, cancel: Option<&
             lm.end = Some(LifeEnd::Cancelled);
             break;
         }
-        for _ in 0..lm.n {
+        // the rig's per-period step (`LifeMachine::step`), period by period until a cycle closes
+        let row = loop {
             let (f, eps, y) = vb.measure();
-            let u = lm.command(cfg, f, eps, y);
+            let (u, closed) = lm.step(cfg, f, eps, y);
             vb.step(u, lm.dt)?;
-        }
+            if let Some(r) = closed {
+                break r;
+            }
+        };
         simulated += 1;
         let spec = &mut vb.spec;
-        let row = lm.close(cfg);
         if row.keep_loop {
-            for (e, s) in lm.loop_samples() {
+            for &(s, e) in &lm.last_loop {
                 loops.cycle.push(row.cycle);
                 loops.strain.push(e);
                 loops.stress_pa.push(s);
             }
         }
         push(&mut rec, &row, area);
-        lm.next_cycle();
         if let Some(pg) = progress {
             pg.store(lm.cycle, Ordering::Relaxed);
         }
@@ -803,6 +929,50 @@ mod tests {
             gauge_length_m: 25e-3, load_train_n_m: 5e8, criteria: Criteria::default(), loops_per_decade: 5, jump: true,
             velocity_gain_m_s_per_v: None,
         }
+    }
+
+    /// A rig's hold: the amplitude ramps to zero within a cycle, held cycles are not counted (nor
+    /// cycled on the bar), a resume ramps back in, and its cycles are counted but not judged.
+    #[test]
+    fn a_hold_stops_counting_and_a_resume_is_not_judged() {
+        let cfg = bar(LifeMode::Strain, 0.006);
+        let mut vb = VirtualBar::new(&cfg).unwrap();
+        let (f, eps, _) = vb.measure();
+        let mut lm = LifeMachine::new(&cfg, lm_signal(&cfg, f, eps)).unwrap();
+        let n = lm.n;
+        let mut rows = vec![];
+        let run = |lm: &mut LifeMachine, vb: &mut VirtualBar, periods: usize, rows: &mut Vec<LifeRow>| {
+            for _ in 0..periods {
+                let (f, e, y) = vb.measure();
+                let (u, r) = lm.step(&cfg, f, e, y);
+                vb.step(u, lm.dt).unwrap();
+                rows.extend(r);
+            }
+        };
+        run(&mut lm, &mut vb, 20 * n, &mut rows);
+        assert_eq!(lm.cycle, 20);
+        assert!(lm.hold());
+        assert_eq!(lm.stage, Stage::Holding);
+        let n0 = vb.spec.n;
+        run(&mut lm, &mut vb, 10 * n, &mut rows);
+        assert!(lm.cycle <= 21, "held cycles counted: {}", lm.cycle);
+        assert!(vb.spec.n - n0 <= 2.0, "a held bar cycled: {}", vb.spec.n - n0);
+        let held = lm.cycle;
+        assert!(lm.resume(&cfg));
+        run(&mut lm, &mut vb, 15 * n, &mut rows);
+        assert_eq!(lm.cycle, held + 15);
+        let cycles: Vec<u64> = rows.iter().map(|r| r.cycle).collect();
+        assert_eq!(cycles, (1..=lm.cycle).collect::<Vec<_>>(), "every cycle once");
+        // the resume's ramp (5 cycles) and the two after it are not judged, the ones after are
+        for r in &rows[held as usize..held as usize + 7] {
+            assert!(r.trend.is_nan(), "cycle {} judged during the resume", r.cycle);
+        }
+        assert!(rows.last().unwrap().trend.is_finite());
+        let last = rows.last().unwrap();
+        assert!((0.5 * (last.strain_max - last.strain_min) / 0.006 - 1.0).abs() < 0.02);
+        lm.stop(&cfg);
+        run(&mut lm, &mut vb, 3 * n, &mut rows);
+        assert_eq!(lm.stage, Stage::Stopped);
     }
 
     #[test]

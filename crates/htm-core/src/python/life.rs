@@ -8,7 +8,8 @@ use pyo3::types::PyDict;
 use super::{InputError, PyParams};
 use crate::crack::Law;
 use crate::cyclic_material::{CyclicMaterial, CyclicSpecimen};
-use crate::engine::life::{run_life as run, virtual_life as vlife, Criteria, LifeConfig, LifeMachine, LifeMode, LifeOutcome, VirtualBar};
+use crate::engine::cycle::Stage;
+use crate::engine::life::{run_life as run, virtual_life as vlife, Criteria, LifeConfig, LifeMachine, LifeMode, LifeOutcome, LifeRow, VirtualBar};
 use crate::waveform::Envelope;
 
 const KEYS: &[&str] = &[
@@ -142,7 +143,9 @@ fn run_life_batch<'py>(py: Python<'py>, specs: Vec<Bound<'py, PyDict>>, params: 
 /// the cyclic curve): (N_init, N_50, N_sep) [cycles].
 #[pyfunction]
 fn virtual_life(spec: &Bound<'_, PyDict>) -> PyResult<(f64, f64, f64)> {
-    Ok(vlife(&config(spec, None)?))
+    let cfg = config(spec, None)?;
+    cfg.validate()?; // every value judged (the spec's checker calls this)
+    Ok(vlife(&cfg))
 }
 
 /// Stress amplitude [Pa] of the cyclic curve ε_a = σ_a/E + (σ_a/K′)^(1/n′) at strain amplitude `ea`.
@@ -166,10 +169,12 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
 /// `run_life` runs): `command(f, strain, y)` once per control period with the measured force [N],
 /// extensometer strain and piston position [m], the valve command [V] back; `at_end` when the
 /// cycle's last period was commanded, then `close()` (the cycle's row as a dict) and `next_cycle()`.
-#[pyclass(name = "LifeController", module = "htm._core", unsendable)]
+#[pyclass(name = "LifeController", module = "htm._core")]
 pub struct PyLifeController {
     cfg: LifeConfig,
     lm: LifeMachine,
+    last: Option<LifeRow>,
+    results: u64,
 }
 
 #[pymethods]
@@ -181,7 +186,7 @@ impl PyLifeController {
         cfg.validate()?;
         let s0 = if cfg.mode == LifeMode::Strain { strain0 * cfg.ea() } else { f0 };
         let lm = LifeMachine::new(&cfg, s0)?;
-        Ok(PyLifeController { cfg, lm })
+        Ok(PyLifeController { cfg, lm, last: None, results: 0 })
     }
     /// control period [s] and samples per cycle
     #[getter]
@@ -223,12 +228,104 @@ impl PyLifeController {
     fn next_cycle(&mut self) {
         self.lm.next_cycle()
     }
+
+    /// One control period of a rig's loop (`LifeMachine::step`): measured force [N], strain and
+    /// piston position [m] in, the valve command [V] out; a counted cycle that closed with this
+    /// period is `last_cycle()` (and `results` counts up).
+    fn step(&mut self, f: f64, strain: f64, y: f64) -> f64 {
+        let (u, row) = self.lm.step(&self.cfg, f, strain, y);
+        if let Some(r) = row {
+            self.last = Some(r);
+            self.results += 1;
+        }
+        if u.is_finite() { u } else { 0.0 }
+    }
+    /// The stage: starting, running, holding, stopping, stopped.
+    #[getter]
+    fn state(&self) -> &'static str {
+        match self.lm.stage {
+            Stage::Starting => "starting",
+            Stage::Running => "running",
+            Stage::Holding => "holding",
+            Stage::Stopping => "stopping",
+            Stage::Stopped => "stopped",
+        }
+    }
+    /// Counted cycles closed so far (a new one is `last_cycle()`).
+    #[getter]
+    fn results(&self) -> u64 {
+        self.results
+    }
+    /// The valve null once stopped [V].
+    #[getter]
+    fn u_null_v(&self) -> f64 {
+        self.lm.u_null
+    }
+    /// The controlled signal's (max, min) at full amplitude: force [N] (force_life) or strain.
+    #[getter]
+    fn targets(&self) -> (f64, f64) {
+        let (hi, lo) = self.cfg.targets();
+        let s = if self.cfg.mode == LifeMode::Strain { 1.0 / self.cfg.ea() } else { 1.0 };
+        (hi * s, lo * s)
+    }
+    /// Samples per cycle and the test frequency run [Hz].
+    #[getter]
+    fn frequency_hz(&self) -> f64 {
+        self.cfg.frequency_hz
+    }
+    #[getter]
+    fn n_drop10(&self) -> Option<u64> {
+        self.lm.n_drop10
+    }
+    #[getter]
+    fn n_drop50(&self) -> Option<u64> {
+        self.lm.n_drop50
+    }
+    #[getter]
+    fn velocity_gain_m_s_per_v(&self) -> f64 {
+        self.lm.velocity_gain
+    }
+    /// Hold: the amplitude ramps to zero at the mean over one cycle (False when no test runs).
+    fn hold(&mut self) -> bool {
+        self.lm.hold()
+    }
+    /// Resume after a hold (False when not held).
+    fn resume(&mut self) -> bool {
+        self.lm.resume(&self.cfg)
+    }
+    /// Ramp down over the stop cycles, then the valve null.
+    fn stop(&mut self) {
+        self.lm.stop(&self.cfg)
+    }
+    /// The last counted cycle's row (as `close()`'s), or None.
+    fn last_cycle<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        self.last.as_ref().map(|r| row_dict(py, r, self.cfg.specimen.area_m2())).transpose()
+    }
+    /// The last counted cycle's samples: (strain, stress [Pa]) arrays.
+    fn last_loop<'py>(&self, py: Python<'py>) -> (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>) {
+        let e: Vec<f64> = self.lm.last_loop.iter().map(|p| p.1).collect();
+        let s: Vec<f64> = self.lm.last_loop.iter().map(|p| p.0).collect();
+        (PyArray1::from_vec(py, e), PyArray1::from_vec(py, s))
+    }
+}
+
+fn row_dict<'py>(py: Python<'py>, r: &LifeRow, area: f64) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("cycle", r.cycle)?;
+    for (k, v) in [("fmax_n", r.fmax_n), ("fmin_n", r.fmin_n), ("stress_max_pa", r.fmax_n / area), ("stress_min_pa", r.fmin_n / area),
+        ("strain_max", r.strain_max), ("strain_min", r.strain_min), ("plastic_strain_range", r.plastic_strain_range),
+        ("modulus_t_pa", r.modulus_t_pa), ("modulus_c_pa", r.modulus_c_pa), ("stiffness_n_m", r.stiffness_n_m), ("trend", r.trend)] {
+        d.set_item(k, v)?;
+    }
+    d.set_item("events", r.events)?;
+    d.set_item("keep_loop", r.keep_loop)?;
+    Ok(d)
 }
 
 /// The virtual rig of a life test: the plant with the virtual bar (hidden truth) behind sensors.
 /// `measure()` and `step(u, dt)` give (force [N], extensometer strain, piston position [m]); the
 /// bar closes its own true loop every load cycle.
-#[pyclass(name = "LifeRig", module = "htm._core", unsendable)]
+#[pyclass(name = "LifeRig", module = "htm._core")]
 pub struct PyLifeRig {
     vb: VirtualBar,
 }
@@ -245,5 +342,45 @@ impl PyLifeRig {
     }
     fn step(&mut self, u: f64, dt: f64) -> PyResult<(f64, f64, f64)> {
         Ok(self.vb.step(u, dt)?)
+    }
+    /// Every sensor now: (y [m], v [m/s], p_a, p_b, p_s [Pa], force [N], strain).
+    fn outputs(&self) -> (f64, f64, f64, f64, f64, f64, f64) {
+        self.vb.outputs()
+    }
+    /// `step`, returning every sensor as `outputs()` does.
+    fn step_all(&mut self, u: f64, dt: f64) -> PyResult<(f64, f64, f64, f64, f64, f64, f64)> {
+        self.vb.step(u, dt)?;
+        Ok(self.vb.outputs())
+    }
+    /// Relief-valve setpoint [Pa] (the supply follows with its lag, as `RigPlant`'s).
+    #[getter]
+    fn get_supply_setpoint_pa(&self) -> f64 {
+        self.vb.rp.supply_setpoint_pa
+    }
+    #[setter]
+    fn set_supply_setpoint_pa(&mut self, v: f64) -> PyResult<()> {
+        Ok(self.vb.rp.set_supply_setpoint_pa(v)?)
+    }
+    #[getter]
+    fn valve_null_bias_v(&self) -> f64 {
+        self.vb.rp.machine.plant.p.valve_null_bias_v
+    }
+    /// The bar's hidden truth now: cycles it has seen, damage, crack depth [m], separated, life
+    /// factor and the milestones (initiation, tensile stiffness −10 % / −50 %, separation;
+    /// NaN until reached) [cycles].
+    fn truth<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let s = &self.vb.spec;
+        let nan = |o: Option<f64>| o.unwrap_or(f64::NAN);
+        let d = PyDict::new(py);
+        d.set_item("cycles", s.n)?;
+        d.set_item("damage", s.damage)?;
+        d.set_item("a_m", s.a_m)?;
+        d.set_item("separated", s.separated)?;
+        d.set_item("life_factor", s.life_factor)?;
+        d.set_item("n_init", nan(s.n_init))?;
+        d.set_item("n_phi10", nan(s.n_phi10))?;
+        d.set_item("n_phi50", nan(s.n_phi50))?;
+        d.set_item("n_sep", nan(s.n_sep))?;
+        Ok(d)
     }
 }
