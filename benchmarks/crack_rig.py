@@ -64,7 +64,7 @@ def spec_doc(geometry: str, accel: float, r: float, crack: str, dk0: float = 14e
 
 
 def run(geometry: str, accel: float, r: float, crack: str, seed: int, closure: float, max_cycles: int = 200_000,
-        dk0: float = 14e6, dk1: float = 7e6) -> dict:
+        dk0: float = 14e6, dk1: float = 7e6, dump: str | None = None) -> dict:
     """One K-decreasing test through `htm.Session` on an in-process virtual rig (lock-step)."""
     from htm.control.session import Session, specimen_of
     from htm.devices.config import virtual_config
@@ -120,6 +120,11 @@ def run(geometry: str, accel: float, r: float, crack: str, seed: int, closure: f
     # judged cycle: before it the line is one or two readings, lagging an accelerated crack)
     win = inside & judged & (cyc > cyc[np.argmax(judged)] + 25)
     res = max(1e-4, 0.002 * w)
+    if dump:
+        np.savez(f"{dump}_{crack}.npz", cycle=cyc, a_true=a_true, a_meas=a_meas, fmax=fmax, fmin=fmin, f_op=f_op, judged=judged,
+                 dk_true=dk_true, target=target, dk_target=np.array([c["delta_k_target_pa_sqrt_m"] for c in rows]),
+                 fmax_t=np.array([c["fmax_target_n"] for c in rows]), fmin_t=np.array([c["fmin_target_n"] for c in rows]),
+                 events=np.array([c["events"] for c in rows]))
     out = {
         "crack": crack, "geometry": geometry, "r_ratio": r, "seed": seed, "accel": accel, "true_c_factor": TRUE_C_FACTOR,
         "cycles": int(cyc[-1]), "end": end, "wall_s": round(wall, 2), "trips": [e["detector"] for e in events if e["kind"] == "trip"],
@@ -142,10 +147,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--r", type=float, default=0.1)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--closure", type=float, default=0.3)
+    ap.add_argument("--dump", help="write each run's per-cycle arrays to DUMP_<crack>.npz")
+    ap.add_argument("--only", choices=("compliance", "potential_drop", "model"), help="run only this crack source")
     ap.add_argument("--dk", type=float, nargs=2, default=(14.0, 7.0), metavar=("FROM", "TO"), help="ΔK from, to [MPa·√m]")
     a = ap.parse_args(argv)
-    results = [run(a.geometry, a.accel, a.r, crack, a.seed, a.closure, dk0=a.dk[0] * 1e6, dk1=a.dk[1] * 1e6)
-               for crack in ("compliance", "potential_drop", "model")]
+    cracks = (a.only,) if a.only else ("compliance", "potential_drop", "model")
+    results = [run(a.geometry, a.accel, a.r, crack, a.seed, a.closure, dk0=a.dk[0] * 1e6, dk1=a.dk[1] * 1e6, dump=a.dump)
+               for crack in cracks]
     json.dump({"benchmark": "crack_rig", "runs": results}, sys.stdout, indent=1)
     print()
     return 0

@@ -5,8 +5,10 @@
 //! The reader pools `cycles_per_reading` cycles (E647 allows averaging a few cycles), reduces
 //! them with `crack_measure` (compliance above the opening force by least squares, crack size by
 //! the E647 expression, opening force by the compliance offset; or the mean potential and
-//! Johnson's expression), and the crack the test runs on is a least-squares line through the
-//! last `readings_fitted` readings evaluated at the current cycle (no lag from the averaging).
+//! Johnson's expression), and the crack the test runs on is a weighted least-squares line through
+//! the last readings evaluated at the current cycle (no lag from the averaging): at least
+//! `readings_fitted` of them, more while the line is not yet a tenth of E647's resolution precise
+//! (`CrackReader::a_at`).
 //! One copy: the simulator (`htm run`), the real-time loop and the virtual rig's specimen use it.
 use crate::crack_measure::{self as meas, Method};
 use crate::error::{Error, Result};
@@ -50,7 +52,7 @@ pub struct Measurement {
     pub gauge_x_over_w: f64,
     /// M(T) compliance: gauge at ±Y from the crack plane [m]; potential drop: probes at ±Y [m]
     pub gauge_y_m: f64,
-    /// cycles pooled into one reading, and readings the running crack is fitted through
+    /// cycles pooled into one reading, and the fewest readings the running crack is fitted through
     pub cycles_per_reading: u64,
     pub readings_fitted: usize,
     /// simulated chain: compliance, opening noise (standard deviation) [m] and resolution [m];
@@ -128,14 +130,25 @@ impl Measurement {
     }
 }
 
-/// One reading: the cycle it was taken at, crack size [m], opening force (2 % offset) [N], ΔK_eff.
+/// One reading: the cycle it was taken at, crack size [m] and its standard uncertainty from the
+/// reading's own fit [m], opening force (2 % offset) [N], ΔK_eff.
 #[derive(serde::Serialize, serde::Deserialize, Debug, Clone, Copy, PartialEq)]
 pub struct Reading {
     pub cycle: f64,
     pub a_m: f64,
+    pub a_std_m: f64,
     pub opening_force_n: f64,
     pub dk_eff: f64,
 }
+
+/// The running crack's line reaches back until its standard uncertainty at the current cycle is
+/// this share of E647's resolution (max(0.1 mm, 0.002 W)) ...
+pub const LINE_PRECISION_RESOLUTIONS: f64 = 0.1;
+/// ... but over no more than this many resolutions of crack extension (a line through a longer
+/// stretch of a growth curve bends away from it) ...
+pub const LINE_EXTENSION_RESOLUTIONS: f64 = 2.0;
+/// ... and no more than this many readings (the readings kept).
+pub const LINE_READINGS_MAX: usize = 400;
 
 /// The reader of a running test (see the module doc).
 #[derive(serde::Serialize, serde::Deserialize, Debug, Clone)]
@@ -154,6 +167,8 @@ pub struct CrackReader {
     a0: f64,
     /// potential drop: the sum and count of the reference samples (before the crack grows)
     reference: (f64, u64),
+    /// E647's crack-size resolution of the specimen [m]
+    resolution: f64,
 }
 
 impl CrackReader {
@@ -161,7 +176,7 @@ impl CrackReader {
         let method = meas.method(spec, material, a0_m)?;
         Some(CrackReader {
             method, every: meas.cycles_per_reading, fitted: meas.readings_fitted, f: Vec::new(), m: Vec::new(), cyc: Vec::new(), cycles_in: 0,
-            readings: Vec::new(), failed: 0, last_error: None, a0: a0_m, reference: (0.0, 0),
+            readings: Vec::new(), failed: 0, last_error: None, a0: a0_m, reference: (0.0, 0), resolution: meas::resolution_m(spec.width_m),
         })
     }
 
@@ -204,7 +219,7 @@ impl CrackReader {
         match r {
             Ok(r) => {
                 self.readings.push(r);
-                let keep = self.fitted.max(2);
+                let keep = LINE_READINGS_MAX.max(self.fitted);
                 if self.readings.len() > keep {
                     self.readings.drain(..self.readings.len() - keep);
                 }
@@ -236,26 +251,77 @@ impl CrackReader {
         };
         // the interval's crack is the crack half-way through it (cycles counted, as `a_at` takes them)
         let mid = cycle as f64 - 0.5 * self.cycles_in as f64;
-        Ok(Reading { cycle: mid, a_m: iv.a_m, opening_force_n: iv.opening_force_n[1], dk_eff: iv.dk_eff })
+        Ok(Reading { cycle: mid, a_m: iv.a_m, a_std_m: iv.a_std_m, opening_force_n: iv.opening_force_n[1], dk_eff: iv.dk_eff })
     }
 
-    /// The measured crack once `cycle` cycles are counted: the least-squares line through the last readings (the
-    /// initial crack before the first; the one reading itself after it).
+    /// The measured crack once `cycle` cycles are counted: a weighted least-squares line through
+    /// the last readings (weights 1/σ², σ each reading's own uncertainty), evaluated at `cycle` (no
+    /// lag from the averaging). The line takes at least `readings_fitted` readings and reaches
+    /// back further while its uncertainty at `cycle` (from the weights, scaled up by the scatter
+    /// about the line when that is larger) exceeds `LINE_PRECISION_RESOLUTIONS` of E647's
+    /// resolution, within `LINE_EXTENSION_RESOLUTIONS` of crack extension: a crack that a single
+    /// reading resolves coarsely (an M(T) at short cracks, whose compliance changes little with
+    /// the crack) is averaged over more readings, a finely resolved one follows the newest.
+    /// Before the first reading the initial crack; one reading: itself; two: the line through them.
     pub fn a_at(&self, cycle: u64) -> f64 {
-        let r = &self.readings[self.readings.len().saturating_sub(self.fitted)..];
-        match r.len() {
-            0 => self.a0,
-            1 => r[0].a_m,
-            2 => r[1].a_m + (r[1].a_m - r[0].a_m) / (r[1].cycle - r[0].cycle) * (cycle as f64 - r[1].cycle),
-            _ => {
-                let x: Vec<f64> = r.iter().map(|r| r.cycle).collect();
-                let y: Vec<f64> = r.iter().map(|r| r.a_m).collect();
-                match meas::ls_line(&x, &y) {
-                    Some((c1, c0, _)) => c0 + c1 * cycle as f64,
-                    None => r[r.len() - 1].a_m,
-                }
+        self.line_at(cycle).0
+    }
+
+    /// `a_at` with the line's standard uncertainty at `cycle` [m] and the readings it took.
+    pub fn line_at(&self, cycle: u64) -> (f64, f64, usize) {
+        let r = &self.readings;
+        let n = r.len();
+        match n {
+            0 => return (self.a0, f64::NAN, 0),
+            1 => return (r[0].a_m, r[0].a_std_m, 1),
+            2 => return (r[1].a_m + (r[1].a_m - r[0].a_m) / (r[1].cycle - r[0].cycle) * (cycle as f64 - r[1].cycle), f64::NAN, 2),
+            _ => {}
+        }
+        let target = LINE_PRECISION_RESOLUTIONS * self.resolution;
+        let reach = LINE_EXTENSION_RESOLUTIONS * self.resolution;
+        let min_n = self.fitted.clamp(3, n);
+        // a reading without an uncertainty weighs as the typical one
+        let sd = |rd: &Reading| if rd.a_std_m.is_finite() && rd.a_std_m > 0.0 { rd.a_std_m } else { f64::NAN };
+        let typical = {
+            let v: Vec<f64> = r.iter().rev().take(min_n).filter_map(|x| Some(sd(x)).filter(|s| s.is_finite())).collect();
+            if v.is_empty() { 1.0 } else { v.iter().sum::<f64>() / v.len() as f64 }
+        };
+        let x0 = cycle as f64;
+        // weighted sums from the newest reading back (x relative to `cycle`, y relative to the newest)
+        let y0 = r[n - 1].a_m;
+        let (mut sw, mut sx, mut sy, mut sxx, mut sxy, mut syy) = (0.0f64, 0.0, 0.0, 0.0, 0.0, 0.0);
+        let mut best = (r[n - 1].a_m, f64::NAN, 1usize);
+        for (k, rd) in r.iter().rev().enumerate() {
+            let s = sd(rd);
+            let w = 1.0 / (if s.is_finite() { s } else { typical }).powi(2);
+            let (x, y) = (rd.cycle - x0, rd.a_m - y0);
+            sw += w;
+            sx += w * x;
+            sy += w * y;
+            sxx += w * x * x;
+            sxy += w * x * y;
+            syy += w * y * y;
+            let m = k + 1;
+            if m < 3 {
+                continue;
+            }
+            let (xm, ym) = (sx / sw, sy / sw);
+            let (cxx, cxy, cyy) = (sxx - sw * xm * xm, sxy - sw * xm * ym, syy - sw * ym * ym);
+            if !(cxx > 0.0) {
+                continue;
+            }
+            let slope = cxy / cxx;
+            let at = ym - slope * xm; // the line at x = 0, i.e. at `cycle`
+            // the weights' variance at `cycle`, scaled by the reduced χ² of the scatter when above 1
+            let chi2 = ((cyy - slope * cxy).max(0.0) / (m as f64 - 2.0)).max(1.0);
+            let se = ((1.0 / sw + xm * xm / cxx) * chi2).sqrt();
+            best = (y0 + at, se, m);
+            let spanned = (r[n - 1].a_m - rd.a_m).abs();
+            if m >= min_n && (se <= target || spanned >= reach) {
+                break;
             }
         }
+        best
     }
 
     pub fn last(&self) -> Option<Reading> {
