@@ -159,7 +159,14 @@ pub struct CrackReader {
     f: Vec<f64>,
     m: Vec<f64>,
     cyc: Vec<f64>,
+    /// potential drop: the interval's sums, taken one sample at a time
+    pd: meas::PotentialSums,
     cycles_in: u64,
+    /// the interval being reduced over the control periods that follow it: the job, the cycle
+    /// of its reading (the interval's middle) and the units of work it may take per period
+    job: Option<(meas::ComplianceJob, f64, usize)>,
+    /// a reduction finished since the last cycle close (its curve, or its error), with its cycle
+    done: Option<(std::result::Result<meas::OpenCurve, String>, f64)>,
     pub readings: Vec<Reading>,
     /// readings that failed (a reduction error: too few samples, gauge out of its range)
     pub failed: u64,
@@ -169,24 +176,50 @@ pub struct CrackReader {
     reference: (f64, u64),
     /// E647's crack-size resolution of the specimen [m]
     resolution: f64,
+    /// the most units of reduction work one control period did, and the reductions that had
+    /// to be finished at an interval's close because the periods did not suffice (none expected)
+    pub max_units_per_period: usize,
+    pub overruns: u64,
 }
 
 impl CrackReader {
     pub fn new(meas: &Measurement, spec: &Specimen, material: &Material, a0_m: f64) -> Option<Self> {
         let method = meas.method(spec, material, a0_m)?;
         Some(CrackReader {
-            method, every: meas.cycles_per_reading, fitted: meas.readings_fitted, f: Vec::new(), m: Vec::new(), cyc: Vec::new(), cycles_in: 0,
-            readings: Vec::new(), failed: 0, last_error: None, a0: a0_m, reference: (0.0, 0), resolution: meas::resolution_m(spec.width_m),
+            method, every: meas.cycles_per_reading, fitted: meas.readings_fitted, f: Vec::new(), m: Vec::new(), cyc: Vec::new(),
+            pd: meas::PotentialSums::default(), cycles_in: 0, job: None, done: None, readings: Vec::new(), failed: 0, last_error: None, a0: a0_m,
+            reference: (0.0, 0), resolution: meas::resolution_m(spec.width_m), max_units_per_period: 0, overruns: 0,
         })
     }
 
-    /// One sample of a full-amplitude cycle: force [N], measurement channel [m or V].
+    fn potential(&self) -> bool {
+        matches!(self.method, Method::Johnson { .. } | Method::Calibration { .. })
+    }
+
+    /// One sample of a full-amplitude cycle: force [N], measurement channel [m or V]. O(1).
     #[inline]
     pub fn sample(&mut self, f: f64, m: f64, cycle: u64) {
         if f.is_finite() && m.is_finite() {
-            self.f.push(f);
-            self.m.push(m);
-            self.cyc.push(cycle as f64);
+            if self.potential() {
+                self.pd.push(m, f, cycle as f64);
+            } else {
+                self.f.push(f);
+                self.m.push(m);
+                self.cyc.push(cycle as f64);
+            }
+        }
+    }
+
+    /// One control period's share of the reduction in progress (bounded: the units the job was
+    /// given per period when it started).
+    #[inline]
+    pub fn work(&mut self) {
+        let Some((job, cycle, budget)) = &mut self.job else { return };
+        let (used, out) = job.advance(*budget);
+        self.max_units_per_period = self.max_units_per_period.max(used);
+        if let Some(r) = out {
+            self.done = Some((r.map_err(|e| e.to_string()), *cycle));
+            self.job = None;
         }
     }
 
@@ -194,28 +227,71 @@ impl CrackReader {
     /// reference potential V_r at the initial crack is their mean.
     #[inline]
     pub fn reference_sample(&mut self, m: f64) {
-        if m.is_finite() && matches!(self.method, Method::Johnson { .. } | Method::Calibration { .. }) {
+        if m.is_finite() && self.potential() {
             self.reference.0 += m;
             self.reference.1 += 1;
         }
     }
 
-    /// The interval in progress is not usable (a ramp, a hold, a fault): start it again.
+    /// The interval in progress is not usable (a ramp, a hold, a fault): start it again (a
+    /// reduction already under way goes on: its interval was whole).
     pub fn discard(&mut self) {
         self.f.clear();
         self.m.clear();
         self.cyc.clear();
+        self.pd = meas::PotentialSums::default();
         self.cycles_in = 0;
     }
 
-    /// A full-amplitude cycle closed; a reading when the interval is full.
+    /// A full-amplitude cycle closed: the reading whose reduction finished since the last close,
+    /// if any (its crack size from the reduced curve: constant work); when the interval is full,
+    /// its reduction starts, spread over the periods of the next interval (potential drop: its
+    /// sums are complete, the reading is taken now).
     pub fn cycle_closed(&mut self, spec: &Specimen, cycle: u64) -> Option<Reading> {
         self.cycles_in += 1;
+        let mut out = self.take_done(spec);
         if self.cycles_in < self.every {
-            return None;
+            return out;
         }
-        let r = self.reduce(spec, cycle);
+        let mid = cycle as f64 - 0.5 * self.cycles_in as f64;
+        if self.potential() {
+            let r = self.potential_reading(spec, mid);
+            out = self.accept(r).or(out);
+        } else {
+            if self.job.is_some() {
+                // the last interval's reduction is not done: finish it now (not expected: a job is
+                // given its units so as to end within the next interval)
+                self.overruns += 1;
+                let budget = usize::MAX;
+                if let Some((job, c, _)) = &mut self.job {
+                    let r = job.advance(budget).1.expect("run to its end");
+                    self.done = Some((r.map_err(|e| e.to_string()), *c));
+                }
+                self.job = None;
+                out = self.take_done(spec).or(out);
+            }
+            let (f, m, c) = (std::mem::take(&mut self.f), std::mem::take(&mut self.m), std::mem::take(&mut self.cyc));
+            if f.len() < 10 {
+                let r = Err(Error::Input(format!("cycle {cycle}: too few measurement samples in the interval")));
+                out = self.accept(r).or(out);
+            } else {
+                // its units spread over as many periods as it has samples (the next interval's)
+                let budget = meas::ComplianceJob::units_bound(f.len()).div_ceil(f.len()).max(64);
+                self.job = Some((meas::ComplianceJob::new(f, m, c), mid, budget));
+            }
+        }
         self.discard();
+        out
+    }
+
+    fn take_done(&mut self, spec: &Specimen) -> Option<Reading> {
+        let (r, mid) = self.done.take()?;
+        let r = r.map_err(Error::Input).and_then(|oc| meas::compliance_interval(spec, &self.method, &oc));
+        let r = r.map(|iv| Reading { cycle: mid, a_m: iv.a_m, a_std_m: iv.a_std_m, opening_force_n: iv.opening_force_n[1], dk_eff: iv.dk_eff });
+        self.accept(r)
+    }
+
+    fn accept(&mut self, r: Result<Reading>) -> Option<Reading> {
         match r {
             Ok(r) => {
                 self.readings.push(r);
@@ -234,23 +310,18 @@ impl CrackReader {
         }
     }
 
-    fn reduce(&mut self, spec: &Specimen, cycle: u64) -> Result<Reading> {
-        if self.f.len() < 10 {
-            return Err(Error::Input(format!("cycle {cycle}: too few measurement samples in the interval")));
+    fn potential_reading(&mut self, spec: &Specimen, mid: f64) -> Result<Reading> {
+        if self.pd.count() < 10 {
+            return Err(Error::Input(format!("cycle {mid}: too few measurement samples in the interval")));
         }
         if let Method::Johnson { v_ref, .. } | Method::Calibration { v_ref, .. } = &mut self.method {
             if !v_ref.is_finite() {
                 // the reference at the initial crack: the samples before growth, else this interval's
-                *v_ref = if self.reference.1 > 0 { self.reference.0 / self.reference.1 as f64 } else { self.m.iter().sum::<f64>() / self.m.len() as f64 };
+                *v_ref = if self.reference.1 > 0 { self.reference.0 / self.reference.1 as f64 } else { self.pd.mean() };
             }
         }
-        let iv = if matches!(self.method, Method::Johnson { .. } | Method::Calibration { .. }) {
-            meas::reduce_potential_interval(spec, &self.method, &self.m, Some(&self.f), &self.cyc)?
-        } else {
-            meas::reduce_compliance_interval(spec, &self.method, &self.f, &self.m, &self.cyc)?
-        };
+        let iv = self.pd.interval(spec, &self.method)?;
         // the interval's crack is the crack half-way through it (cycles counted, as `a_at` takes them)
-        let mid = cycle as f64 - 0.5 * self.cycles_in as f64;
         Ok(Reading { cycle: mid, a_m: iv.a_m, a_std_m: iv.a_std_m, opening_force_n: iv.opening_force_n[1], dk_eff: iv.dk_eff })
     }
 
@@ -339,6 +410,8 @@ impl CrackReader {
     /// A cycle jump moved the crack to `a` (simulation): the readings start again from it.
     pub fn restart(&mut self, a: f64) {
         self.discard();
+        self.job = None;
+        self.done = None;
         self.readings.clear();
         self.a0 = a;
     }
@@ -482,6 +555,25 @@ mod tests {
         }
     }
 
+    /// Five cycles of `n` samples of a sine between `fmin` and `fmax` through the chain into the
+    /// reader, one `work()` per sample as the control loop does; the readings that came out and
+    /// the samples fed.
+    fn feed(reader: &mut CrackReader, chain: &mut GaugeChain, spec: &Specimen, a_true: f64, cycles: std::ops::RangeInclusive<u64>, n: usize, fmin: f64, fmax: f64) -> (Vec<Reading>, Vec<(f64, f64, f64)>) {
+        let (mut got, mut fed) = (Vec::new(), Vec::new());
+        for c in cycles {
+            for k in 0..n {
+                let x = k as f64 / n as f64;
+                let f = 0.5 * (fmax + fmin) + 0.5 * (fmax - fmin) * (2.0 * std::f64::consts::PI * x).sin();
+                let v = chain.read(spec, a_true, f, fmax);
+                reader.work();
+                reader.sample(f, v, c);
+                fed.push((f, v, c as f64));
+            }
+            got.extend(reader.cycle_closed(spec, c));
+        }
+        (got, fed)
+    }
+
     #[test]
     fn a_reader_recovers_a_ct_crack_with_noise_and_closure() {
         let spec = Specimen::new(Geometry::CT, 0.0508, 0.00635).unwrap();
@@ -490,19 +582,39 @@ mod tests {
         let mut chain = GaugeChain::new(&m, &spec, &mat, 0.015).unwrap();
         let mut reader = CrackReader::new(&m, &spec, &mat, 0.015).unwrap();
         let a_true = 0.02;
-        let (fmax, fmin, n) = (4000.0, 400.0, 50);
-        let mut got = None;
-        for c in 1..=5u64 {
-            for k in 0..n {
-                let x = k as f64 / n as f64;
-                let f = 0.5 * (fmax + fmin) + 0.5 * (fmax - fmin) * (2.0 * std::f64::consts::PI * x).sin();
-                let v = chain.read(&spec, a_true, f, fmax);
-                reader.sample(f, v, c);
-            }
-            got = reader.cycle_closed(&spec, c).or(got);
-        }
-        let r = got.expect("a reading after five cycles");
+        let (fmax, fmin) = (4000.0, 400.0);
+        let (got, _) = feed(&mut reader, &mut chain, &spec, a_true, 1..=10, 50, fmin, fmax);
+        let r = *got.first().expect("a reading from the first five cycles, during the next five");
+        assert!((r.cycle - 2.5).abs() < 1e-12, "the reading stands for the middle of its interval: {}", r.cycle);
         assert!((r.a_m - a_true).abs() < 1e-4, "a {} vs {a_true}", r.a_m);
         assert!((r.opening_force_n - 0.3 * fmax).abs() < 0.05 * fmax, "F_op {}", r.opening_force_n);
+    }
+
+    #[test]
+    fn the_reduction_is_bounded_work_per_period_and_the_same_as_at_once() {
+        // the reader's reduction of an interval, spread over the next interval's periods, gives
+        // the record reduction's numbers exactly; no period does more than its share (about the
+        // closure grid's size, whatever the samples per cycle), none was finished at a close
+        let spec = Specimen::new(Geometry::MT, 0.1524, 0.00254).unwrap();
+        let mat = Material::default();
+        let m = Measurement { crack: CrackSource::Compliance, gauge_y_m: 0.01, noise: 0.2e-6, closure_opening_fraction: 0.35, ..Measurement::model() };
+        for n in [50usize, 200] {
+            let mut chain = GaugeChain::new(&m, &spec, &mat, 0.012).unwrap();
+            let mut reader = CrackReader::new(&m, &spec, &mat, 0.012).unwrap();
+            let (got, fed) = feed(&mut reader, &mut chain, &spec, 0.012, 1..=15, n, 2000.0, 20000.0);
+            assert_eq!(got.len(), 2, "readings of intervals 1–5 and 6–10 (11–15 still reducing)");
+            let (f, v, c): (Vec<f64>, Vec<f64>, Vec<f64>) = {
+                let first: Vec<_> = fed.iter().filter(|s| s.2 <= 5.0).collect();
+                (first.iter().map(|s| s.0).collect(), first.iter().map(|s| s.1).collect(), first.iter().map(|s| s.2).collect())
+            };
+            let at_once = crate::crack_measure::reduce_compliance_interval(&spec, &reader.method, &f, &v, &c).unwrap();
+            assert_eq!(got[0].a_m, at_once.a_m, "{n} samples per cycle");
+            assert_eq!(got[0].opening_force_n, at_once.opening_force_n[1]);
+            assert!((got[0].a_m - 0.012).abs() < 2e-4, "a {}", got[0].a_m);
+            let share = crate::crack_measure::ComplianceJob::units_bound(5 * n).div_ceil(5 * n);
+            assert!(reader.max_units_per_period <= share, "{} units in one period > {share}", reader.max_units_per_period);
+            assert!(share <= 2 * crate::crack_measure::CLOSURE_GRID_POINTS, "the share does not grow with the samples: {share}");
+            assert_eq!(reader.overruns, 0);
+        }
     }
 }
