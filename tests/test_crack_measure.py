@@ -89,6 +89,11 @@ def test_cli_measure_then_e647(tmp_path, capsys):
                  str(spec["thickness_m"]), "--pmax-n", str(case["fmax_n"]), "--r-ratio", str(case["r"]),
                  "--out", str(tmp_path / "e")]) == 0
     assert len(list(csv.DictReader(open(tmp_path / "e" / "reduced.csv")))) == len(rows)
+    # the E647 report lists the measured opening forces of the a–N file beside its reduction
+    md = (tmp_path / "e" / "report.md").read_text()
+    assert "## Crack closure (opening force, ΔK_eff)" in md
+    op = np.array([float(r["opening_force_n"]) for r in rows])
+    assert f"{op.min() / 1e3:.4g}–{op.max() / 1e3:.4g} kN" in md
     capsys.readouterr()
     assert main(["crack", "measure", str(rec), "--out", str(tmp_path / "j"), "--json"]) == 0
     said = json.loads(capsys.readouterr().out)

@@ -363,13 +363,24 @@ pub struct ClosureNorm {
     pub t: f64,
     pub w: f64,
     pub sol: [f64; 3],
+    /// the best curve before the F test: where the data hint at closure even when a single
+    /// interval cannot show it (the fully open compliance is fitted above it)
+    pub hinted: [f64; 3],
 }
 
 impl ClosureNorm {
     /// In forces: `fmin`, `span` the force range, `vs` the opening's scale.
     pub fn fit(&self, fmin: f64, span: f64, vs: f64) -> ClosureFit {
-        let s = self.sol;
-        ClosureFit { c_open: s[1] * vs / span, depth: s[2] / s[1], f_t: fmin + self.t * span, w: self.w * span }
+        Self::curve(self.sol, self.t, self.w, fmin, span, vs)
+    }
+
+    /// The hinted curve (before the F test) in forces.
+    pub fn hint(&self, fmin: f64, span: f64, vs: f64) -> ClosureFit {
+        Self::curve(self.hinted, self.t, self.w, fmin, span, vs)
+    }
+
+    fn curve(s: [f64; 3], t: f64, w: f64, fmin: f64, span: f64, vs: f64) -> ClosureFit {
+        ClosureFit { c_open: s[1] * vs / span, depth: s[2] / s[1], f_t: fmin + t * span, w: w * span }
     }
 }
 
@@ -443,7 +454,8 @@ impl ClosureSearch {
     }
 
     fn result(&self) -> ClosureNorm {
-        let (sse, t, w, mut s) = self.best;
+        let (sse, t, w, hinted) = self.best;
+        let mut s = hinted;
         // a closure must explain the curve beyond what the noise allows a searched step to: an F
         // test of its three terms against the straight line (searching t and w inflates F under
         // no closure, hence a high bar); below it the crack is taken as open over the whole range
@@ -452,7 +464,7 @@ impl ClosureSearch {
         if s[2] > 0.0 && f_stat < CLOSURE_F_MIN {
             s = self.line.1;
         }
-        ClosureNorm { t, w, sol: s }
+        ClosureNorm { t, w, sol: s, hinted }
     }
 }
 
@@ -663,6 +675,8 @@ pub struct OpenCurve {
     pub closure: ClosureNorm,
     pub vs: f64,
     pub segments: Vec<(f64, f64)>,
+    /// the opening this interval's best curve hints at (share of the force range), for the pool
+    pub hint_frac: f64,
 }
 
 /// The reduction of one compliance interval as a job done a bounded amount at a time (one unit:
@@ -693,15 +707,56 @@ pub struct ComplianceJob {
     closure: Option<ClosureNorm>,
     lower: f64,
     open: LineSums,
+    /// the opening (share of the force range) the previous intervals hint at, and this one's hint
+    pooled_frac: f64,
+    hint_frac: f64,
+}
+
+/// The openings hinted at by the last intervals' best closure curves (significant or not), as
+/// shares of the force range: their median is where the next interval's fully open fit starts at
+/// the lowest. A weak closure is hinted at the same force interval after interval, noise scatters.
+#[derive(serde::Serialize, serde::Deserialize, Debug, Clone, Default, PartialEq)]
+pub struct OpeningPool {
+    hints: Vec<f64>,
+}
+
+impl OpeningPool {
+    /// Intervals pooled.
+    pub const LEN: usize = 15;
+
+    pub fn push(&mut self, frac: f64) {
+        if frac.is_finite() {
+            self.hints.push(frac);
+            if self.hints.len() > Self::LEN {
+                self.hints.remove(0);
+            }
+        }
+    }
+
+    /// The median hint (NaN before the first). Sorting 15 numbers: constant work.
+    pub fn median(&self) -> f64 {
+        if self.hints.is_empty() {
+            return f64::NAN;
+        }
+        let mut v = self.hints.clone();
+        v.sort_by(|a, b| a.total_cmp(b));
+        let n = v.len();
+        if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) }
+    }
+
+    pub fn clear(&mut self) {
+        self.hints.clear();
+    }
 }
 
 impl ComplianceJob {
     /// The job for an interval's samples (force [N], opening [m], cycle count), equal lengths.
-    pub fn new(f: Vec<f64>, v: Vec<f64>, cyc: Vec<f64>) -> Self {
+    pub fn new(f: Vec<f64>, v: Vec<f64>, cyc: Vec<f64>, pool: &OpeningPool) -> Self {
         let v0 = v.iter().copied().find(|x| x.is_finite()).unwrap_or(0.0);
         ComplianceJob {
             f, v, cyc, stage: 0, i: 0, ext: Extremes::default(), v0, vs: 0.0, fmin: f64::NAN, fmax: f64::NAN, k: 1, lx: Vec::new(), ly: Vec::new(),
             lsums: LineSums::default(), segs: vec![LineSums::default(); SEGMENTS], search: None, closure: None, lower: f64::NAN, open: LineSums::default(),
+            pooled_frac: pool.median(), hint_frac: f64::NAN,
         }
     }
 
@@ -788,8 +843,14 @@ impl ComplianceJob {
                             return (used, Some(Err(Error::Input("the opening does not rise with the force on the loading branches (gauge or force channel wrong?)".into()))));
                         }
                         // fully open: above where the fitted offset falls under 0.25 % (plus 5 % of
-                        // the range), and never less than the upper quarter
-                        let f_open = fit.opening_force(0.0025, self.fmin, self.fmax) + 0.05 * span;
+                        // the range) and above the opening the previous intervals hint at
+                        // (`OpeningPool`: a closure too weak for one interval to show would bias
+                        // every interval's compliance the same way), never less than the upper quarter
+                        let hint = cn.hint(self.fmin, span, self.vs);
+                        self.hint_frac = if hint.c_open > 0.0 { (hint.opening_force(0.0025, self.fmin, self.fmax) - self.fmin) / span } else { 0.0 };
+                        let own = fit.opening_force(0.0025, self.fmin, self.fmax);
+                        let pooled = if self.pooled_frac.is_finite() { self.fmin + self.pooled_frac * span } else { self.fmin };
+                        let f_open = own.max(pooled) + 0.05 * span;
                         self.lower = f_open.clamp(self.fmin + 0.1 * span, self.fmin + 0.75 * span);
                         self.closure = Some(cn);
                         self.search = None;
@@ -829,7 +890,7 @@ impl ComplianceJob {
         }
         Ok(OpenCurve {
             cycle: c0, n_cycles: self.ext.cycles, fmin: self.fmin, fmax: self.fmax, c_open, c_se, closure: self.closure.expect("set by stage 2"), vs: self.vs,
-            segments: segment_offsets(&self.segs, self.fmin, span, self.vs, c_open),
+            segments: segment_offsets(&self.segs, self.fmin, span, self.vs, c_open), hint_frac: self.hint_frac,
         })
     }
 }
@@ -853,12 +914,13 @@ pub fn compliance_interval(spec: &Specimen, method: &Method, oc: &OpenCurve) -> 
 
 /// Reduce one interval of a load–opening record at once (`ComplianceJob` run to its end, then
 /// `compliance_interval`).
-pub fn reduce_compliance_interval(spec: &Specimen, method: &Method, f: &[f64], cod: &[f64], cycle: &[f64]) -> Result<Interval> {
+pub fn reduce_compliance_interval(spec: &Specimen, method: &Method, f: &[f64], cod: &[f64], cycle: &[f64], pool: &mut OpeningPool) -> Result<Interval> {
     if !method.is_compliance() {
         return Err(Error::Input(format!("{} is not a compliance method", method.describe())));
     }
-    let mut job = ComplianceJob::new(f.to_vec(), cod.to_vec(), cycle.to_vec());
+    let mut job = ComplianceJob::new(f.to_vec(), cod.to_vec(), cycle.to_vec(), pool);
     let oc = job.advance(usize::MAX).1.expect("run to its end")?;
+    pool.push(oc.hint_frac);
     compliance_interval(spec, method, &oc)
 }
 
@@ -944,6 +1006,7 @@ pub fn reduce_record(spec: &Specimen, method: &Method, cycle: &[f64], f: Option<
     }
     let mut out = Vec::new();
     let mut method = method.clone();
+    let mut pool = OpeningPool::default();
     for (s, e) in intervals(cycle, cycles_per_interval) {
         // a potential-drop reference not given: the first interval's mean potential at the reference crack
         if let Method::Johnson { v_ref, .. } | Method::Calibration { v_ref, .. } = &mut method {
@@ -955,7 +1018,7 @@ pub fn reduce_record(spec: &Specimen, method: &Method, cycle: &[f64], f: Option<
         let method = &method;
         let r = if method.is_compliance() {
             let f = f.ok_or_else(|| Error::Input("compliance needs the force column `f`".into()))?;
-            reduce_compliance_interval(spec, method, &f[s..e], &signal[s..e], &cycle[s..e])
+            reduce_compliance_interval(spec, method, &f[s..e], &signal[s..e], &cycle[s..e], &mut pool)
         } else {
             reduce_potential_interval(spec, method, &signal[s..e], f.map(|f| &f[s..e]), &cycle[s..e])
         };

@@ -165,6 +165,8 @@ pub struct CrackReader {
     /// the interval being reduced over the control periods that follow it: the job, the cycle
     /// of its reading (the interval's middle) and the units of work it may take per period
     job: Option<(meas::ComplianceJob, f64, usize)>,
+    /// the openings the last intervals hint at (`crack_measure::OpeningPool`)
+    pool: meas::OpeningPool,
     /// a reduction finished since the last cycle close (its curve, or its error), with its cycle
     done: Option<(std::result::Result<meas::OpenCurve, String>, f64)>,
     pub readings: Vec<Reading>,
@@ -187,7 +189,7 @@ impl CrackReader {
         let method = meas.method(spec, material, a0_m)?;
         Some(CrackReader {
             method, every: meas.cycles_per_reading, fitted: meas.readings_fitted, f: Vec::new(), m: Vec::new(), cyc: Vec::new(),
-            pd: meas::PotentialSums::default(), cycles_in: 0, job: None, done: None, readings: Vec::new(), failed: 0, last_error: None, a0: a0_m,
+            pd: meas::PotentialSums::default(), cycles_in: 0, job: None, pool: meas::OpeningPool::default(), done: None, readings: Vec::new(), failed: 0, last_error: None, a0: a0_m,
             reference: (0.0, 0), resolution: meas::resolution_m(spec.width_m), max_units_per_period: 0, overruns: 0,
         })
     }
@@ -277,7 +279,7 @@ impl CrackReader {
             } else {
                 // its units spread over as many periods as it has samples (the next interval's)
                 let budget = meas::ComplianceJob::units_bound(f.len()).div_ceil(f.len()).max(64);
-                self.job = Some((meas::ComplianceJob::new(f, m, c), mid, budget));
+                self.job = Some((meas::ComplianceJob::new(f, m, c, &self.pool), mid, budget));
             }
         }
         self.discard();
@@ -286,6 +288,9 @@ impl CrackReader {
 
     fn take_done(&mut self, spec: &Specimen) -> Option<Reading> {
         let (r, mid) = self.done.take()?;
+        if let Ok(oc) = &r {
+            self.pool.push(oc.hint_frac);
+        }
         let r = r.map_err(Error::Input).and_then(|oc| meas::compliance_interval(spec, &self.method, &oc));
         let r = r.map(|iv| Reading { cycle: mid, a_m: iv.a_m, a_std_m: iv.a_std_m, opening_force_n: iv.opening_force_n[1], dk_eff: iv.dk_eff });
         self.accept(r)
@@ -412,6 +417,7 @@ impl CrackReader {
         self.discard();
         self.job = None;
         self.done = None;
+        self.pool.clear();
         self.readings.clear();
         self.a0 = a;
     }
@@ -607,7 +613,7 @@ mod tests {
                 let first: Vec<_> = fed.iter().filter(|s| s.2 <= 5.0).collect();
                 (first.iter().map(|s| s.0).collect(), first.iter().map(|s| s.1).collect(), first.iter().map(|s| s.2).collect())
             };
-            let at_once = crate::crack_measure::reduce_compliance_interval(&spec, &reader.method, &f, &v, &c).unwrap();
+            let at_once = crate::crack_measure::reduce_compliance_interval(&spec, &reader.method, &f, &v, &c, &mut Default::default()).unwrap();
             assert_eq!(got[0].a_m, at_once.a_m, "{n} samples per cycle");
             assert_eq!(got[0].opening_force_n, at_once.opening_force_n[1]);
             assert!((got[0].a_m - 0.012).abs() < 2e-4, "a {}", got[0].a_m);
