@@ -54,6 +54,17 @@ def test_generated_records_meet_e647_resolution_and_opening_within_5pct(seed, ki
         assert ("Johnson" in m.expression) == (kind == "mt_pd")
 
 
+@pytest.mark.parametrize("seed,kind,noise", [(21, "ct_cod", 2.0), (22, "mt_cod", 2.0), (23, "mt_cod", 0.5), (24, "ct_cod", 0.5)])
+def test_records_nobody_shared_other_noise_levels(seed, kind, noise):
+    """Records of other specimens (E, ν, W, gauge span), R, closure shapes and gauge noise from ½× to
+    2× the generator's levels, drawn by seeds no reduction setting was adjusted to: crack sizes
+    within max(0.1 mm, 0.002 W) of the truth, opening forces within 5 % of Fmax."""
+    case = gen.make_case(np.random.default_rng(seed), kind, noise_scale=noise)
+    m = measure(case["columns"], case["meta"])
+    s = gen.score(m.columns, case["truth"], case["width_m"], case["fmax_n"])
+    assert s["rows"] == len(case["truth"]) and s["a_ok"] and s["opening_ok"], (case["closure"], s)
+
+
 def test_closure_is_seen_and_dk_eff_falls_below_dk():
     rng = np.random.default_rng(7)
     for _ in range(50):  # a C(T) case with closure well above Fmin

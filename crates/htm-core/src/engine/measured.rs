@@ -149,6 +149,8 @@ pub const LINE_PRECISION_RESOLUTIONS: f64 = 0.1;
 pub const LINE_EXTENSION_RESOLUTIONS: f64 = 2.0;
 /// ... and no more than this many readings (the readings kept).
 pub const LINE_READINGS_MAX: usize = 400;
+/// Readings whose median uncertainty floors each reading's (bounded work per cycle close).
+const TYPICAL_READINGS: usize = 51;
 
 /// The reader of a running test (see the module doc).
 #[derive(serde::Serialize, serde::Deserialize, Debug, Clone)]
@@ -356,20 +358,21 @@ impl CrackReader {
         let target = LINE_PRECISION_RESOLUTIONS * self.resolution;
         let reach = LINE_EXTENSION_RESOLUTIONS * self.resolution;
         let min_n = self.fitted.clamp(3, n);
-        // a reading without an uncertainty weighs as the typical one
-        let sd = |rd: &Reading| if rd.a_std_m.is_finite() && rd.a_std_m > 0.0 { rd.a_std_m } else { f64::NAN };
+        // each reading's uncertainty, never below the median of the last ones (a reading whose own
+        // fit happens to scatter little must not outweigh the rest); none: the median
         let typical = {
-            let v: Vec<f64> = r.iter().rev().take(min_n).filter_map(|x| Some(sd(x)).filter(|s| s.is_finite())).collect();
-            if v.is_empty() { 1.0 } else { v.iter().sum::<f64>() / v.len() as f64 }
+            let mut v: Vec<f64> = r.iter().rev().take(TYPICAL_READINGS).map(|x| x.a_std_m).filter(|s| s.is_finite() && *s > 0.0).collect();
+            v.sort_by(|a, b| a.total_cmp(b));
+            if v.is_empty() { 1.0 } else { v[v.len() / 2] }
         };
+        let sd = |rd: &Reading| if rd.a_std_m.is_finite() { rd.a_std_m.max(typical) } else { typical };
         let x0 = cycle as f64;
         // weighted sums from the newest reading back (x relative to `cycle`, y relative to the newest)
         let y0 = r[n - 1].a_m;
         let (mut sw, mut sx, mut sy, mut sxx, mut sxy, mut syy) = (0.0f64, 0.0, 0.0, 0.0, 0.0, 0.0);
         let mut best = (r[n - 1].a_m, f64::NAN, 1usize);
         for (k, rd) in r.iter().rev().enumerate() {
-            let s = sd(rd);
-            let w = 1.0 / (if s.is_finite() { s } else { typical }).powi(2);
+            let w = 1.0 / sd(rd).powi(2);
             let (x, y) = (rd.cycle - x0, rd.a_m - y0);
             sw += w;
             sx += w * x;
@@ -392,7 +395,9 @@ impl CrackReader {
             let chi2 = ((cyy - slope * cxy).max(0.0) / (m as f64 - 2.0)).max(1.0);
             let se = ((1.0 / sw + xm * xm / cxx) * chi2).sqrt();
             best = (y0 + at, se, m);
-            let spanned = (r[n - 1].a_m - rd.a_m).abs();
+            // the extension the line spans by its own slope (the readings' difference is noise
+            // when a reading resolves the crack coarsely)
+            let spanned = (slope * (r[n - 1].cycle - rd.cycle)).abs();
             if m >= min_n && (se <= target || spanned >= reach) {
                 break;
             }
@@ -564,6 +569,7 @@ mod tests {
     /// Five cycles of `n` samples of a sine between `fmin` and `fmax` through the chain into the
     /// reader, one `work()` per sample as the control loop does; the readings that came out and
     /// the samples fed.
+    #[allow(clippy::too_many_arguments)]
     fn feed(reader: &mut CrackReader, chain: &mut GaugeChain, spec: &Specimen, a_true: f64, cycles: std::ops::RangeInclusive<u64>, n: usize, fmin: f64, fmax: f64) -> (Vec<Reading>, Vec<(f64, f64, f64)>) {
         let (mut got, mut fed) = (Vec::new(), Vec::new());
         for c in cycles {
