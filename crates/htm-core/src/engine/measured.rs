@@ -367,6 +367,16 @@ impl CrackReader {
         };
         let sd = |rd: &Reading| if rd.a_std_m.is_finite() { rd.a_std_m.max(typical) } else { typical };
         let x0 = cycle as f64;
+        // the growth rate over all the readings kept (few noisy readings give no rate): the line
+        // reaches back no more cycles than take `reach` of extension at it
+        let rate = {
+            let mut l = meas::LineSums::default();
+            for rd in r {
+                l.push(rd.cycle - x0, rd.a_m - r[n - 1].a_m);
+            }
+            l.fit().map_or(0.0, |f| f.0.abs())
+        };
+        let cycles_reach = if rate > 0.0 { reach / rate } else { f64::INFINITY };
         // weighted sums from the newest reading back (x relative to `cycle`, y relative to the newest)
         let y0 = r[n - 1].a_m;
         let (mut sw, mut sx, mut sy, mut sxx, mut sxy, mut syy) = (0.0f64, 0.0, 0.0, 0.0, 0.0, 0.0);
@@ -395,10 +405,7 @@ impl CrackReader {
             let chi2 = ((cyy - slope * cxy).max(0.0) / (m as f64 - 2.0)).max(1.0);
             let se = ((1.0 / sw + xm * xm / cxx) * chi2).sqrt();
             best = (y0 + at, se, m);
-            // the extension the line spans by its own slope (the readings' difference is noise
-            // when a reading resolves the crack coarsely)
-            let spanned = (slope * (r[n - 1].cycle - rd.cycle)).abs();
-            if m >= min_n && (se <= target || spanned >= reach) {
+            if m >= min_n && (se <= target || r[n - 1].cycle - rd.cycle >= cycles_reach) {
                 break;
             }
         }
