@@ -7,8 +7,9 @@
 //! the E647 expression, opening force by the compliance offset; or the mean potential and
 //! Johnson's expression), and the crack the test runs on is a weighted least-squares line through
 //! the last readings evaluated at the current cycle (no lag from the averaging): at least
-//! `readings_fitted` of them, more while the line is not yet a tenth of E647's resolution precise
-//! (`CrackReader::a_at`).
+//! `readings_fitted` of them, more while the line is not yet a tenth of E647's resolution precise,
+//! within 5 resolutions of extension and a length whose bias from the curve's bend stays under
+//! that (`CrackReader::a_at`).
 //! One copy: the simulator (`htm run`), the real-time loop and the virtual rig's specimen use it.
 use crate::crack_measure::{self as meas, Method};
 use crate::error::{Error, Result};
@@ -144,11 +145,51 @@ pub struct Reading {
 /// The running crack's line reaches back until its standard uncertainty at the current cycle is
 /// this share of E647's resolution (max(0.1 mm, 0.002 W)) ...
 pub const LINE_PRECISION_RESOLUTIONS: f64 = 0.1;
-/// ... but over no more than this many resolutions of crack extension (a line through a longer
-/// stretch of a growth curve bends away from it) ...
-pub const LINE_EXTENSION_RESOLUTIONS: f64 = 2.0;
+/// ... but over no more than this many resolutions of crack extension, and no longer than keeps
+/// the bias from the growth curve's bend (estimated from the readings) under that precision ...
+pub const LINE_EXTENSION_RESOLUTIONS: f64 = 5.0;
 /// ... and no more than this many readings (the readings kept).
 pub const LINE_READINGS_MAX: usize = 400;
+/// The growth curve's second derivative a'' [m/cycle²] and its standard error, from a parabola
+/// through the readings (None below 8 readings or when it is degenerate). O(n).
+fn curvature(r: &[Reading]) -> Option<(f64, f64)> {
+    let n = r.len();
+    if n < 8 {
+        return None;
+    }
+    let (lo, hi) = (r[0].cycle, r[n - 1].cycle);
+    let (mid, half) = (0.5 * (lo + hi), 0.5 * (hi - lo));
+    if !(half > 0.0) {
+        return None;
+    }
+    let y0 = r[n - 1].a_m;
+    let (mut m, mut v) = ([[0.0f64; 3]; 3], [0.0f64; 3]);
+    for rd in r {
+        let u = (rd.cycle - mid) / half;
+        let c = [1.0, u, u * u];
+        let y = rd.a_m - y0;
+        for a in 0..3 {
+            v[a] += c[a] * y;
+            for b in 0..3 {
+                m[a][b] += c[a] * c[b];
+            }
+        }
+    }
+    let sol = meas::solve3(m, v)?;
+    let inv22 = meas::solve3(m, [0.0, 0.0, 1.0])?[2];
+    let sse: f64 = r
+        .iter()
+        .map(|rd| {
+            let u = (rd.cycle - mid) / half;
+            let e = rd.a_m - y0 - sol[0] - sol[1] * u - sol[2] * u * u;
+            e * e
+        })
+        .sum();
+    let s2 = sse / (n as f64 - 3.0);
+    let k = 2.0 / (half * half);
+    Some((k * sol[2], k * (s2 * inv22.max(0.0)).sqrt()))
+}
+
 /// Readings whose median uncertainty floors each reading's (bounded work per cycle close).
 const TYPICAL_READINGS: usize = 51;
 
@@ -337,7 +378,8 @@ impl CrackReader {
     /// lag from the averaging). The line takes at least `readings_fitted` readings and reaches
     /// back further while its uncertainty at `cycle` (from the weights, scaled up by the scatter
     /// about the line when that is larger) exceeds `LINE_PRECISION_RESOLUTIONS` of E647's
-    /// resolution, within `LINE_EXTENSION_RESOLUTIONS` of crack extension: a crack that a single
+    /// resolution, within `LINE_EXTENSION_RESOLUTIONS` of crack extension and a length whose bias
+    /// from the growth curve's bend (a''·L²/12) stays under that precision: a crack that a single
     /// reading resolves coarsely (an M(T) at short cracks, whose compliance changes little with
     /// the crack) is averaged over more readings, a finely resolved one follows the newest.
     /// Before the first reading the initial crack; one reading: itself; two: the line through them.
@@ -376,7 +418,16 @@ impl CrackReader {
             }
             l.fit().map_or(0.0, |f| f.0.abs())
         };
-        let cycles_reach = if rate > 0.0 { reach / rate } else { f64::INFINITY };
+        let mut cycles_reach = if rate > 0.0 { reach / rate } else { f64::INFINITY };
+        // and no more than keep the line's bias from the growth curve's bend (a''·L²/12 at the end
+        // of a line over L cycles) under the precision asked: a'' from a parabola through all the
+        // readings kept, less twice its own uncertainty (noise is no bend)
+        if let Some((bend, sd_bend)) = curvature(r) {
+            let b = (bend.abs() - 2.0 * sd_bend).max(0.0);
+            if b > 0.0 {
+                cycles_reach = cycles_reach.min((12.0 * target / b).sqrt());
+            }
+        }
         // weighted sums from the newest reading back (x relative to `cycle`, y relative to the newest)
         let y0 = r[n - 1].a_m;
         let (mut sw, mut sx, mut sy, mut sxx, mut sxy, mut syy) = (0.0f64, 0.0, 0.0, 0.0, 0.0, 0.0);
