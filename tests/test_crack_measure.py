@@ -54,6 +54,17 @@ def test_generated_records_meet_e647_resolution_and_opening_within_5pct(seed, ki
         assert ("Johnson" in m.expression) == (kind == "mt_pd")
 
 
+@pytest.mark.parametrize("seed,kind,noise", [(21, "ct_cod", 2.0), (22, "mt_cod", 2.0), (23, "mt_cod", 0.5), (24, "ct_cod", 0.5)])
+def test_records_nobody_shared_other_noise_levels(seed, kind, noise):
+    """Records of other specimens (E, ν, W, gauge span), R, closure shapes and gauge noise from ½× to
+    2× the generator's levels, drawn by seeds no reduction setting was adjusted to: crack sizes
+    within max(0.1 mm, 0.002 W) of the truth, opening forces within 5 % of Fmax."""
+    case = gen.make_case(np.random.default_rng(seed), kind, noise_scale=noise)
+    m = measure(case["columns"], case["meta"])
+    s = gen.score(m.columns, case["truth"], case["width_m"], case["fmax_n"])
+    assert s["rows"] == len(case["truth"]) and s["a_ok"] and s["opening_ok"], (case["closure"], s)
+
+
 def test_closure_is_seen_and_dk_eff_falls_below_dk():
     rng = np.random.default_rng(7)
     for _ in range(50):  # a C(T) case with closure well above Fmin
@@ -89,6 +100,11 @@ def test_cli_measure_then_e647(tmp_path, capsys):
                  str(spec["thickness_m"]), "--pmax-n", str(case["fmax_n"]), "--r-ratio", str(case["r"]),
                  "--out", str(tmp_path / "e")]) == 0
     assert len(list(csv.DictReader(open(tmp_path / "e" / "reduced.csv")))) == len(rows)
+    # the E647 report lists the measured opening forces of the a–N file beside its reduction
+    md = (tmp_path / "e" / "report.md").read_text()
+    assert "## Crack closure (opening force, ΔK_eff)" in md
+    op = np.array([float(r["opening_force_n"]) for r in rows])
+    assert f"{op.min() / 1e3:.4g}–{op.max() / 1e3:.4g} kN" in md
     capsys.readouterr()
     assert main(["crack", "measure", str(rec), "--out", str(tmp_path / "j"), "--json"]) == 0
     said = json.loads(capsys.readouterr().out)

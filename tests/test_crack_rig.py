@@ -8,6 +8,7 @@ import math
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from htm.control.session import Session, specimen_of
@@ -123,3 +124,31 @@ def test_htm_run_reports_the_measured_crack_beside_the_law(tmp_path, capsys):
     assert main(["run", str(ROOT / "examples" / "ct_constant_force.toml"), "--out", str(plain), "--no-store", "--quiet"]) == 0
     assert "measurement" not in json.loads((plain / "summary.json").read_text())
     assert not (plain / "crack_vs_law.png").exists()
+
+
+def test_htm_run_report_md_plots_measured_and_law_crack_and_lists_the_opening_force(tmp_path):
+    """report.md of a constant-force test run on a measured crack (compliance, closure at 30 % of
+    Fmax): the a–N of the measured crack with the law's beside it, and the opening forces and
+    ΔK_eff per reading, near the closure put on the simulated specimen."""
+    from htm.cli import main
+
+    text = (ROOT / "examples" / "ct_constant_force.toml").read_text()
+    spec = tmp_path / "ct_measured.toml"
+    spec.write_text(text + '\n[measurement]\ncrack = "compliance"\nclosure_opening_fraction = 0.3\nnoise = 2e-7\n')
+    out = tmp_path / "run"
+    assert main(["run", str(spec), "--out", str(out), "--no-store", "--quiet"]) == 0
+    md = (out / "report.md").read_text()
+    assert "## Measured crack and the law" in md and "![a-N measured and law](a_n_vs_law.png)" in md
+    assert (out / "a_n_vs_law.png").stat().st_size > 10_000
+    assert "## Crack closure (opening force, ΔK_eff)" in md
+    sec = md.split("## Crack closure")[1].split("\n## ")[0]
+    rows = [r.split("|") for r in sec.splitlines() if r.startswith("|") and r[1:3].strip()[:1].isdigit()]
+    share = np.array([float(r[3]) for r in rows])
+    dk, dke = np.array([float(r[4]) for r in rows]), np.array([float(r[5]) for r in rows])
+    assert len(rows) >= 10 and np.all(np.abs(share - 0.3) < 0.05), share
+    assert np.all(dke < dk)
+    # the same spec on the law: no measured section
+    plain = tmp_path / "plain"
+    assert main(["run", str(ROOT / "examples" / "ct_constant_force.toml"), "--out", str(plain), "--no-store", "--quiet"]) == 0
+    md = (plain / "report.md").read_text()
+    assert "Measured crack and the law" not in md and "Crack closure" not in md

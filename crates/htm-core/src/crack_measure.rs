@@ -239,7 +239,7 @@ pub const OFFSET_CRITERIA: [f64; 3] = [0.01, 0.02, 0.04];
 /// Closure fitted to the pooled loading branches of one interval: the local compliance is
 /// C_open·(1 − d·σ((F_t − F)/w)), σ the logistic function (a smooth step from the closed to the
 /// open crack; a sharp kink as w → 0, no closure as d → 0).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(serde::Serialize, serde::Deserialize, Debug, Clone, Copy, PartialEq)]
 pub struct ClosureFit {
     pub c_open: f64,
     /// closure depth d [-]: the compliance offset far below the transition
@@ -280,84 +280,222 @@ fn softplus(z: f64) -> f64 {
 /// The F statistic a fitted closure needs over the straight loading line to be kept.
 pub const CLOSURE_F_MIN: f64 = 25.0;
 
-/// Fit the closure curve to loading-branch samples (force, opening) over [fmin, fmax]: for each
-/// transition force and width on a grid (then a finer one around the best), the opening is linear
-/// in (offset, C_open, C_open·d): least squares with d ≥ 0.
+/// Running least-squares sums of a line y = c0 + c1·x (one sample at a time, O(1) each).
+#[derive(serde::Serialize, serde::Deserialize, Debug, Clone, Copy, Default, PartialEq)]
+pub struct LineSums {
+    n: f64,
+    sx: f64,
+    sy: f64,
+    sxx: f64,
+    sxy: f64,
+    syy: f64,
+}
+
+impl LineSums {
+    #[inline]
+    pub fn push(&mut self, x: f64, y: f64) {
+        self.n += 1.0;
+        self.sx += x;
+        self.sy += y;
+        self.sxx += x * x;
+        self.sxy += x * y;
+        self.syy += y * y;
+    }
+
+    pub fn count(&self) -> usize {
+        self.n as usize
+    }
+
+    pub fn mean_x(&self) -> f64 {
+        self.sx / self.n
+    }
+
+    /// (c1, c0, residual sum of squares, standard error of c1); None below 3 points.
+    pub fn fit(&self) -> Option<(f64, f64, f64, f64)> {
+        if self.n < 3.0 {
+            return None;
+        }
+        let (mx, my) = (self.sx / self.n, self.sy / self.n);
+        let cxx = self.sxx - self.n * mx * mx;
+        if !(cxx > 0.0) {
+            return None;
+        }
+        let cxy = self.sxy - self.n * mx * my;
+        let cyy = self.syy - self.n * my * my;
+        let c1 = cxy / cxx;
+        let sse = (cyy - c1 * cxy).max(0.0);
+        Some((c1, my - c1 * mx, sse, (sse / (self.n - 2.0) / cxx).sqrt()))
+    }
+}
+
+/// The closure grid: 66 transition forces × 12 widths, then 25 × 13 around the best.
+const COARSE_T: usize = 66;
+const COARSE_W: usize = 12;
+const FINE_T: usize = 25;
+const FINE_W: usize = 13;
+/// Grid points the closure search solves.
+pub const CLOSURE_GRID_POINTS: usize = COARSE_T * COARSE_W + FINE_T * FINE_W;
+
+/// The closure curve fitted to loading-branch samples, a bounded amount of work at a time: for
+/// each transition force and width on a grid (then a finer one around the best) the opening is
+/// linear in (1, x, C_open·d·offset): least squares with d ≥ 0. Samples in normalised units
+/// (x = (F − Fmin)/ΔF, y the opening over its scale). One unit of work is one sample of one grid
+/// point; `fit_closure` runs it to the end at once, the crack reader a budget per control period.
+#[derive(serde::Serialize, serde::Deserialize, Debug, Clone)]
+pub struct ClosureSearch {
+    x: Vec<f64>,
+    y: Vec<f64>,
+    yy: f64,
+    line: (f64, [f64; 3]),
+    fine: bool,
+    gi: usize,
+    centre: (f64, f64),
+    cur: usize,
+    m: [[f64; 3]; 3],
+    r: [f64; 3],
+    best: (f64, f64, f64, [f64; 3]),
+}
+
+/// A closure search's result in its normalised units: transition t, width w, and the solution
+/// (c0, c1, c1·d) in x.
+#[derive(serde::Serialize, serde::Deserialize, Debug, Clone, Copy, PartialEq)]
+pub struct ClosureNorm {
+    pub t: f64,
+    pub w: f64,
+    pub sol: [f64; 3],
+    /// the best curve before the F test: where the data hint at closure even when a single
+    /// interval cannot show it (the fully open compliance is fitted above it)
+    pub hinted: [f64; 3],
+}
+
+impl ClosureNorm {
+    /// In forces: `fmin`, `span` the force range, `vs` the opening's scale.
+    pub fn fit(&self, fmin: f64, span: f64, vs: f64) -> ClosureFit {
+        Self::curve(self.sol, self.t, self.w, fmin, span, vs)
+    }
+
+    /// The hinted curve (before the F test) in forces.
+    pub fn hint(&self, fmin: f64, span: f64, vs: f64) -> ClosureFit {
+        Self::curve(self.hinted, self.t, self.w, fmin, span, vs)
+    }
+
+    fn curve(s: [f64; 3], t: f64, w: f64, fmin: f64, span: f64, vs: f64) -> ClosureFit {
+        ClosureFit { c_open: s[1] * vs / span, depth: s[2] / s[1], f_t: fmin + t * span, w: w * span }
+    }
+}
+
+impl ClosureSearch {
+    /// The search over normalised samples whose line sums are `sums` (the same samples).
+    pub fn new(x: Vec<f64>, y: Vec<f64>, sums: &LineSums) -> Self {
+        let yy = sums.syy;
+        let line = match sums.fit() {
+            Some((c1, c0, sse, _)) => (sse, [c0, c1, 0.0]),
+            None => (yy, [0.0; 3]),
+        };
+        ClosureSearch { x, y, yy, line, fine: false, gi: 0, centre: (0.0, 0.02), cur: 0, m: [[0.0; 3]; 3], r: [0.0; 3], best: (f64::INFINITY, 0.0, 0.02, [0.0; 3]) }
+    }
+
+    fn point(&self) -> (f64, f64) {
+        if self.fine {
+            let (i, j) = ((self.gi / FINE_W) as i32 - 12, (self.gi % FINE_W) as i32 - 6);
+            ((self.centre.0 + 0.001 * i as f64).min(0.6), (self.centre.1 * 1.05f64.powi(j)).min(0.15))
+        } else {
+            let (i, j) = (self.gi / COARSE_W, self.gi % COARSE_W);
+            (-0.05 + 0.01 * i as f64, 0.003 * (0.15f64 / 0.003).powf(j as f64 / (COARSE_W - 1) as f64))
+        }
+    }
+
+    /// Work at most `budget` units; the units used and the result once the search is over.
+    pub fn advance(&mut self, budget: usize) -> (usize, Option<ClosureNorm>) {
+        let n = self.x.len();
+        let mut used = 0usize;
+        loop {
+            if used >= budget {
+                return (used, None);
+            }
+            let (t, w) = self.point();
+            let end = n.min(self.cur.saturating_add(budget - used));
+            for k in self.cur..end {
+                let (xi, yi) = (self.x[k], self.y[k]);
+                let g = w * softplus((t - xi) / w);
+                let c = [1.0, xi, g];
+                for a in 0..3 {
+                    self.r[a] += c[a] * yi;
+                    for b in a..3 {
+                        self.m[a][b] += c[a] * c[b];
+                    }
+                }
+            }
+            used += end - self.cur;
+            self.cur = end;
+            if self.cur < n || used >= budget {
+                continue;
+            }
+            used += 1;
+            // this grid point's normal equations are complete: SSE = Σy² − solᵀ·(Xᵀy)
+            let mut m = self.m;
+            (m[1][0], m[2][0], m[2][1]) = (m[0][1], m[0][2], m[1][2]);
+            let r = self.r;
+            let (sse, s) = match solve3(m, r).filter(|s| s[2] >= 0.0) {
+                Some(s) => ((self.yy - s[0] * r[0] - s[1] * r[1] - s[2] * r[2]).max(0.0), s),
+                None => self.line,
+            };
+            if sse < self.best.0 {
+                self.best = (sse, t, w, s);
+            }
+            (self.cur, self.m, self.r) = (0, [[0.0; 3]; 3], [0.0; 3]);
+            self.gi += 1;
+            if !self.fine && self.gi == COARSE_T * COARSE_W {
+                (self.fine, self.gi, self.centre) = (true, 0, (self.best.1, self.best.2));
+            } else if self.fine && self.gi == FINE_T * FINE_W {
+                return (used, Some(self.result()));
+            }
+        }
+    }
+
+    fn result(&self) -> ClosureNorm {
+        let (sse, t, w, hinted) = self.best;
+        let mut s = hinted;
+        // a closure must explain the curve beyond what the noise allows a searched step to: an F
+        // test of its three terms against the straight line (searching t and w inflates F under
+        // no closure, hence a high bar); below it the crack is taken as open over the whole range
+        let n = self.x.len() as f64;
+        let f_stat = (self.line.0 - sse) / 3.0 / (sse / (n - 5.0)).max(1e-300);
+        if s[2] > 0.0 && f_stat < CLOSURE_F_MIN {
+            s = self.line.1;
+        }
+        ClosureNorm { t, w, sol: s, hinted }
+    }
+}
+
+/// Fit the closure curve to loading-branch samples (force, opening) over [fmin, fmax] at once
+/// (`ClosureSearch` run to its end).
 pub fn fit_closure(f: &[f64], v: &[f64], fmin: f64, fmax: f64) -> Result<ClosureFit> {
     let span = fmax - fmin;
     if !(span > 0.0) || f.len() < 10 || f.len() != v.len() {
         return Err(Error::Input("too few loading samples to fit the loading curve".into()));
     }
-    let x: Vec<f64> = f.iter().map(|&fi| (fi - fmin) / span).collect();
-    let vs = v.iter().map(|&a| a.abs()).fold(0.0, f64::max).max(1e-300);
-    let y: Vec<f64> = v.iter().map(|&a| a / vs).collect();
-    // the straight line (no closure), and Σy² for the residual of each least-squares solution
-    let yy: f64 = y.iter().map(|v| v * v).sum();
-    let line = {
-        let (c1, c0, _) = ls_line(&x, &y).unwrap_or((0.0, 0.0, 0.0));
-        let sse: f64 = x.iter().zip(&y).map(|(&xi, &yi)| (yi - c0 - c1 * xi).powi(2)).sum();
-        (sse, [c0, c1, 0.0])
-    };
-    let fit = |t: f64, w: f64| -> (f64, [f64; 3]) {
-        // normal equations for columns [1, x, g]; SSE = Σy² − solᵀ·(Xᵀy) at the solution
-        let mut m = [[0.0; 3]; 3];
-        let mut r = [0.0; 3];
-        for (&xi, &yi) in x.iter().zip(&y) {
-            let g = w * softplus((t - xi) / w);
-            let c = [1.0, xi, g];
-            for a in 0..3 {
-                r[a] += c[a] * yi;
-                for b in a..3 {
-                    m[a][b] += c[a] * c[b];
-                }
-            }
-        }
-        (m[1][0], m[2][0], m[2][1]) = (m[0][1], m[0][2], m[1][2]);
-        match solve3(m, r).filter(|s| s[2] >= 0.0) {
-            Some(s) => ((yy - s[0] * r[0] - s[1] * r[1] - s[2] * r[2]).max(0.0), s),
-            None => line,
-        }
-    };
-    let mut best = (f64::INFINITY, 0.0, 0.02, [0.0; 3]);
-    let widths: Vec<f64> = (0..12).map(|i| 0.003 * (0.15f64 / 0.003).powf(i as f64 / 11.0)).collect();
-    for i in 0..=65 {
-        let t = -0.05 + 0.01 * i as f64;
-        for &w in &widths {
-            let (sse, s) = fit(t, w);
-            if sse < best.0 {
-                best = (sse, t, w, s);
-            }
-        }
-    }
-    // refine around the best: transition in steps of 0.001, width in steps of 5 %
-    let (t0, w0) = (best.1, best.2);
-    for i in -12..=12 {
-        let t = (t0 + 0.001 * i as f64).min(0.6);
-        for j in -6..=6 {
-            let w = (w0 * 1.05f64.powi(j)).min(0.15);
-            let (sse, s) = fit(t, w);
-            if sse < best.0 {
-                best = (sse, t, w, s);
-            }
-        }
-    }
-    let (sse, t, w, mut s) = best;
-    // a closure must explain the curve beyond what the noise allows a searched step to: an F test
-    // of its three terms against the straight line (searching t and w inflates F under no closure,
-    // hence a high bar); below it the crack is taken as open over the whole range
-    let n = x.len() as f64;
-    let f_stat = (line.0 - sse) / 3.0 / (sse / (n - 5.0)).max(1e-300);
-    if s[2] > 0.0 && f_stat < CLOSURE_F_MIN {
-        s = line.1;
-    }
-    let c_open = s[1] * vs / span;
-    if !(c_open.is_finite() && c_open > 0.0) {
+    let v0 = v[0];
+    let vs = v.iter().map(|&a| (a - v0).abs()).fold(0.0, f64::max).max(1e-300);
+    let mut sums = LineSums::default();
+    let (x, y): (Vec<f64>, Vec<f64>) = f
+        .iter()
+        .zip(v)
+        .map(|(&fi, &vi)| {
+            let (x, y) = ((fi - fmin) / span, (vi - v0) / vs);
+            sums.push(x, y);
+            (x, y)
+        })
+        .unzip();
+    let cn = ClosureSearch::new(x, y, &sums).advance(usize::MAX).1.expect("run to its end");
+    let fit = cn.fit(fmin, span, vs);
+    if !(fit.c_open.is_finite() && fit.c_open > 0.0) {
         return Err(Error::Input("the opening does not rise with the force on the loading branches (gauge or force channel wrong?)".into()));
     }
-    Ok(ClosureFit { c_open, depth: s[2] / s[1], f_t: fmin + t * span, w: w * span })
+    Ok(fit)
 }
 
-fn solve3(m: [[f64; 3]; 3], r: [f64; 3]) -> Option<[f64; 3]> {
+pub(crate) fn solve3(m: [[f64; 3]; 3], r: [f64; 3]) -> Option<[f64; 3]> {
     let det = |a: &[[f64; 3]; 3]| {
         a[0][0] * (a[1][1] * a[2][2] - a[1][2] * a[2][1]) - a[0][1] * (a[1][0] * a[2][2] - a[1][2] * a[2][0])
             + a[0][2] * (a[1][0] * a[2][1] - a[1][1] * a[2][0])
@@ -378,27 +516,18 @@ fn solve3(m: [[f64; 3]; 3], r: [f64; 3]) -> Option<[f64; 3]> {
     Some(out)
 }
 
-/// E647 X2 segment offsets: the loading branch cut into segments spanning `span_frac` of the
-/// force range, stepped by `step_frac`; per segment (its mean force [N], its compliance offset
-/// (C_open − C_seg)/C_open). Segments with fewer than 5 samples are skipped.
-pub fn segment_offsets(f: &[f64], v: &[f64], fmin: f64, fmax: f64, c_open: f64, span_frac: f64, step_frac: f64) -> Vec<(f64, f64)> {
-    let range = fmax - fmin;
-    let mut out = Vec::new();
-    if !(range > 0.0 && span_frac > 0.0 && step_frac > 0.0) {
-        return out;
-    }
-    let mut lo = 0.0;
-    while lo + span_frac <= 1.0 + 1e-9 {
-        let (a, b) = (fmin + lo * range, fmin + (lo + span_frac) * range);
-        let (xs, ys): (Vec<f64>, Vec<f64>) = f.iter().zip(v).filter(|(&fi, _)| fi >= a && fi <= b).map(|(&fi, &vi)| (fi, vi)).unzip();
-        if xs.len() >= 5 {
-            if let Some((c, _, _)) = ls_line(&xs, &ys) {
-                out.push((xs.iter().sum::<f64>() / xs.len() as f64, (c_open - c) / c_open));
-            }
-        }
-        lo += step_frac;
-    }
-    out
+/// E647 X2 segments: spanning 10 % of the force range, stepped by 5 % (19 over the range).
+const SEGMENT_SPAN: f64 = 0.1;
+const SEGMENT_STEP: f64 = 0.05;
+const SEGMENTS: usize = 19;
+
+/// E647 X2 segment offsets from per-segment line sums (normalised units): per segment with at
+/// least 5 samples, its mean force [N] and its compliance offset (C_open − C_seg)/C_open.
+fn segment_offsets(segs: &[LineSums], fmin: f64, span: f64, vs: f64, c_open: f64) -> Vec<(f64, f64)> {
+    segs.iter()
+        .filter(|s| s.count() >= 5)
+        .filter_map(|s| s.fit().map(|(c1, ..)| (fmin + span * s.mean_x(), (c_open - c1 * vs / span) / c_open)))
+        .collect()
 }
 
 /// E647 X2 opening force from segment offsets: going up from the lowest segment, the force where
@@ -479,97 +608,320 @@ pub struct Interval {
     pub dk_eff: f64,
 }
 
-/// Per-cycle mean minimum and maximum of the force over an interval.
-fn force_extremes(f: &[f64], cycle: &[f64]) -> (f64, f64) {
-    let (mut mins, mut maxs) = (Vec::new(), Vec::new());
-    let mut s = 0;
-    for i in 1..=f.len() {
-        if i == f.len() || cycle[i] != cycle[s] {
-            let seg = f[s..i].iter().copied().filter(|x| x.is_finite());
-            let (lo, hi) = seg.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| (lo.min(x), hi.max(x)));
-            if lo.is_finite() && hi > lo {
-                mins.push(lo);
-                maxs.push(hi);
-            }
-            s = i;
-        }
-    }
-    let mean = |v: &[f64]| if v.is_empty() { f64::NAN } else { v.iter().sum::<f64>() / v.len() as f64 };
-    (mean(&mins), mean(&maxs))
+/// Per-cycle force extremes, one sample at a time: the mean minimum and maximum of the cycles.
+#[derive(serde::Serialize, serde::Deserialize, Debug, Clone, Copy, PartialEq)]
+pub struct Extremes {
+    cycle: f64,
+    lo: f64,
+    hi: f64,
+    sum_lo: f64,
+    sum_hi: f64,
+    n: usize,
+    /// cycles seen (a change of the cycle count starts one), and the first one
+    pub cycles: usize,
+    pub first_cycle: f64,
 }
 
-/// Indices of the loading samples (force rising) of an interval: the sign of a centred difference
-/// over ±k samples, k ~ 1/50 of a cycle's samples.
-fn loading_samples(f: &[f64], cycle: &[f64]) -> Vec<usize> {
-    let n = f.len();
-    let ncyc = {
-        let mut c = 1usize;
-        for i in 1..n {
-            if cycle[i] != cycle[i - 1] {
-                c += 1;
+impl Default for Extremes {
+    fn default() -> Self {
+        Extremes { cycle: f64::NAN, lo: f64::INFINITY, hi: f64::NEG_INFINITY, sum_lo: 0.0, sum_hi: 0.0, n: 0, cycles: 0, first_cycle: f64::NAN }
+    }
+}
+
+impl Extremes {
+    #[inline]
+    pub fn push(&mut self, f: f64, cycle: f64) {
+        if cycle != self.cycle {
+            self.close();
+            if self.cycles == 0 {
+                self.first_cycle = cycle;
+            }
+            self.cycles += 1;
+            self.cycle = cycle;
+        }
+        if f.is_finite() {
+            self.lo = self.lo.min(f);
+            self.hi = self.hi.max(f);
+        }
+    }
+
+    fn close(&mut self) {
+        if self.lo.is_finite() && self.hi > self.lo {
+            self.sum_lo += self.lo;
+            self.sum_hi += self.hi;
+            self.n += 1;
+        }
+        (self.lo, self.hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    }
+
+    /// (mean minimum, mean maximum) [N]; NaN without a cycle whose force varies.
+    pub fn means(&self) -> (f64, f64) {
+        let mut e = *self;
+        e.close();
+        if e.n == 0 { (f64::NAN, f64::NAN) } else { (e.sum_lo / e.n as f64, e.sum_hi / e.n as f64) }
+    }
+}
+
+/// A compliance interval's curve reduced (before the crack size): force extremes, the fully open
+/// compliance and its standard error [m/N], the closure curve and E647's segment offsets.
+#[derive(serde::Serialize, serde::Deserialize, Debug, Clone, PartialEq)]
+pub struct OpenCurve {
+    pub cycle: f64,
+    pub n_cycles: usize,
+    pub fmin: f64,
+    pub fmax: f64,
+    pub c_open: f64,
+    pub c_se: f64,
+    pub closure: ClosureNorm,
+    pub vs: f64,
+    pub segments: Vec<(f64, f64)>,
+    /// the opening this interval's best curve hints at (share of the force range), for the pool
+    pub hint_frac: f64,
+}
+
+/// The reduction of one compliance interval as a job done a bounded amount at a time (one unit:
+/// one sample visited by one pass, or one sample of one closure grid point): force extremes, the
+/// loading samples (force rising, a centred difference over ±k samples, k ~ 1/50 of a cycle),
+/// the closure search, then the least-squares compliance over both branches above the opening
+/// (at least the upper quarter of the range) and the segment offsets. `reduce_compliance_interval`
+/// runs it at once (a record), the crack reader over the control periods that follow the
+/// interval (a running test): the same code.
+#[derive(serde::Serialize, serde::Deserialize, Debug, Clone)]
+pub struct ComplianceJob {
+    f: Vec<f64>,
+    v: Vec<f64>,
+    cyc: Vec<f64>,
+    stage: u8,
+    i: usize,
+    ext: Extremes,
+    v0: f64,
+    vs: f64,
+    fmin: f64,
+    fmax: f64,
+    k: usize,
+    lx: Vec<f64>,
+    ly: Vec<f64>,
+    lsums: LineSums,
+    segs: Vec<LineSums>,
+    search: Option<ClosureSearch>,
+    closure: Option<ClosureNorm>,
+    lower: f64,
+    open: LineSums,
+    /// the opening (share of the force range) the previous intervals hint at, and this one's hint
+    pooled_frac: f64,
+    hint_frac: f64,
+}
+
+/// The openings hinted at by the last intervals' best closure curves (significant or not), as
+/// shares of the force range: their median is where the next interval's fully open fit starts at
+/// the lowest. A weak closure is hinted at the same force interval after interval, noise scatters.
+#[derive(serde::Serialize, serde::Deserialize, Debug, Clone, Default, PartialEq)]
+pub struct OpeningPool {
+    hints: Vec<f64>,
+}
+
+impl OpeningPool {
+    /// Intervals pooled.
+    pub const LEN: usize = 15;
+
+    pub fn push(&mut self, frac: f64) {
+        if frac.is_finite() {
+            self.hints.push(frac);
+            if self.hints.len() > Self::LEN {
+                self.hints.remove(0);
             }
         }
-        c
-    };
-    let k = (n / ncyc / 50).max(1);
-    (0..n)
-        .filter(|&i| {
-            let (a, b) = (i.saturating_sub(k), (i + k).min(n - 1));
-            b > a && f[b] > f[a] && f[i].is_finite()
+    }
+
+    /// The median hint (NaN before the first). Sorting 15 numbers: constant work.
+    pub fn median(&self) -> f64 {
+        if self.hints.is_empty() {
+            return f64::NAN;
+        }
+        let mut v = self.hints.clone();
+        v.sort_by(|a, b| a.total_cmp(b));
+        let n = v.len();
+        if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) }
+    }
+
+    pub fn clear(&mut self) {
+        self.hints.clear();
+    }
+}
+
+impl ComplianceJob {
+    /// The job for an interval's samples (force [N], opening [m], cycle count), equal lengths.
+    pub fn new(f: Vec<f64>, v: Vec<f64>, cyc: Vec<f64>, pool: &OpeningPool) -> Self {
+        let v0 = v.iter().copied().find(|x| x.is_finite()).unwrap_or(0.0);
+        ComplianceJob {
+            f, v, cyc, stage: 0, i: 0, ext: Extremes::default(), v0, vs: 0.0, fmin: f64::NAN, fmax: f64::NAN, k: 1, lx: Vec::new(), ly: Vec::new(),
+            lsums: LineSums::default(), segs: vec![LineSums::default(); SEGMENTS], search: None, closure: None, lower: f64::NAN, open: LineSums::default(),
+            pooled_frac: pool.median(), hint_frac: f64::NAN,
+        }
+    }
+
+    /// The units the job takes at most for `n` samples (every sample loading, the worst case).
+    pub fn units_bound(n: usize) -> usize {
+        3 * n + CLOSURE_GRID_POINTS * (n + 1)
+    }
+
+    /// The samples the job holds.
+    pub fn len(&self) -> usize {
+        self.f.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.f.is_empty()
+    }
+
+    /// Work at most `budget` units: the units used, and the result once the job is over.
+    pub fn advance(&mut self, budget: usize) -> (usize, Option<Result<OpenCurve>>) {
+        let n = self.f.len();
+        let mut used = 0usize;
+        while used < budget {
+            match self.stage {
+                0 => {
+                    // force extremes per cycle and the opening's scale
+                    let end = n.min(self.i.saturating_add(budget - used));
+                    for i in self.i..end {
+                        self.ext.push(self.f[i], self.cyc[i]);
+                        if self.v[i].is_finite() {
+                            self.vs = self.vs.max((self.v[i] - self.v0).abs());
+                        }
+                    }
+                    used += end - self.i;
+                    self.i = end;
+                    if self.i == n {
+                        (self.fmin, self.fmax) = self.ext.means();
+                        if !(self.fmax > self.fmin) {
+                            return (used, Some(Err(Error::Input(format!("cycle {}: the force does not vary", self.cyc.first().copied().unwrap_or(f64::NAN))))));
+                        }
+                        self.vs = self.vs.max(1e-300);
+                        self.k = (n / self.ext.cycles.max(1) / 50).max(1);
+                        (self.stage, self.i) = (1, 0);
+                    }
+                }
+                1 => {
+                    // the loading samples inside the mean extremes, normalised; their segments
+                    let (fmin, fmax, span, k) = (self.fmin, self.fmax, self.fmax - self.fmin, self.k);
+                    let end = n.min(self.i.saturating_add(budget - used));
+                    for i in self.i..end {
+                        let (a, b) = (i.saturating_sub(k), (i + k).min(n - 1));
+                        let (fi, vi) = (self.f[i], self.v[i]);
+                        if b > a && self.f[b] > self.f[a] && fi.is_finite() && vi.is_finite() && fi >= fmin && fi <= fmax {
+                            let (x, y) = ((fi - fmin) / span, (vi - self.v0) / self.vs);
+                            self.lx.push(x);
+                            self.ly.push(y);
+                            self.lsums.push(x, y);
+                            for (j, s) in self.segs.iter_mut().enumerate() {
+                                let lo = j as f64 * SEGMENT_STEP;
+                                if x >= lo && x <= lo + SEGMENT_SPAN {
+                                    s.push(x, y);
+                                }
+                            }
+                        }
+                    }
+                    used += end - self.i;
+                    self.i = end;
+                    if self.i == n {
+                        if self.lx.len() < 10 {
+                            return (used, Some(Err(Error::Input("too few loading samples to fit the loading curve".into()))));
+                        }
+                        let (x, y) = (std::mem::take(&mut self.lx), std::mem::take(&mut self.ly));
+                        self.search = Some(ClosureSearch::new(x, y, &self.lsums));
+                        self.stage = 2;
+                    }
+                }
+                2 => {
+                    let s = self.search.as_mut().expect("set by stage 1");
+                    let (u, done) = s.advance(budget - used);
+                    used += u;
+                    if let Some(cn) = done {
+                        let span = self.fmax - self.fmin;
+                        let fit = cn.fit(self.fmin, span, self.vs);
+                        if !(fit.c_open.is_finite() && fit.c_open > 0.0) {
+                            return (used, Some(Err(Error::Input("the opening does not rise with the force on the loading branches (gauge or force channel wrong?)".into()))));
+                        }
+                        // fully open: above where the fitted offset falls under 0.25 % (plus 5 % of
+                        // the range) and above the opening the previous intervals hint at
+                        // (`OpeningPool`: a closure too weak for one interval to show would bias
+                        // every interval's compliance the same way), never less than the upper quarter
+                        let hint = cn.hint(self.fmin, span, self.vs);
+                        self.hint_frac = if hint.c_open > 0.0 { (hint.opening_force(0.0025, self.fmin, self.fmax) - self.fmin) / span } else { 0.0 };
+                        let own = fit.opening_force(0.0025, self.fmin, self.fmax);
+                        let pooled = if self.pooled_frac.is_finite() { self.fmin + self.pooled_frac * span } else { self.fmin };
+                        let f_open = own.max(pooled) + 0.05 * span;
+                        self.lower = f_open.clamp(self.fmin + 0.1 * span, self.fmin + 0.75 * span);
+                        self.closure = Some(cn);
+                        self.search = None;
+                        (self.stage, self.i) = (3, 0);
+                    }
+                }
+                3 => {
+                    // both branches above the opening: the crack is open on loading and unloading alike there
+                    let (fmin, span) = (self.fmin, self.fmax - self.fmin);
+                    let end = n.min(self.i.saturating_add(budget - used));
+                    for i in self.i..end {
+                        let (fi, vi) = (self.f[i], self.v[i]);
+                        if fi >= self.lower && fi <= self.fmax && vi.is_finite() {
+                            self.open.push((fi - fmin) / span, (vi - self.v0) / self.vs);
+                        }
+                    }
+                    used += end - self.i;
+                    self.i = end;
+                    if self.i == n {
+                        return (used, Some(self.finish()));
+                    }
+                }
+                _ => return (used, None),
+            }
+        }
+        (used, None)
+    }
+
+    fn finish(&mut self) -> Result<OpenCurve> {
+        self.stage = 4;
+        let c0 = self.cyc.first().copied().unwrap_or(f64::NAN);
+        let span = self.fmax - self.fmin;
+        let (c1, _, _, se) = self.open.fit().ok_or_else(|| Error::Input(format!("cycle {c0}: too few samples above the opening force")))?;
+        let (c_open, c_se) = (c1 * self.vs / span, se * self.vs / span);
+        if !(c_open > 0.0) {
+            return Err(Error::Input(format!("cycle {c0}: the opening falls as the force rises (gauge sign or channel wrong?)")));
+        }
+        Ok(OpenCurve {
+            cycle: c0, n_cycles: self.ext.cycles, fmin: self.fmin, fmax: self.fmax, c_open, c_se, closure: self.closure.expect("set by stage 2"), vs: self.vs,
+            segments: segment_offsets(&self.segs, self.fmin, span, self.vs, c_open), hint_frac: self.hint_frac,
         })
-        .collect()
+    }
 }
 
-/// Reduce one interval of a load–opening record: fully open compliance (least squares over the
-/// samples above the opening, at least the upper quarter of the range), crack size, the
-/// opening forces and ΔK, ΔK_eff.
-pub fn reduce_compliance_interval(spec: &Specimen, method: &Method, f: &[f64], cod: &[f64], cycle: &[f64]) -> Result<Interval> {
-    if !method.is_compliance() {
-        return Err(Error::Input(format!("{} is not a compliance method", method.describe())));
-    }
-    let (fmin, fmax) = force_extremes(f, cycle);
-    if !(fmax > fmin) {
-        return Err(Error::Input(format!("cycle {}: the force does not vary", cycle[0])));
-    }
-    let idx: Vec<usize> = loading_samples(f, cycle).into_iter().filter(|&i| cod[i].is_finite() && f[i] >= fmin && f[i] <= fmax).collect();
-    let lf: Vec<f64> = idx.iter().map(|&i| f[i]).collect();
-    let lv: Vec<f64> = idx.iter().map(|&i| cod[i]).collect();
-    let closure = fit_closure(&lf, &lv, fmin, fmax)?;
-    let range = fmax - fmin;
-    // fully open: above where the fitted offset falls under 0.25 % (plus 5 % of the range), and
-    // never less than the upper quarter
-    let f_open = closure.opening_force(0.0025, fmin, fmax) + 0.05 * range;
-    let lower = f_open.clamp(fmin + 0.1 * range, fmin + 0.75 * range);
-    // both branches above the opening: the crack is open on loading and unloading alike there
-    let (xs, ys): (Vec<f64>, Vec<f64>) = f.iter().zip(cod).filter(|(&x, &y)| x >= lower && x <= fmax && y.is_finite()).map(|(&x, &y)| (x, y)).unzip();
-    let (c_open, _, c_se) = ls_line(&xs, &ys).ok_or_else(|| Error::Input(format!("cycle {}: too few samples above the opening force", cycle[0])))?;
-    if !(c_open > 0.0) {
-        return Err(Error::Input(format!("cycle {}: the opening falls as the force rises (gauge sign or channel wrong?)", cycle[0])));
-    }
-    let a = crack_size(spec, method, c_open)?;
-    let a_hi = crack_size(spec, method, c_open + c_se).unwrap_or(f64::NAN);
-    let fit = ClosureFit { c_open, ..closure };
+/// The interval from its reduced curve: crack size (and its uncertainty from the compliance's
+/// standard error), opening forces at the 1, 2, 4 % offsets and from E647's segments, ΔK and
+/// ΔK_eff. Constant work (the expression's inversion).
+pub fn compliance_interval(spec: &Specimen, method: &Method, oc: &OpenCurve) -> Result<Interval> {
+    let (fmin, fmax) = (oc.fmin, oc.fmax);
+    let a = crack_size(spec, method, oc.c_open)?;
+    let a_hi = crack_size(spec, method, oc.c_open + oc.c_se).unwrap_or(f64::NAN);
+    let fit = ClosureFit { c_open: oc.c_open, ..oc.closure.fit(fmin, fmax - fmin, oc.vs) };
     let ops = OFFSET_CRITERIA.map(|k| fit.opening_force(k, fmin, fmax));
-    let segs = segment_offsets(&lf, &lv, fmin, fmax, c_open, 0.1, 0.05);
-    let op_seg = segment_opening_force(&segs, 0.02, fmin);
+    let op_seg = segment_opening_force(&oc.segments, 0.02, fmin);
     let (dk, dk_eff) = delta_k(spec, a, fmin, fmax, ops[1]);
     Ok(Interval {
-        cycle: cycle[0],
-        n_cycles: count_cycles(cycle),
-        a_m: a,
-        a_std_m: (a_hi - a).abs(),
-        fmin_n: fmin,
-        fmax_n: fmax,
-        value: c_open,
-        opening_force_n: ops,
-        opening_force_segments_n: op_seg,
-        dk,
-        dk_eff,
+        cycle: oc.cycle, n_cycles: oc.n_cycles, a_m: a, a_std_m: (a_hi - a).abs(), fmin_n: fmin, fmax_n: fmax, value: oc.c_open, opening_force_n: ops,
+        opening_force_segments_n: op_seg, dk, dk_eff,
     })
 }
 
-fn count_cycles(cycle: &[f64]) -> usize {
-    1 + cycle.windows(2).filter(|w| w[1] != w[0]).count()
+/// Reduce one interval of a load–opening record at once (`ComplianceJob` run to its end, then
+/// `compliance_interval`).
+pub fn reduce_compliance_interval(spec: &Specimen, method: &Method, f: &[f64], cod: &[f64], cycle: &[f64], pool: &mut OpeningPool) -> Result<Interval> {
+    if !method.is_compliance() {
+        return Err(Error::Input(format!("{} is not a compliance method", method.describe())));
+    }
+    let mut job = ComplianceJob::new(f.to_vec(), cod.to_vec(), cycle.to_vec(), pool);
+    let oc = job.advance(usize::MAX).1.expect("run to its end")?;
+    pool.push(oc.hint_frac);
+    compliance_interval(spec, method, &oc)
 }
 
 /// ΔK (E647: Pmax − Pmin for R ≥ 0, Pmax for R < 0) and ΔK_eff = K(Fmax) − K(max(F_op, Fmin, 0)).
@@ -580,33 +932,70 @@ pub fn delta_k(spec: &Specimen, a: f64, fmin: f64, fmax: f64, f_op: f64) -> (f64
     (dk, k(fmax - lo))
 }
 
-/// Reduce one interval of a potential-drop record: the mean potential over the interval (E647
-/// allows averaging a few readings), crack size, and ΔK when the force is recorded.
-pub fn reduce_potential_interval(spec: &Specimen, method: &Method, v: &[f64], f: Option<&[f64]>, cycle: &[f64]) -> Result<Interval> {
-    let vals: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
-    if vals.is_empty() {
-        return Err(Error::Input(format!("cycle {}: no potential readings", cycle[0])));
+/// A potential-drop interval's sums, one sample at a time (O(1) each): the potential's mean and
+/// scatter, the force extremes.
+#[derive(serde::Serialize, serde::Deserialize, Debug, Clone, Copy, Default, PartialEq)]
+pub struct PotentialSums {
+    n: f64,
+    s: f64,
+    ss: f64,
+    v0: f64,
+    ext: Extremes,
+    forces: bool,
+}
+
+impl PotentialSums {
+    #[inline]
+    pub fn push(&mut self, v: f64, f: f64, cycle: f64) {
+        self.ext.push(f, cycle);
+        self.forces |= f.is_finite();
+        if v.is_finite() {
+            if self.n == 0.0 {
+                self.v0 = v;
+            }
+            let d = v - self.v0;
+            self.n += 1.0;
+            self.s += d;
+            self.ss += d * d;
+        }
     }
-    let n = vals.len() as f64;
-    let mean = vals.iter().sum::<f64>() / n;
-    let sd = (vals.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0).max(1.0)).sqrt();
-    let a = crack_size(spec, method, mean)?;
-    let a_hi = crack_size(spec, method, mean + sd / n.sqrt()).unwrap_or(f64::NAN);
-    let (fmin, fmax) = f.map(|f| force_extremes(f, cycle)).unwrap_or((f64::NAN, f64::NAN));
-    let (dk, _) = if fmax > fmin { delta_k(spec, a, fmin, fmax, f64::NAN) } else { (f64::NAN, f64::NAN) };
-    Ok(Interval {
-        cycle: cycle[0],
-        n_cycles: count_cycles(cycle),
-        a_m: a,
-        a_std_m: (a_hi - a).abs(),
-        fmin_n: fmin,
-        fmax_n: fmax,
-        value: mean,
-        opening_force_n: [f64::NAN; 3],
-        opening_force_segments_n: f64::NAN,
-        dk,
-        dk_eff: dk,
-    })
+
+    pub fn count(&self) -> usize {
+        self.n as usize
+    }
+
+    pub fn mean(&self) -> f64 {
+        self.v0 + self.s / self.n
+    }
+
+    /// The interval: the mean potential over it (E647 allows averaging a few readings), crack
+    /// size, and ΔK when the force is recorded.
+    pub fn interval(&self, spec: &Specimen, method: &Method) -> Result<Interval> {
+        let c0 = self.ext.first_cycle;
+        if self.n == 0.0 {
+            return Err(Error::Input(format!("cycle {c0}: no potential readings")));
+        }
+        let n = self.n;
+        let mean = self.mean();
+        let var = ((self.ss - self.s * self.s / n) / (n - 1.0).max(1.0)).max(0.0);
+        let a = crack_size(spec, method, mean)?;
+        let a_hi = crack_size(spec, method, mean + (var / n).sqrt()).unwrap_or(f64::NAN);
+        let (fmin, fmax) = if self.forces { self.ext.means() } else { (f64::NAN, f64::NAN) };
+        let (dk, _) = if fmax > fmin { delta_k(spec, a, fmin, fmax, f64::NAN) } else { (f64::NAN, f64::NAN) };
+        Ok(Interval {
+            cycle: c0, n_cycles: self.ext.cycles, a_m: a, a_std_m: (a_hi - a).abs(), fmin_n: fmin, fmax_n: fmax, value: mean,
+            opening_force_n: [f64::NAN; 3], opening_force_segments_n: f64::NAN, dk, dk_eff: dk,
+        })
+    }
+}
+
+/// Reduce one interval of a potential-drop record (`PotentialSums` over its samples).
+pub fn reduce_potential_interval(spec: &Specimen, method: &Method, v: &[f64], f: Option<&[f64]>, cycle: &[f64]) -> Result<Interval> {
+    let mut s = PotentialSums::default();
+    for (i, (&vi, &c)) in v.iter().zip(cycle).enumerate() {
+        s.push(vi, f.map_or(f64::NAN, |f| f[i]), c);
+    }
+    s.interval(spec, method)
 }
 
 /// Reduce a whole record: one `Interval` per burst (cut into `cycles_per_interval` groups).
@@ -617,6 +1006,7 @@ pub fn reduce_record(spec: &Specimen, method: &Method, cycle: &[f64], f: Option<
     }
     let mut out = Vec::new();
     let mut method = method.clone();
+    let mut pool = OpeningPool::default();
     for (s, e) in intervals(cycle, cycles_per_interval) {
         // a potential-drop reference not given: the first interval's mean potential at the reference crack
         if let Method::Johnson { v_ref, .. } | Method::Calibration { v_ref, .. } = &mut method {
@@ -628,7 +1018,7 @@ pub fn reduce_record(spec: &Specimen, method: &Method, cycle: &[f64], f: Option<
         let method = &method;
         let r = if method.is_compliance() {
             let f = f.ok_or_else(|| Error::Input("compliance needs the force column `f`".into()))?;
-            reduce_compliance_interval(spec, method, &f[s..e], &signal[s..e], &cycle[s..e])
+            reduce_compliance_interval(spec, method, &f[s..e], &signal[s..e], &cycle[s..e], &mut pool)
         } else {
             reduce_potential_interval(spec, method, &signal[s..e], f.map(|f| &f[s..e]), &cycle[s..e])
         };

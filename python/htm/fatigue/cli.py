@@ -59,7 +59,7 @@ def cmd_e647(args: argparse.Namespace) -> int:
     reds = [reduce(d, setup, method=args.method, n=args.n, **kw) for d in datas]
     multi = len(datas) > 1 or any(d.specimen != "1" for d in datas)
     write_reduced_csv(out / "reduced.csv", reds, multi)
-    rep = e647_report(out, datas, setup, reds, args.n)
+    rep = e647_report(out, datas, setup, reds, args.n, source=args.input)
     nvalid = sum(int(r.valid.sum()) for r in reds)
     npts = sum(len(r) for r in reds)
     if args.json:

@@ -99,8 +99,81 @@ def plot_residual(path: Path, x: np.ndarray, r: np.ndarray, bins: list[dict], xl
     return save(fig, path)
 
 
-def e647_report(out: Path, datas: list[CrackData], setup: Setup, reds: list[Reduced], n: int) -> Path:
-    """Write DIR/report.md (and plots) for an `htm e647` reduction."""
+def _opening_columns(source: str | Path | None) -> dict[str, np.ndarray] | None:
+    """The opening forces of an a–N file written by `htm crack measure` (`opening_force_n`, with
+    `cycles` and `a_m`); None when the file has none (any other a–N table)."""
+    import csv
+
+    if source is None:
+        return None
+    try:
+        with open(source, newline="") as fh:
+            rows = list(csv.DictReader(fh))
+    except (OSError, UnicodeDecodeError, csv.Error):
+        return None
+    if not rows or "opening_force_n" not in rows[0] or "cycles" not in rows[0]:
+        return None
+
+    def col(k: str) -> np.ndarray:
+        out = []
+        for r in rows:
+            try:
+                out.append(float(r.get(k) or "nan"))
+            except ValueError:
+                out.append(np.nan)
+        return np.array(out)
+
+    return {k: col(k) for k in ("cycles", "a_m", "opening_force_n", "fmax_n", "fmin_n", "delta_k_pa_sqrt_m", "delta_k_eff_pa_sqrt_m")
+            if k in rows[0]}
+
+
+def opening_section(cycles: np.ndarray, op: np.ndarray, pmax: np.ndarray | float, dk: np.ndarray | None = None,
+                    dk_eff: np.ndarray | None = None, method: str = "E647 X2 compliance offset, 2 % criterion") -> list[str]:
+    """The report's closure section: the opening force per measurement (range, as a share of
+    Pmax) and ΔK_eff beside ΔK, with a table of up to 25 rows spread over the test."""
+    ok = np.isfinite(op)
+    if not ok.any():
+        return []
+    pmax = np.broadcast_to(np.asarray(pmax, float), op.shape)
+    share = op / pmax
+    lines = ["## Crack closure (opening force, ΔK_eff)", "",
+             f"Opening force ({method}) {np.nanmin(op[ok]) / 1e3:.4g}–{np.nanmax(op[ok]) / 1e3:.4g} kN, "
+             f"{100 * np.nanmin(share[ok]):.1f}–{100 * np.nanmax(share[ok]):.1f} % of Pmax (mean {100 * np.nanmean(share[ok]):.1f} %)"]
+    if dk is not None and dk_eff is not None:
+        ratio = dk_eff / np.where(dk > 0, dk, np.nan)
+        if np.isfinite(ratio).any():
+            lines[-1] += f"; ΔK_eff/ΔK {np.nanmin(ratio):.3f}–{np.nanmax(ratio):.3f}"
+    lines[-1] += "."
+    idx = np.flatnonzero(ok)
+    idx = idx[np.unique(np.linspace(0, len(idx) - 1, min(25, len(idx))).round().astype(int))]
+    head = ["N", "F_op [kN]", "F_op / Pmax"] + (["ΔK [MPa·√m]", "ΔK_eff [MPa·√m]"] if dk is not None and dk_eff is not None else [])
+    rows = []
+    for i in idx:
+        r = [f"{cycles[i]:.6g}", f"{op[i] / 1e3:.4g}", f"{share[i]:.3f}"]
+        if dk is not None and dk_eff is not None:
+            r += [f"{dk[i] / 1e6:.3f}" if np.isfinite(dk[i]) else "", f"{dk_eff[i] / 1e6:.3f}" if np.isfinite(dk_eff[i]) else ""]
+        rows.append(r)
+    return lines + ["", md_table(head, rows), ""]
+
+
+def plot_a_n_vs_law(path: Path, cycles: np.ndarray, a_m: np.ndarray, a_law_m: np.ndarray, crack: str) -> Path:
+    """a–N of the crack the test ran on (measured) with the spec's law's crack beside it."""
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    ax.plot(cycles, a_m * 1e3, "-", lw=1.2, label=f"measured ({crack.replace('_', ' ')}): the test ran on it")
+    ax.plot(cycles, a_law_m * 1e3, "--", lw=1.2, label="the spec's growth law")
+    ax.set_xlabel("cycles N")
+    ax.set_ylabel("crack size a [mm]")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return save(fig, path)
+
+
+def e647_report(out: Path, datas: list[CrackData], setup: Setup, reds: list[Reduced], n: int,
+                source: str | Path | None = None) -> Path:
+    """Write DIR/report.md (and plots) for an `htm e647` reduction. `source`: the a–N file, whose
+    opening forces (`htm crack measure` output) the report lists when it has them."""
     out = Path(out)
     a_n = plot_a_n(out / "a_n.png", datas)
     pf = None
@@ -132,6 +205,10 @@ def e647_report(out: Path, datas: list[CrackData], setup: Setup, reds: list[Redu
                   f"da/dN = C·ΔK^m with C = {pf.c_mpa:.4e} (m/cycle)/(MPa·√m)^m (log10 C ± {pf.se_log10_c:.3g}), "
                   f"m = {pf.m:.4f} ± {pf.se_m:.3g}; {pf.npoints} points, ΔK {pf.dk_range_mpa[0]:.3g}–{pf.dk_range_mpa[1]:.3g} MPa·√m, "
                   f"RMS log10 error {pf.rms_log10:.4f}.", ""]
+    oc = _opening_columns(source)
+    if oc is not None and "opening_force_n" in oc:
+        pmax = oc["fmax_n"] if "fmax_n" in oc and np.isfinite(oc["fmax_n"]).any() else setup.pmax_n
+        lines += opening_section(oc["cycles"], oc["opening_force_n"], pmax, oc.get("delta_k_pa_sqrt_m"), oc.get("delta_k_eff_pa_sqrt_m"))
     lines += ["## Plots", "", f"![a-N]({a_n.name})", "", f"![da/dN-dK]({dadn.name})", ""]
     p = out / "report.md"
     p.write_text("\n".join(lines))
@@ -213,13 +290,15 @@ def rainflow_section(pmax: np.ndarray, pmin: np.ndarray, bins: int = 8) -> list[
 
 def write_test_report(out: str | Path, table: dict, setup: Setup, *, specimen_info: dict | None = None,
                 loading_info: dict | None = None, n: int = 3, law: str = "paris", title: str = "Fatigue crack growth test",
-                band: float = 0.02, variable_amplitude: bool = False) -> dict:
+                band: float = 0.02, variable_amplitude: bool = False, crack: str | None = None) -> dict:
     """The report of a test run (to be called by `htm run`): `table` has per-cycle or a–N columns
     `cycles`, `a_m` and optionally `pmax_n`, `pmin_n` (measured peak/valley force per cycle) and
     the engine's `df_err_pct`, `peak_err_pct`. Points whose cycles left the ±`band` force band are
     invalid (`force_band`); the report states the real force error. Writes OUT/report.md,
     OUT/report.html (plots embedded), OUT/reduced.csv and the plots; returns paths and the numbers
-    reported."""
+    reported. A test that ran on a measured crack (`crack` = "compliance" or "potential_drop")
+    with the law's crack beside it (`a_law_m`) gets the a–N plot of both, and its opening forces
+    (`opening_force_n`) and ΔK_eff (`delta_k_eff_pa_sqrt_m`, with `delta_k_pa_sqrt_m`) listed."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     cycles = np.asarray(table["cycles"], float)
@@ -263,6 +342,28 @@ def write_test_report(out: str | Path, table: dict, setup: Setup, *, specimen_in
         fitted = "Not fitted: no valid reduced point."
     lines = [f"# {title}", "", "## Specimen", "", md_table(["quantity", "value"], spec_rows), "",
              "## Loading", "", md_table(["quantity", "value"], load_rows), ""]
+    plots = [a_n, dadn]
+    measured = crack not in (None, "model") and "a_law_m" in table
+    if measured:
+        law = np.asarray(table["a_law_m"], float)
+        vs_law = plot_a_n_vs_law(out / "a_n_vs_law.png", cycles, a, law, str(crack))
+        plots.insert(1, vs_law)
+        i = int(np.flatnonzero(np.isfinite(a) & np.isfinite(law))[-1])
+        grown, law_grown = a[i] - a[0], law[i] - law[0]
+        lines += ["## Measured crack and the law", "",
+                  f"The test ran on the crack measured by {str(crack).replace('_', ' ')} (ASTM E647); the spec's growth law's "
+                  f"crack, integrated from the same measured forces, is beside it. At N = {cycles[i]:,.0f}: measured a = "
+                  f"{a[i] * 1e3:.3f} mm, law a = {law[i] * 1e3:.3f} mm"
+                  + (f" (the law's crack extension {100 * (law_grown / grown - 1):+.1f} % of the measured)" if grown > 0 else "") + ".", "",
+                  f"![a-N measured and law]({vs_law.name})", ""]
+        rows = [[f"{rd.cycles[k]:.6g}", f"{rd.a_m[k] * 1e3:.3f}", f"{np.interp(rd.cycles[k], cycles, law) * 1e3:.3f}"] for k in range(len(rd))]
+        lines += [md_table(["N", "a measured [mm]", "a law [mm]"], rows[:: max(1, len(rows) // 25)]), ""]
+    if "opening_force_n" in table:
+        op = np.asarray(table["opening_force_n"], float)
+        pm = np.asarray(table["pmax_n"], float) if "pmax_n" in table else setup.pmax_n
+        dk_t = np.asarray(table["delta_k_pa_sqrt_m"], float) if "delta_k_pa_sqrt_m" in table else None
+        dke_t = np.asarray(table["delta_k_eff_pa_sqrt_m"], float) if "delta_k_eff_pa_sqrt_m" in table else None
+        lines += opening_section(cycles, op, pm, dk_t, dke_t)
     if errs is not None:
         w = errs[1]
         pct = f"±{w['band_pct']:g} %"
@@ -289,7 +390,7 @@ def write_test_report(out: str | Path, table: dict, setup: Setup, *, specimen_in
               "## Reduced data (E647 Table X1.2 / thesis Table B.1 layout)", "",
               md_table(["row", "N", "a [mm]", "â [mm]", "da/dN [mm/cycle]", "ΔK [MPa·√m]", "valid"], b1), ""]
     md = "\n".join(lines)
-    md_path, html_path = write(out, md, title, [a_n, dadn])
+    md_path, html_path = write(out, md, title, plots)
     return {"markdown": md_path, "html": html_path, "reduced": out / "reduced.csv",
             "model": model, "force_band": fb, "force_errors": errs[1] if errs is not None else None, "validity": s}
 
@@ -317,8 +418,12 @@ def spec_test_report(out_dir: Path, spec, table: dict, title: str) -> str | None
                 "peak_err_pct": "peak_err_pct"}
         if spec.variable_amplitude:  # each cycle judged against its own level
             cols.update(pmax_target_n="fmax_target_n", pmin_target_n="fmin_target_n")
+        crack = spec.measurement.get("crack", "model")
+        if crack != "model":  # the law's crack beside the measured one, the opening force and ΔK_eff
+            cols.update(a_law_m="a_law_m", opening_force_n="opening_force_n", delta_k_pa_sqrt_m="delta_k_pa_sqrt_m",
+                        delta_k_eff_pa_sqrt_m="delta_k_eff_pa_sqrt_m")
         write_test_report(out_dir, {k: np.asarray(table[c])[test] for k, c in cols.items() if c in table}, setup,
-                          title=title, band=ph.tolerance, variable_amplitude=spec.variable_amplitude)
+                          title=title, band=ph.tolerance, variable_amplitude=spec.variable_amplitude, crack=crack)
     except HtmError as e:  # too little growth for the E647 reduction: the test itself stands
         return f"not written: {e}"
     return str(Path(out_dir) / "report.md")

@@ -244,6 +244,7 @@ impl CycleMachine {
     #[inline]
     pub fn observe_measure(&mut self, f: f64, m: f64) {
         let Some(r) = &mut self.reader else { return };
+        r.work(); // the last interval's reduction, a bounded share per control period
         if self.open && self.counting && self.full && !self.starting {
             r.sample(f, m, self.cycle);
         } else if self.starting && self.cycle == 0 {

@@ -5,8 +5,11 @@
 //! The reader pools `cycles_per_reading` cycles (E647 allows averaging a few cycles), reduces
 //! them with `crack_measure` (compliance above the opening force by least squares, crack size by
 //! the E647 expression, opening force by the compliance offset; or the mean potential and
-//! Johnson's expression), and the crack the test runs on is a least-squares line through the
-//! last `readings_fitted` readings evaluated at the current cycle (no lag from the averaging).
+//! Johnson's expression), and the crack the test runs on is a weighted least-squares line through
+//! the last readings evaluated at the current cycle (no lag from the averaging): at least
+//! `readings_fitted` of them, more while the line is not yet a tenth of E647's resolution precise,
+//! within 5 resolutions of extension and a length whose bias from the curve's bend stays under
+//! that (`CrackReader::a_at`).
 //! One copy: the simulator (`htm run`), the real-time loop and the virtual rig's specimen use it.
 use crate::crack_measure::{self as meas, Method};
 use crate::error::{Error, Result};
@@ -50,7 +53,7 @@ pub struct Measurement {
     pub gauge_x_over_w: f64,
     /// M(T) compliance: gauge at ±Y from the crack plane [m]; potential drop: probes at ±Y [m]
     pub gauge_y_m: f64,
-    /// cycles pooled into one reading, and readings the running crack is fitted through
+    /// cycles pooled into one reading, and the fewest readings the running crack is fitted through
     pub cycles_per_reading: u64,
     pub readings_fitted: usize,
     /// simulated chain: compliance, opening noise (standard deviation) [m] and resolution [m];
@@ -128,14 +131,67 @@ impl Measurement {
     }
 }
 
-/// One reading: the cycle it was taken at, crack size [m], opening force (2 % offset) [N], ΔK_eff.
+/// One reading: the cycle it was taken at, crack size [m] and its standard uncertainty from the
+/// reading's own fit [m], opening force (2 % offset) [N], ΔK_eff.
 #[derive(serde::Serialize, serde::Deserialize, Debug, Clone, Copy, PartialEq)]
 pub struct Reading {
     pub cycle: f64,
     pub a_m: f64,
+    pub a_std_m: f64,
     pub opening_force_n: f64,
     pub dk_eff: f64,
 }
+
+/// The running crack's line reaches back until its standard uncertainty at the current cycle is
+/// this share of E647's resolution (max(0.1 mm, 0.002 W)) ...
+pub const LINE_PRECISION_RESOLUTIONS: f64 = 0.1;
+/// ... but over no more than this many resolutions of crack extension, and no longer than keeps
+/// the bias from the growth curve's bend (estimated from the readings) under that precision ...
+pub const LINE_EXTENSION_RESOLUTIONS: f64 = 5.0;
+/// ... and no more than this many readings (the readings kept).
+pub const LINE_READINGS_MAX: usize = 400;
+/// The growth curve's second derivative a'' [m/cycle²] and its standard error, from a parabola
+/// through the readings (None below 8 readings or when it is degenerate). O(n).
+fn curvature(r: &[Reading]) -> Option<(f64, f64)> {
+    let n = r.len();
+    if n < 8 {
+        return None;
+    }
+    let (lo, hi) = (r[0].cycle, r[n - 1].cycle);
+    let (mid, half) = (0.5 * (lo + hi), 0.5 * (hi - lo));
+    if !(half > 0.0) {
+        return None;
+    }
+    let y0 = r[n - 1].a_m;
+    let (mut m, mut v) = ([[0.0f64; 3]; 3], [0.0f64; 3]);
+    for rd in r {
+        let u = (rd.cycle - mid) / half;
+        let c = [1.0, u, u * u];
+        let y = rd.a_m - y0;
+        for a in 0..3 {
+            v[a] += c[a] * y;
+            for b in 0..3 {
+                m[a][b] += c[a] * c[b];
+            }
+        }
+    }
+    let sol = meas::solve3(m, v)?;
+    let inv22 = meas::solve3(m, [0.0, 0.0, 1.0])?[2];
+    let sse: f64 = r
+        .iter()
+        .map(|rd| {
+            let u = (rd.cycle - mid) / half;
+            let e = rd.a_m - y0 - sol[0] - sol[1] * u - sol[2] * u * u;
+            e * e
+        })
+        .sum();
+    let s2 = sse / (n as f64 - 3.0);
+    let k = 2.0 / (half * half);
+    Some((k * sol[2], k * (s2 * inv22.max(0.0)).sqrt()))
+}
+
+/// Readings whose median uncertainty floors each reading's (bounded work per cycle close).
+const TYPICAL_READINGS: usize = 51;
 
 /// The reader of a running test (see the module doc).
 #[derive(serde::Serialize, serde::Deserialize, Debug, Clone)]
@@ -146,7 +202,16 @@ pub struct CrackReader {
     f: Vec<f64>,
     m: Vec<f64>,
     cyc: Vec<f64>,
+    /// potential drop: the interval's sums, taken one sample at a time
+    pd: meas::PotentialSums,
     cycles_in: u64,
+    /// the interval being reduced over the control periods that follow it: the job, the cycle
+    /// of its reading (the interval's middle) and the units of work it may take per period
+    job: Option<(meas::ComplianceJob, f64, usize)>,
+    /// the openings the last intervals hint at (`crack_measure::OpeningPool`)
+    pool: meas::OpeningPool,
+    /// a reduction finished since the last cycle close (its curve, or its error), with its cycle
+    done: Option<(std::result::Result<meas::OpenCurve, String>, f64)>,
     pub readings: Vec<Reading>,
     /// readings that failed (a reduction error: too few samples, gauge out of its range)
     pub failed: u64,
@@ -154,24 +219,52 @@ pub struct CrackReader {
     a0: f64,
     /// potential drop: the sum and count of the reference samples (before the crack grows)
     reference: (f64, u64),
+    /// E647's crack-size resolution of the specimen [m]
+    resolution: f64,
+    /// the most units of reduction work one control period did, and the reductions that had
+    /// to be finished at an interval's close because the periods did not suffice (none expected)
+    pub max_units_per_period: usize,
+    pub overruns: u64,
 }
 
 impl CrackReader {
     pub fn new(meas: &Measurement, spec: &Specimen, material: &Material, a0_m: f64) -> Option<Self> {
         let method = meas.method(spec, material, a0_m)?;
         Some(CrackReader {
-            method, every: meas.cycles_per_reading, fitted: meas.readings_fitted, f: Vec::new(), m: Vec::new(), cyc: Vec::new(), cycles_in: 0,
-            readings: Vec::new(), failed: 0, last_error: None, a0: a0_m, reference: (0.0, 0),
+            method, every: meas.cycles_per_reading, fitted: meas.readings_fitted, f: Vec::new(), m: Vec::new(), cyc: Vec::new(),
+            pd: meas::PotentialSums::default(), cycles_in: 0, job: None, pool: meas::OpeningPool::default(), done: None, readings: Vec::new(), failed: 0, last_error: None, a0: a0_m,
+            reference: (0.0, 0), resolution: meas::resolution_m(spec.width_m), max_units_per_period: 0, overruns: 0,
         })
     }
 
-    /// One sample of a full-amplitude cycle: force [N], measurement channel [m or V].
+    fn potential(&self) -> bool {
+        matches!(self.method, Method::Johnson { .. } | Method::Calibration { .. })
+    }
+
+    /// One sample of a full-amplitude cycle: force [N], measurement channel [m or V]. O(1).
     #[inline]
     pub fn sample(&mut self, f: f64, m: f64, cycle: u64) {
         if f.is_finite() && m.is_finite() {
-            self.f.push(f);
-            self.m.push(m);
-            self.cyc.push(cycle as f64);
+            if self.potential() {
+                self.pd.push(m, f, cycle as f64);
+            } else {
+                self.f.push(f);
+                self.m.push(m);
+                self.cyc.push(cycle as f64);
+            }
+        }
+    }
+
+    /// One control period's share of the reduction in progress (bounded: the units the job was
+    /// given per period when it started).
+    #[inline]
+    pub fn work(&mut self) {
+        let Some((job, cycle, budget)) = &mut self.job else { return };
+        let (used, out) = job.advance(*budget);
+        self.max_units_per_period = self.max_units_per_period.max(used);
+        if let Some(r) = out {
+            self.done = Some((r.map_err(|e| e.to_string()), *cycle));
+            self.job = None;
         }
     }
 
@@ -179,32 +272,78 @@ impl CrackReader {
     /// reference potential V_r at the initial crack is their mean.
     #[inline]
     pub fn reference_sample(&mut self, m: f64) {
-        if m.is_finite() && matches!(self.method, Method::Johnson { .. } | Method::Calibration { .. }) {
+        if m.is_finite() && self.potential() {
             self.reference.0 += m;
             self.reference.1 += 1;
         }
     }
 
-    /// The interval in progress is not usable (a ramp, a hold, a fault): start it again.
+    /// The interval in progress is not usable (a ramp, a hold, a fault): start it again (a
+    /// reduction already under way goes on: its interval was whole).
     pub fn discard(&mut self) {
         self.f.clear();
         self.m.clear();
         self.cyc.clear();
+        self.pd = meas::PotentialSums::default();
         self.cycles_in = 0;
     }
 
-    /// A full-amplitude cycle closed; a reading when the interval is full.
+    /// A full-amplitude cycle closed: the reading whose reduction finished since the last close,
+    /// if any (its crack size from the reduced curve: constant work); when the interval is full,
+    /// its reduction starts, spread over the periods of the next interval (potential drop: its
+    /// sums are complete, the reading is taken now).
     pub fn cycle_closed(&mut self, spec: &Specimen, cycle: u64) -> Option<Reading> {
         self.cycles_in += 1;
+        let mut out = self.take_done(spec);
         if self.cycles_in < self.every {
-            return None;
+            return out;
         }
-        let r = self.reduce(spec, cycle);
+        let mid = cycle as f64 - 0.5 * self.cycles_in as f64;
+        if self.potential() {
+            let r = self.potential_reading(spec, mid);
+            out = self.accept(r).or(out);
+        } else {
+            if self.job.is_some() {
+                // the last interval's reduction is not done: finish it now (not expected: a job is
+                // given its units so as to end within the next interval)
+                self.overruns += 1;
+                let budget = usize::MAX;
+                if let Some((job, c, _)) = &mut self.job {
+                    let r = job.advance(budget).1.expect("run to its end");
+                    self.done = Some((r.map_err(|e| e.to_string()), *c));
+                }
+                self.job = None;
+                out = self.take_done(spec).or(out);
+            }
+            let (f, m, c) = (std::mem::take(&mut self.f), std::mem::take(&mut self.m), std::mem::take(&mut self.cyc));
+            if f.len() < 10 {
+                let r = Err(Error::Input(format!("cycle {cycle}: too few measurement samples in the interval")));
+                out = self.accept(r).or(out);
+            } else {
+                // its units spread over as many periods as it has samples (the next interval's)
+                let budget = meas::ComplianceJob::units_bound(f.len()).div_ceil(f.len()).max(64);
+                self.job = Some((meas::ComplianceJob::new(f, m, c, &self.pool), mid, budget));
+            }
+        }
         self.discard();
+        out
+    }
+
+    fn take_done(&mut self, spec: &Specimen) -> Option<Reading> {
+        let (r, mid) = self.done.take()?;
+        if let Ok(oc) = &r {
+            self.pool.push(oc.hint_frac);
+        }
+        let r = r.map_err(Error::Input).and_then(|oc| meas::compliance_interval(spec, &self.method, &oc));
+        let r = r.map(|iv| Reading { cycle: mid, a_m: iv.a_m, a_std_m: iv.a_std_m, opening_force_n: iv.opening_force_n[1], dk_eff: iv.dk_eff });
+        self.accept(r)
+    }
+
+    fn accept(&mut self, r: Result<Reading>) -> Option<Reading> {
         match r {
             Ok(r) => {
                 self.readings.push(r);
-                let keep = self.fitted.max(2);
+                let keep = LINE_READINGS_MAX.max(self.fitted);
                 if self.readings.len() > keep {
                     self.readings.drain(..self.readings.len() - keep);
                 }
@@ -219,43 +358,109 @@ impl CrackReader {
         }
     }
 
-    fn reduce(&mut self, spec: &Specimen, cycle: u64) -> Result<Reading> {
-        if self.f.len() < 10 {
-            return Err(Error::Input(format!("cycle {cycle}: too few measurement samples in the interval")));
+    fn potential_reading(&mut self, spec: &Specimen, mid: f64) -> Result<Reading> {
+        if self.pd.count() < 10 {
+            return Err(Error::Input(format!("cycle {mid}: too few measurement samples in the interval")));
         }
         if let Method::Johnson { v_ref, .. } | Method::Calibration { v_ref, .. } = &mut self.method {
             if !v_ref.is_finite() {
                 // the reference at the initial crack: the samples before growth, else this interval's
-                *v_ref = if self.reference.1 > 0 { self.reference.0 / self.reference.1 as f64 } else { self.m.iter().sum::<f64>() / self.m.len() as f64 };
+                *v_ref = if self.reference.1 > 0 { self.reference.0 / self.reference.1 as f64 } else { self.pd.mean() };
             }
         }
-        let iv = if matches!(self.method, Method::Johnson { .. } | Method::Calibration { .. }) {
-            meas::reduce_potential_interval(spec, &self.method, &self.m, Some(&self.f), &self.cyc)?
-        } else {
-            meas::reduce_compliance_interval(spec, &self.method, &self.f, &self.m, &self.cyc)?
-        };
+        let iv = self.pd.interval(spec, &self.method)?;
         // the interval's crack is the crack half-way through it (cycles counted, as `a_at` takes them)
-        let mid = cycle as f64 - 0.5 * self.cycles_in as f64;
-        Ok(Reading { cycle: mid, a_m: iv.a_m, opening_force_n: iv.opening_force_n[1], dk_eff: iv.dk_eff })
+        Ok(Reading { cycle: mid, a_m: iv.a_m, a_std_m: iv.a_std_m, opening_force_n: iv.opening_force_n[1], dk_eff: iv.dk_eff })
     }
 
-    /// The measured crack once `cycle` cycles are counted: the least-squares line through the last readings (the
-    /// initial crack before the first; the one reading itself after it).
+    /// The measured crack once `cycle` cycles are counted: a weighted least-squares line through
+    /// the last readings (weights 1/σ², σ each reading's own uncertainty), evaluated at `cycle` (no
+    /// lag from the averaging). The line takes at least `readings_fitted` readings and reaches
+    /// back further while its uncertainty at `cycle` (from the weights, scaled up by the scatter
+    /// about the line when that is larger) exceeds `LINE_PRECISION_RESOLUTIONS` of E647's
+    /// resolution, within `LINE_EXTENSION_RESOLUTIONS` of crack extension and a length whose bias
+    /// from the growth curve's bend (a''·L²/12) stays under that precision: a crack that a single
+    /// reading resolves coarsely (an M(T) at short cracks, whose compliance changes little with
+    /// the crack) is averaged over more readings, a finely resolved one follows the newest.
+    /// Before the first reading the initial crack; one reading: itself; two: the line through them.
     pub fn a_at(&self, cycle: u64) -> f64 {
-        let r = &self.readings[self.readings.len().saturating_sub(self.fitted)..];
-        match r.len() {
-            0 => self.a0,
-            1 => r[0].a_m,
-            2 => r[1].a_m + (r[1].a_m - r[0].a_m) / (r[1].cycle - r[0].cycle) * (cycle as f64 - r[1].cycle),
-            _ => {
-                let x: Vec<f64> = r.iter().map(|r| r.cycle).collect();
-                let y: Vec<f64> = r.iter().map(|r| r.a_m).collect();
-                match meas::ls_line(&x, &y) {
-                    Some((c1, c0, _)) => c0 + c1 * cycle as f64,
-                    None => r[r.len() - 1].a_m,
-                }
+        self.line_at(cycle).0
+    }
+
+    /// `a_at` with the line's standard uncertainty at `cycle` [m] and the readings it took.
+    pub fn line_at(&self, cycle: u64) -> (f64, f64, usize) {
+        let r = &self.readings;
+        let n = r.len();
+        match n {
+            0 => return (self.a0, f64::NAN, 0),
+            1 => return (r[0].a_m, r[0].a_std_m, 1),
+            2 => return (r[1].a_m + (r[1].a_m - r[0].a_m) / (r[1].cycle - r[0].cycle) * (cycle as f64 - r[1].cycle), f64::NAN, 2),
+            _ => {}
+        }
+        let target = LINE_PRECISION_RESOLUTIONS * self.resolution;
+        let reach = LINE_EXTENSION_RESOLUTIONS * self.resolution;
+        let min_n = self.fitted.clamp(3, n);
+        // each reading's uncertainty, never below the median of the last ones (a reading whose own
+        // fit happens to scatter little must not outweigh the rest); none: the median
+        let typical = {
+            let mut v: Vec<f64> = r.iter().rev().take(TYPICAL_READINGS).map(|x| x.a_std_m).filter(|s| s.is_finite() && *s > 0.0).collect();
+            v.sort_by(|a, b| a.total_cmp(b));
+            if v.is_empty() { 1.0 } else { v[v.len() / 2] }
+        };
+        let sd = |rd: &Reading| if rd.a_std_m.is_finite() { rd.a_std_m.max(typical) } else { typical };
+        let x0 = cycle as f64;
+        // the growth rate over all the readings kept (few noisy readings give no rate): the line
+        // reaches back no more cycles than take `reach` of extension at it
+        let rate = {
+            let mut l = meas::LineSums::default();
+            for rd in r {
+                l.push(rd.cycle - x0, rd.a_m - r[n - 1].a_m);
+            }
+            l.fit().map_or(0.0, |f| f.0.abs())
+        };
+        let mut cycles_reach = if rate > 0.0 { reach / rate } else { f64::INFINITY };
+        // and no more than keep the line's bias from the growth curve's bend (a''·L²/12 at the end
+        // of a line over L cycles) under the precision asked: a'' from a parabola through all the
+        // readings kept, less twice its own uncertainty (noise is no bend)
+        if let Some((bend, sd_bend)) = curvature(r) {
+            let b = (bend.abs() - 2.0 * sd_bend).max(0.0);
+            if b > 0.0 {
+                cycles_reach = cycles_reach.min((12.0 * target / b).sqrt());
             }
         }
+        // weighted sums from the newest reading back (x relative to `cycle`, y relative to the newest)
+        let y0 = r[n - 1].a_m;
+        let (mut sw, mut sx, mut sy, mut sxx, mut sxy, mut syy) = (0.0f64, 0.0, 0.0, 0.0, 0.0, 0.0);
+        let mut best = (r[n - 1].a_m, f64::NAN, 1usize);
+        for (k, rd) in r.iter().rev().enumerate() {
+            let w = 1.0 / sd(rd).powi(2);
+            let (x, y) = (rd.cycle - x0, rd.a_m - y0);
+            sw += w;
+            sx += w * x;
+            sy += w * y;
+            sxx += w * x * x;
+            sxy += w * x * y;
+            syy += w * y * y;
+            let m = k + 1;
+            if m < 3 {
+                continue;
+            }
+            let (xm, ym) = (sx / sw, sy / sw);
+            let (cxx, cxy, cyy) = (sxx - sw * xm * xm, sxy - sw * xm * ym, syy - sw * ym * ym);
+            if !(cxx > 0.0) {
+                continue;
+            }
+            let slope = cxy / cxx;
+            let at = ym - slope * xm; // the line at x = 0, i.e. at `cycle`
+            // the weights' variance at `cycle`, scaled by the reduced χ² of the scatter when above 1
+            let chi2 = ((cyy - slope * cxy).max(0.0) / (m as f64 - 2.0)).max(1.0);
+            let se = ((1.0 / sw + xm * xm / cxx) * chi2).sqrt();
+            best = (y0 + at, se, m);
+            if m >= min_n && (se <= target || r[n - 1].cycle - rd.cycle >= cycles_reach) {
+                break;
+            }
+        }
+        best
     }
 
     pub fn last(&self) -> Option<Reading> {
@@ -273,6 +478,9 @@ impl CrackReader {
     /// A cycle jump moved the crack to `a` (simulation): the readings start again from it.
     pub fn restart(&mut self, a: f64) {
         self.discard();
+        self.job = None;
+        self.done = None;
+        self.pool.clear();
         self.readings.clear();
         self.a0 = a;
     }
@@ -416,6 +624,26 @@ mod tests {
         }
     }
 
+    /// Five cycles of `n` samples of a sine between `fmin` and `fmax` through the chain into the
+    /// reader, one `work()` per sample as the control loop does; the readings that came out and
+    /// the samples fed.
+    #[allow(clippy::too_many_arguments)]
+    fn feed(reader: &mut CrackReader, chain: &mut GaugeChain, spec: &Specimen, a_true: f64, cycles: std::ops::RangeInclusive<u64>, n: usize, fmin: f64, fmax: f64) -> (Vec<Reading>, Vec<(f64, f64, f64)>) {
+        let (mut got, mut fed) = (Vec::new(), Vec::new());
+        for c in cycles {
+            for k in 0..n {
+                let x = k as f64 / n as f64;
+                let f = 0.5 * (fmax + fmin) + 0.5 * (fmax - fmin) * (2.0 * std::f64::consts::PI * x).sin();
+                let v = chain.read(spec, a_true, f, fmax);
+                reader.work();
+                reader.sample(f, v, c);
+                fed.push((f, v, c as f64));
+            }
+            got.extend(reader.cycle_closed(spec, c));
+        }
+        (got, fed)
+    }
+
     #[test]
     fn a_reader_recovers_a_ct_crack_with_noise_and_closure() {
         let spec = Specimen::new(Geometry::CT, 0.0508, 0.00635).unwrap();
@@ -424,19 +652,39 @@ mod tests {
         let mut chain = GaugeChain::new(&m, &spec, &mat, 0.015).unwrap();
         let mut reader = CrackReader::new(&m, &spec, &mat, 0.015).unwrap();
         let a_true = 0.02;
-        let (fmax, fmin, n) = (4000.0, 400.0, 50);
-        let mut got = None;
-        for c in 1..=5u64 {
-            for k in 0..n {
-                let x = k as f64 / n as f64;
-                let f = 0.5 * (fmax + fmin) + 0.5 * (fmax - fmin) * (2.0 * std::f64::consts::PI * x).sin();
-                let v = chain.read(&spec, a_true, f, fmax);
-                reader.sample(f, v, c);
-            }
-            got = reader.cycle_closed(&spec, c).or(got);
-        }
-        let r = got.expect("a reading after five cycles");
+        let (fmax, fmin) = (4000.0, 400.0);
+        let (got, _) = feed(&mut reader, &mut chain, &spec, a_true, 1..=10, 50, fmin, fmax);
+        let r = *got.first().expect("a reading from the first five cycles, during the next five");
+        assert!((r.cycle - 2.5).abs() < 1e-12, "the reading stands for the middle of its interval: {}", r.cycle);
         assert!((r.a_m - a_true).abs() < 1e-4, "a {} vs {a_true}", r.a_m);
         assert!((r.opening_force_n - 0.3 * fmax).abs() < 0.05 * fmax, "F_op {}", r.opening_force_n);
+    }
+
+    #[test]
+    fn the_reduction_is_bounded_work_per_period_and_the_same_as_at_once() {
+        // the reader's reduction of an interval, spread over the next interval's periods, gives
+        // the record reduction's numbers exactly; no period does more than its share (about the
+        // closure grid's size, whatever the samples per cycle), none was finished at a close
+        let spec = Specimen::new(Geometry::MT, 0.1524, 0.00254).unwrap();
+        let mat = Material::default();
+        let m = Measurement { crack: CrackSource::Compliance, gauge_y_m: 0.01, noise: 0.2e-6, closure_opening_fraction: 0.35, ..Measurement::model() };
+        for n in [50usize, 200] {
+            let mut chain = GaugeChain::new(&m, &spec, &mat, 0.012).unwrap();
+            let mut reader = CrackReader::new(&m, &spec, &mat, 0.012).unwrap();
+            let (got, fed) = feed(&mut reader, &mut chain, &spec, 0.012, 1..=15, n, 2000.0, 20000.0);
+            assert_eq!(got.len(), 2, "readings of intervals 1–5 and 6–10 (11–15 still reducing)");
+            let (f, v, c): (Vec<f64>, Vec<f64>, Vec<f64>) = {
+                let first: Vec<_> = fed.iter().filter(|s| s.2 <= 5.0).collect();
+                (first.iter().map(|s| s.0).collect(), first.iter().map(|s| s.1).collect(), first.iter().map(|s| s.2).collect())
+            };
+            let at_once = crate::crack_measure::reduce_compliance_interval(&spec, &reader.method, &f, &v, &c, &mut Default::default()).unwrap();
+            assert_eq!(got[0].a_m, at_once.a_m, "{n} samples per cycle");
+            assert_eq!(got[0].opening_force_n, at_once.opening_force_n[1]);
+            assert!((got[0].a_m - 0.012).abs() < 2e-4, "a {}", got[0].a_m);
+            let share = crate::crack_measure::ComplianceJob::units_bound(5 * n).div_ceil(5 * n);
+            assert!(reader.max_units_per_period <= share, "{} units in one period > {share}", reader.max_units_per_period);
+            assert!(share <= 2 * crate::crack_measure::CLOSURE_GRID_POINTS, "the share does not grow with the samples: {share}");
+            assert_eq!(reader.overruns, 0);
+        }
     }
 }
