@@ -319,7 +319,7 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, f
                 if np.max(np.abs(trials[k] - x) / reach) >= 0.99 * radius:
                     radius = min(st.radius_max, 2.0 * radius)  # the step was capped and still good: widen
                 # Broyden's rank-one update carries the Jacobian to the new point until it is
-                # differenced again (one simulation per parameter saved on each iteration between).
+                # differenced again (one simulation per parameter saved on every other iteration).
                 dx, dr = trials[k] - x, tres[k][:n_data] - r[:n_data]
                 jac = jac + np.outer(dr - jac @ dx, dx) / max(float(dx @ dx), 1e-300)
                 x, pred, r, cost, lam = trials[k], tpreds[k], tres[k], tcost[k], max(lams[k] * (0.3 if k == 0 else 1.0), 1e-7)

@@ -55,7 +55,7 @@ class SearchSettings:
     noise_cost: float = knob(1.2, "noise-scaled mean square", "a fit at or below this on every channel is at its noise: stops")
     radius_max: float = knob(1.0, "normalised coordinate", "largest LM step (a factor e for a log parameter): far jumps land "
                                                            "in wrong basins (friction trading against compressibility)")
-    jacobian_every: int = knob(3, "iterations", "the Jacobian is differenced afresh every this many iterations (Broyden between)")
+    jacobian_every: int = knob(2, "iterations", "the Jacobian is differenced afresh every this many iterations (Broyden between)")
     prior_share: float = knob(0.003, "share of the noise-level cost", "weak prior on parameters that have one: curvature for "
                                                                       "flat valleys without moving what the data determine")
     # --- the search: screen, refit, judge, break ties, backward check -------------------------
