@@ -14,10 +14,17 @@ system, all its threads): on a machine shared with other work the wall time meas
 as much as the diagnosis, the CPU time much less so; the load average is printed at the start
 and the end of the run.
 
-Run: .venv/bin/python benchmarks/diagnose.py   (prints one JSON object)
+With `--peer N`, each path is also diagnosed in this process twice, with the settings as they
+are and with the Jacobian differenced afresh every N iterations instead (`jacobian_every`; 2 was
+the schedule before issue 31), and the simulations and CPU seconds of both are printed side by
+side (`peer`): the same record, the same machine, the same minute.
+
+Run: .venv/bin/python benchmarks/diagnose.py [--peer 2]   (prints one JSON object)
 """
 from __future__ import annotations
 
+import argparse
+import dataclasses
 import json
 import os
 import re
@@ -30,7 +37,9 @@ import time
 from pathlib import Path
 
 from htm.ident import proving, sim
+from htm.ident.diagnose import diagnose
 from htm.ident.records import write_record
+from htm.ident.settings import DEFAULT
 
 BUDGET_S = 15.0
 MEDIAN_BUDGET_S = 8.0
@@ -73,6 +82,18 @@ def run_cli(rec) -> tuple[float, float, int, dict, dict]:
     return wall, cpu, sims, report, stage_seconds(res.stderr, wall)
 
 
+def in_process(rec, settings) -> dict:
+    """Simulations, CPU seconds (this process, all its threads) and findings of `diagnose` on
+    `rec` with `settings`, run in this process (no files written)."""
+    stats: dict = {}
+    r0 = resource.getrusage(resource.RUSAGE_SELF)
+    report = diagnose(rec, settings=settings, stats=stats)
+    r1 = resource.getrusage(resource.RUSAGE_SELF)
+    cpu = (r1.ru_utime + r1.ru_stime) - (r0.ru_utime + r0.ru_stime)
+    return {"jacobian_every": settings.jacobian_every, "simulations": stats["simulations"], "cpu_seconds": round(cpu, 2),
+            "found": [f"{f['effect']}/{f['channel']}" for f in report["findings"]], "unexplained": report["unexplained"]}
+
+
 def found_and_true(report: dict, truth: dict) -> dict:
     return {"found": [{"effect": f["effect"], "channel": f["channel"], "params": f["params"]} for f in report["findings"]],
             "true": [{"effect": k, "channel": v["channel"], "params": v["params"]} for k, v in truth["effects"].items()],
@@ -80,6 +101,9 @@ def found_and_true(report: dict, truth: dict) -> dict:
 
 
 def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--peer", type=int, metavar="N", help="also diagnose each path in process with jacobian_every = N")
+    a = ap.parse_args()
     out: dict = {"benchmark": "htm diagnose, 60 s records at 500 Hz", "budget_s": BUDGET_S,
                  "load_average_1min_start": round(os.getloadavg()[0], 2)}
     for i, (name, (effects, kw)) in enumerate(PATHS.items()):
@@ -93,6 +117,8 @@ def main() -> None:
         out[name] = {"seconds": round(wall, 2), "cpu_seconds": round(cpu, 2), "simulations": sims, "stage_seconds": stages,
                      **found_and_true(report, truth),
                      "rmse_y_before_after_m": [report["baseline"]["rmse"]["y"], report["final"]["rmse"]["y"]]}
+        if a.peer:
+            out[name]["peer"] = [in_process(rec, DEFAULT), in_process(rec, dataclasses.replace(DEFAULT, jacobian_every=a.peer))]
     slowest = max(PATHS, key=lambda k: out[k]["seconds"])
     median = float(statistics.median(out[k]["seconds"] for k in PATHS))
     out |= {"slowest_path": slowest, "seconds": out[slowest]["seconds"], "median_seconds": round(median, 2),

@@ -531,9 +531,13 @@ def probe(prob: Problem, res: Result, pool: list[Candidate], rate: float, log: L
     ranked = screen(prob, model, res.work_pred, res.jac, pool)
     log("probe screen", [(c.effect, round(g, 3)) for c, g, _ in ranked[:4]])
     q = np.linalg.qr(res.jac)[0]
-    for cand, gain, step in ranked[: st.probe_refits]:
+    def refit_probe(cand: Candidate, step: float | None) -> tuple[Model, dict, Verdict]:
         trial, twork, _ = fit(prob, _scan(prob, [model.with_candidate(cand, step)], cand, q), iters=st.refit_iters)
-        tpred, verdict = judge(prob, pred, trial, twork, model, cand)
+        return trial, *judge(prob, pred, trial, twork, model, cand)
+
+    # The probes are refitted side by side (each from the same state), then judged in order.
+    top = ranked[: st.probe_refits]
+    for (cand, _, _), (trial, tpred, verdict) in zip(top, side_by_side([lambda c=c, s=s: refit_probe(c, s) for c, _, s in top])):
         log("probe", cand.label, cand.report(trial.params()), verdict)
         ok = verdict.ok and verdict.dcost < -st.probe_gain and verdict.explained >= st.probe_share
         tr.add("probes", cand.label, "pays off, dcost < -probe_gain and explained >= probe_share",
