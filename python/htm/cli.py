@@ -171,6 +171,7 @@ def build_parser() -> argparse.ArgumentParser:
 def _extensions() -> list[Callable[[argparse._SubParsersAction], None]]:
     """Subcommand groups that live with their packages (each adds its own parsers)."""
     from htm import correct as correct_cli  # `htm db correct`, an action of record_cli's group
+    from htm import rigcampaign
     from htm import run as run_cli
     from htm import tune as tune_cli
     from htm.campaign import cli as campaign_cli
@@ -185,7 +186,10 @@ def _extensions() -> list[Callable[[argparse._SubParsersAction], None]]:
     def db(sub: argparse._SubParsersAction) -> None:
         record_cli.register(sub, more=[correct_cli.add_db_action])
 
-    return [run_cli.register, fatigue_cli.register, ident_cli.register, rig_cli.register, db,
+    def rig(sub: argparse._SubParsersAction) -> None:
+        rig_cli.register(sub, more=[rigcampaign.add_rig_action])
+
+    return [run_cli.register, fatigue_cli.register, ident_cli.register, rig, db,
             campaign_cli.register, lifeband_cli.register, fleet_cli.register, sn_cli.register,
             tune_cli.register]
 

@@ -60,7 +60,8 @@ def cmd_identify(args: argparse.Namespace) -> int:
     return 0
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction, more: list | None = None) -> None:
+    """`htm rig` and its commands; `more`: functions adding actions from higher layers."""
     from htm.control.identify import add_plan_args
 
     rig = sub.add_parser("rig", help="the virtual rig (serve it to another process)",
@@ -83,3 +84,5 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_plan_args(i)
     i.add_argument("--out", required=True, help="folder for the record, report.json and model.json")
     i.set_defaults(func=cmd_identify)
+    for add in more or []:
+        add(rs)

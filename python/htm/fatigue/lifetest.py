@@ -202,7 +202,8 @@ def stabilised(out: dict[str, Any]) -> dict[str, float]:
     i = int(np.argmin(np.abs(cyc - 0.5 * out["cycles"])))
     g = {k: t[k][ok][i] for k in ("stress_max_pa", "stress_min_pa", "strain_max", "strain_min", "plastic_strain_range")}
     return {"cycle": int(cyc[i]), "stress_amplitude_pa": float(0.5 * (g["stress_max_pa"] - g["stress_min_pa"])),
-            "strain_amplitude": float(0.5 * (g["strain_max"] - g["strain_min"])),
+            # (no extensometer: the strain columns hold their empty sentinels, the amplitude is unknown)
+            "strain_amplitude": float(0.5 * (g["strain_max"] - g["strain_min"])) if g["strain_max"] >= g["strain_min"] else math.nan,
             "plastic_strain_amplitude": float(0.5 * g["plastic_strain_range"])}
 
 
