@@ -200,3 +200,29 @@ def test_a_channel_not_followed_while_the_position_is_leaves_the_record_unexplai
     assert set(report["final"]["rmse"]) >= {"p_a", "p_b"}, "the channels are kept"
     assert any("cannot follow" in w and "kept" in w for w in report["warnings"])
     assert any(d["stage"] == "verdict" and d["outcome"] == "kept it: the record is unexplained" for d in report["trace"])
+
+
+def test_a_delay_common_to_both_chamber_readings_is_the_plants_not_two_sensors_and_the_setting_switches_it():
+    """Both chamber pressures read 6 ms late (3 samples), as lines between valve and chambers
+    make them on other rigs: the delay pays off on one reading, the same delay on its sibling
+    too, so it is the plant's form, not two transducers failing alike — no delay is claimed and
+    the trace names the sibling check. With the check switched off (sibling_ratio 0) the same
+    record claims a sensor delay on a chamber reading."""
+    import numpy as np
+
+    from htm.ident.records import Record
+
+    rec, _ = proving.make_record({"sensor_delay": {"channel": "p_a", "delay_s": 0.006}}, seed=5, duration_s=8)
+    cols = dict(rec.columns)
+    pb = np.asarray(cols["p_b"], dtype=float)
+    cols["p_b"] = np.concatenate([np.full(3, pb[0]), pb[:-3]])
+    both = Record(cols, rec.meta, "both_late")
+    report = diagnose(both)
+    delays = [f["channel"] for f in report["findings"] if f["effect"] == "sensor_delay"]
+    assert not set(delays) & {"p_a", "p_b"}, report["findings"]
+    common = [d for d in report["trace"] if d["stage"] == "sibling check" and d["outcome"].startswith("common")]
+    assert common and "sibling_ratio" in common[0]["rule"]
+    assert common[0]["numbers"]["ratio"] <= DEFAULT.sibling_ratio
+    off = diagnose(both, settings=dataclasses.replace(DEFAULT, sibling_ratio=0.0))
+    assert {f["channel"] for f in off["findings"] if f["effect"] == "sensor_delay"} & {"p_a", "p_b"}, off["findings"]
+    assert not [d for d in off["trace"] if d["stage"] == "sibling check"]

@@ -93,6 +93,8 @@ class ValveFamily(Family):
         self.settings = settings
         self.rec = rec
         self.channels = channels
+        if {"p_a", "p_b"} <= set(channels):  # the chamber pressures: two transducers measuring alike
+            self.siblings = {"p_a": "p_b", "p_b": "p_a"}
         nominal = sim.params_from_meta(rec.meta)
         if "p_s" in channels:  # a measured supply starts the fit at what the gauge reads at rest
             nominal["supply_pressure_pa"] = float(np.nanpercentile(rec.columns["p_s"], 90))
