@@ -17,6 +17,7 @@ goes into a `trace.Trace` with the rule it applied and the numbers it compared.
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any, Callable, NamedTuple
 
@@ -404,7 +405,12 @@ class Selector:
                params=sib.report(t.model.params()), **t.verdict.numbers(), **_against(t.verdict, st))
         theirs = _size(t.model, sib)
         ratio = _ratio(mine, theirs)
-        if not t.verdict.ok:
+        # The own-reading share is no judge between the two readings: the base's pressure levels
+        # (supply, tank) carry a chamber's offset over into its sibling's reading, so the true
+        # chamber's fault may show more in the other reading. A sibling that meets every other rule,
+        # not alike, contends on the whole record.
+        only_share = not t.verdict.ok and t.verdict.failed == ("explained >= min_share",)
+        if not t.verdict.ok and not (only_share and mine * theirs < 0):
             tr.add("sibling check", c.label, rule, "the sibling does not pay off: this reading's own fault",
                    other=sib.label, size=mine, sibling_size=theirs)
             return chosen
@@ -417,10 +423,18 @@ class Selector:
         both = on_common_base(self.prob, self.pred, self.model, [chosen, self.polish(t)], self.log)
         won = min(both, key=lambda g: g.verdict.dbic)
         lost = both[1] if won is both[0] else both[0]
-        tr.add("sibling check", won.cand.label, "not alike: the chambers compared on a common base, smaller dBIC",
-               "chosen" if won.verdict.ok else "chosen, but no longer pays off", other=lost.cand.label,
-               close=_tied(won.verdict, lost.verdict, st.close_margin * st.min_gain), size=mine, sibling_size=theirs,
-               dbic=won.verdict.dbic, other_dbic=lost.verdict.dbic)
+        v = won.verdict
+        if not v.ok and v.failed == ("explained >= min_share",) and not v.close_rules:
+            v = dataclasses.replace(v, ok=True, failed=())  # judged against its sibling on the whole record
+        tied = _tied(dataclasses.replace(v, ok=True), dataclasses.replace(lost.verdict, ok=True), st.min_gain)
+        if tied:
+            v.alternative = (f" {lost.cand.label} ({', '.join(f'{k} = {x:.4g}' for k, x in lost.cand.report(lost.model.params()).items())})"
+                             " explains the record about as well; this record barely tells the two chambers apart.")
+        won = Trial(won.cand, won.model, won.work, won.pred, v, won.jac)
+        tr.add("sibling check", won.cand.label, "not alike: the chambers compared on a common base, smaller dBIC "
+               "(the own-reading share waived between them)", "chosen" if v.ok else "chosen, but no longer pays off",
+               other=lost.cand.label, close=tied, size=mine, sibling_size=theirs, dbic=v.dbic, other_dbic=lost.verdict.dbic,
+               dcost=v.dcost, other_dcost=lost.verdict.dcost)
         return won
 
     def settle(self, good: list[Trial], better_base: _BetterBase) -> list[Trial]:
