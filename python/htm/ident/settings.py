@@ -114,11 +114,9 @@ class SearchSettings:
     min_leakage: float = knob(0.01, "share of the rated flow at supply", "a servo-valve's own null leakage is 1-3 % of "
                                                                          "it: a piston leak below that is the valve's null "
                                                                          "flow in another form (the base's underlap takes it)")
-    min_sag: float = knob(0.02, "share of the supply pressure, at the valve's rated flow", "a supply that drops less than "
-                                                                                          "this at full flow is within the "
-                                                                                          "form of the lines and the valve's "
-                                                                                          "pressure-flow law, not a sagging "
-                                                                                          "power unit")
+    min_sag: float = knob(0.04, "share of the supply pressure, at the valve's rated flow",
+                          "a power unit's filters, hoses and accumulator drop a few percent at full flow, and the lines' "
+                          "and the valve's pressure-flow form mimic that much: a sag below this is not a sagging supply")
     min_valve_lag: float = knob(1.0, "x the spool's own lag 2*zeta/omega_n", "a first-order valve lag shorter than the lag "
                                                                              "of the base model's own second-order spool "
                                                                              "(declared, or typical) is the spool's form, "
