@@ -200,3 +200,46 @@ def test_a_channel_not_followed_while_the_position_is_leaves_the_record_unexplai
     assert set(report["final"]["rmse"]) >= {"p_a", "p_b"}, "the channels are kept"
     assert any("cannot follow" in w and "kept" in w for w in report["warnings"])
     assert any(d["stage"] == "verdict" and d["outcome"] == "kept it: the record is unexplained" for d in report["trace"])
+
+
+def test_a_chamber_readings_fault_is_weighed_against_its_sibling_and_the_setting_switches_the_check():
+    """An 8 ms delay on p_a alone: the delay pays off on p_a; the same delay refitted on p_b (the
+    sibling reading, measured alike) does not, so the fault is p_a's own and is claimed, and the
+    trace names the sibling check with both sizes. With the check switched off (sibling_ratio 0)
+    the same finding stands and no sibling check is made."""
+    rec, _ = proving.make_record({"sensor_delay": {"channel": "p_a", "delay_s": 0.008}}, seed=5, duration_s=8)
+    report = diagnose(rec)
+    assert [(f["effect"], f["channel"]) for f in report["findings"]] == [("sensor_delay", "p_a")]
+    [check] = [d for d in report["trace"] if d["stage"] == "sibling check"]
+    assert check["candidate"] == "sensor_delay on p_a" and check["other"] == "sensor_delay on p_b"
+    assert check["outcome"].startswith("the sibling does not pay off") and "sibling_ratio" in check["rule"]
+    assert check["numbers"]["size"] == pytest.approx(0.008, rel=0.3)
+    off = diagnose(rec, settings=dataclasses.replace(DEFAULT, sibling_ratio=0.0))
+    assert [(f["effect"], f["channel"]) for f in off["findings"]] == [("sensor_delay", "p_a")]
+    assert not [d for d in off["trace"] if d["stage"] == "sibling check"]
+
+
+def test_a_sag_or_a_leak_below_its_claimable_size_is_the_bases_form_and_the_settings_move_the_line():
+    """Supply sag is claimed from min_sag of the supply pressure at the valve's rated flow, a piston
+    leak from min_leakage of the rated flow at supply: below them the lines' and the valve's own
+    form (sub-percent sags and leaks claimed on other rigs beside their true effects)."""
+    from htm.ident.features import measured_channels
+    from htm.ident.valve import ValveFamily
+
+    rec, _ = offset_record()
+    channels = measured_channels(rec.columns)
+    scales = dict.fromkeys(channels, 1.0)
+
+    def claims(settings: SearchSettings = DEFAULT):
+        fam = ValveFamily(rec, channels, settings=settings)
+        p = fam.nominal
+        by = {c.effect: c.claimable for c in fam.candidates(scales, 500.0)}
+        r_line = settings.min_sag * p["supply_pressure_pa"] / p["valve_rated_flow_m3_s"]
+        c_line = settings.min_leakage * p["valve_rated_flow_m3_s"] / p["supply_pressure_pa"]
+        return by["supply_pressure_sag"], by["internal_leakage"], r_line, c_line
+
+    sag, leak, r_line, c_line = claims()
+    assert not sag({"resistance_pa_s_per_m3": 0.5 * r_line}) and sag({"resistance_pa_s_per_m3": 1.5 * r_line})
+    assert not leak({"coeff_m3_per_s_pa": 0.5 * c_line}) and leak({"coeff_m3_per_s_pa": 1.5 * c_line})
+    sag2, leak2, _, _ = claims(dataclasses.replace(DEFAULT, min_sag=0.25 * DEFAULT.min_sag, min_leakage=0.25 * DEFAULT.min_leakage))
+    assert sag2({"resistance_pa_s_per_m3": 0.5 * r_line}) and leak2({"coeff_m3_per_s_pa": 0.5 * c_line})

@@ -47,6 +47,9 @@ class Family:
     first_stage: frozenset[str] = frozenset()  # details held while the gross parameters are first fitted
     has_probes: bool = False  # `probes` looks for structure outside the vocabulary
     settings: SearchSettings = DEFAULT
+    # Readings measured alike, by channel (the two chamber pressures): a sensor fault found on one
+    # is checked against the same fault on the other (`Candidate.sibling`).
+    siblings: dict[str, str] = {}
 
     def effect_fields(self, effect: str, channel: str | None = None) -> dict[str, str]:
         raise NotImplementedError
@@ -68,7 +71,9 @@ class Family:
         """A candidate of this family's vocabulary, its report fields from `effect_fields`; a
         sensor effect is judged in its own reading."""
         fields = tuple(self.effect_fields(effect, channel).items())
-        return Candidate(effect, channel, frees, signature, fields=fields, own_reading=effect in SENSOR_EFFECTS, **kw)
+        sensor = effect in SENSOR_EFFECTS
+        return Candidate(effect, channel, frees, signature, fields=fields, own_reading=sensor,
+                         sibling=self.siblings.get(channel or "") if sensor else None, **kw)
 
     def sensor_candidate(self, effect: str, channel: str, unit: float, *, bound: float = 1e3,
                          claimable: Claim | None = None) -> Candidate:

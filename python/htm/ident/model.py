@@ -192,6 +192,9 @@ class Candidate:
     # The effect is a fault of the reading of `channel` (a sensor's): its signature is judged in
     # that reading (through restarts from the measured state it moves the others too).
     own_reading: bool = False
+    # The channel of a reading measured alike (the other chamber's pressure): the same fault on
+    # both readings is the plant's form (lines, the valve), not two sensors' (`Selector.sibling_check`).
+    sibling: str | None = None
     # A composite (effects that pay off only together, as a play with the friction behind it): its
     # parts, each a candidate on a contiguous run of these frees; refitted beside the single
     # candidates every round, and found as one finding per part.

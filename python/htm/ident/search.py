@@ -17,6 +17,7 @@ goes into a `trace.Trace` with the rule it applied and the numbers it compared.
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any, Callable, NamedTuple
 
@@ -24,7 +25,7 @@ import numpy as np
 
 from htm.ident import features as ft
 from htm.ident.fit import Problem, fit, side_by_side
-from htm.ident.model import Candidate, Model
+from htm.ident.model import Candidate, Model, get_value
 from htm.ident.settings import DEFAULT, SearchSettings
 from htm.ident.trace import Stages, Trace
 
@@ -197,6 +198,7 @@ class Selector:
         self.st: SearchSettings = prob.settings
         self.log, self.trace, self.stages = log, trace, stages
         self.findings: list[Finding] = []
+        self.common: list[Finding] = []  # findings whose sibling reading showed the same fault since (sibling_check)
 
     # --- the loop --------------------------------------------------------------------------
     def run(self, base: Model, first: frozenset[str], max_findings: int, max_refits: int) -> Result:
@@ -262,6 +264,12 @@ class Selector:
                 continue
             with self.stages("break ties", ", ".join(g.cand.label for g in good)):
                 chosen = self.break_ties(good)
+            if chosen.verdict.ok and chosen.cand.sibling and self.st.sibling_ratio > 0:
+                with self.stages("sibling check", f"{chosen.cand.label} against {chosen.cand.sibling}"):
+                    checked = self.sibling_check(chosen, {sc.cand.key: sc for sc in ranked})
+                if checked is None:
+                    continue
+                chosen = checked
             self.pool = [c for c in self.pool if not c.keys & chosen.cand.keys]
             if not chosen.verdict.ok:
                 # Polished, the effect no longer matters: keep the better-fitted model without it.
@@ -329,17 +337,8 @@ class Selector:
                 break
             todo.append(sc)
 
-        def refit_one(sc: Screened) -> Trial:
-            # Refit from the current fit and from the nominal base parameters (the current fit may
-            # have bent them to stand in for this very effect), each at the best size of the
-            # candidate's parameter; keep the better fit.
-            starts = [start.with_candidate(sc.cand, sc.step) for start in _restarts(self.model, self.x0, self.xn)]
-            trial, twork, tjac = fit(prob, _scan(prob, starts, sc.cand, q), iters=st.refit_iters)
-            tpred, verdict = judge(prob, self.pred, trial, twork, self.model, sc.cand)
-            return Trial(sc.cand, trial, twork, tpred, verdict, tjac)
-
         # The candidates are refitted side by side (each from the same state), then judged in order.
-        for t in side_by_side([lambda sc=sc: refit_one(sc) for sc in todo]):
+        for t in side_by_side([lambda sc=sc: self.refit_one(sc, q) for sc in todo]):
             cand, trial, twork, verdict = t.cand, t.model, t.work, t.verdict
             self.log("refit", cand.label, cand.report(trial.params()), verdict)
             tr.add("judge", cand.label, verdict.rule, "pays off" if verdict.ok else "does not pay off", close=verdict.close,
@@ -359,6 +358,84 @@ class Selector:
                 if better_base is None or cost < better_base.cost:
                     better_base = _BetterBase(cost, trial.truncated(len(self.model.x)), cand.label)
         return good, better_base, too_small
+
+    def refit_one(self, sc: Screened, q: np.ndarray) -> Trial:
+        """Refit one screened candidate from the current fit and from the nominal base parameters
+        (the current fit may have bent them to stand in for this very effect), each at the best
+        size of the candidate's parameter; keep the better fit, judged."""
+        starts = [start.with_candidate(sc.cand, sc.step) for start in _restarts(self.model, self.x0, self.xn)]
+        trial, twork, tjac = fit(self.prob, _scan(self.prob, starts, sc.cand, q), iters=self.st.refit_iters)
+        tpred, verdict = judge(self.prob, self.pred, trial, twork, self.model, sc.cand)
+        return Trial(sc.cand, trial, twork, tpred, verdict, tjac)
+
+    def sibling_check(self, chosen: Trial, screened: dict[tuple[str, str | None], Screened]) -> Trial | None:
+        """A sensor fault chosen on a reading with a sibling (the other chamber's pressure, measured
+        alike) is weighed against the same fault on the sibling, refitted from its screened size
+        (or, carrying no evidence in the screen, from the same size). The sibling pays off too,
+        with the same sign and within sibling_ratio in size — or the sibling already holds that
+        fault as a finding, alike: the fault is common to both readings, the plant's form (lines
+        between valve and chambers, the valve's own), not two sensors failing alike, and neither
+        is claimed (both leave the pool; an earlier finding goes at the backward check). The
+        sibling pays off otherwise: the two are polished and compared on a common base, and the
+        record decides the chamber (smaller ΔBIC). Returns the trial to add, or None."""
+        st, tr, c = self.st, self.trace, chosen.cand
+        mine = _size(chosen.model, c)
+        rule = "the same fault on the sibling reading pays off, same sign, sizes within sibling_ratio"
+        sib_key = (c.effect, c.sibling)
+        found = next((f for f in self.findings if f.cand.key == sib_key), None)
+        if found is not None:
+            theirs = _size(chosen.model, found.cand)
+            ratio = _ratio(mine, theirs)
+            if mine * theirs > 0 and ratio <= st.sibling_ratio:
+                self.pool = [d for d in self.pool if d.key != c.key]
+                self.common.append(found)
+                tr.add("sibling check", c.label, rule + " (the sibling's finding)",
+                       "common to both readings: the plant's form, neither claimed", close=_near_ratio(ratio, st),
+                       other=found.cand.label, size=mine, sibling_size=theirs, ratio=ratio, sibling_ratio=st.sibling_ratio)
+                return None
+            return chosen
+        sib = next((d for d in self.pool if d.key == sib_key), None)
+        if sib is None or not sib.frees:
+            return chosen
+        f = sib.frees[0]
+        sc = screened.get(sib.key) or Screened(sib, 0.0, float(np.clip(f.coord(f.origin + mine, 0.0), f.lo, f.hi)))
+        t = self.refit_one(sc, np.linalg.qr(self.jac)[0])
+        self.log("sibling", sib.label, sib.report(t.model.params()), t.verdict)
+        tr.add("judge", sib.label, t.verdict.rule, "pays off" if t.verdict.ok else "does not pay off", close=t.verdict.close,
+               params=sib.report(t.model.params()), **t.verdict.numbers(), **_against(t.verdict, st))
+        theirs = _size(t.model, sib)
+        ratio = _ratio(mine, theirs)
+        # The own-reading share is no judge between the two readings: the base's pressure levels
+        # (supply, tank) carry a chamber's offset over into its sibling's reading, so the true
+        # chamber's fault may show more in the other reading. A sibling that meets every other rule,
+        # not alike, contends on the whole record.
+        only_share = not t.verdict.ok and t.verdict.failed == ("explained >= min_share",)
+        if not t.verdict.ok and not (only_share and mine * theirs < 0):
+            tr.add("sibling check", c.label, rule, "the sibling does not pay off: this reading's own fault",
+                   other=sib.label, size=mine, sibling_size=theirs)
+            return chosen
+        if mine * theirs > 0 and ratio <= st.sibling_ratio:
+            self.pool = [d for d in self.pool if d.key not in (c.key, sib.key)]
+            tr.add("sibling check", c.label, rule, "common to both readings: the plant's form, neither claimed",
+                   close=_near_ratio(ratio, st), other=sib.label, size=mine, sibling_size=theirs, ratio=ratio,
+                   sibling_ratio=st.sibling_ratio)
+            return None
+        both = on_common_base(self.prob, self.pred, self.model, [chosen, self.polish(t)], self.log)
+        won = min(both, key=lambda g: g.verdict.dbic)
+        lost = both[1] if won is both[0] else both[0]
+        v = won.verdict
+        if not v.ok and v.failed == ("explained >= min_share",) and not v.close_rules:
+            v = dataclasses.replace(v, ok=True, failed=())  # judged against its sibling on the whole record
+        tied = _tied(dataclasses.replace(v, ok=True), dataclasses.replace(lost.verdict, ok=True), st.min_gain)
+        if tied:
+            v.alternative = (f" {lost.cand.label} ({', '.join(f'{k} = {x:.4g}' for k, x in lost.cand.report(lost.model.params()).items())})"
+                             " explains the record about as well; this record barely tells the two chambers apart.")
+        won = Trial(won.cand, won.model, won.work, won.pred, v, won.jac)
+        tr.add("sibling check", won.cand.label, "not alike: the chambers compared on a common base, smaller dBIC "
+               "(the own-reading share waived between them)", "chosen" if v.ok else "chosen, but no longer pays off",
+               other=lost.cand.label, close=tied, size=mine, sibling_size=theirs, dbic=v.dbic, other_dbic=lost.verdict.dbic,
+               dcost=v.dcost, other_dcost=lost.verdict.dcost)
+        return won
 
     def settle(self, good: list[Trial], better_base: _BetterBase) -> list[Trial]:
         """A refit whose effect did nothing still cut the cost: the current fit had not settled.
@@ -443,8 +520,9 @@ class Selector:
         tr.round += 1
 
         def too_small(f: Finding) -> bool:
-            # Refits after a finding move its parameters too: one that ends below a claimable size goes.
-            return f.cand.claimable is not None and not f.cand.claimable(f.cand.report(self.model.params()))
+            # Refits after a finding move its parameters too: one that ends below a claimable size goes;
+            # so does one whose sibling reading wanted the same fault since (sibling_check).
+            return f in self.common or (f.cand.claimable is not None and not f.cand.claimable(f.cand.report(self.model.params())))
 
         def refit_without(f: Finding) -> tuple[Model, dict, dict, np.ndarray]:
             starts = _restarts(self.model.without(f.cand, self.nominal), self.x0, self.xn)
@@ -463,7 +541,8 @@ class Selector:
             # a close decision, and the simpler model (without it) stands.
             close = not small and abs(dcost + st.min_gain) < st.close_margin * st.min_gain
             keep = not small and dbic < 0 and dcost < -st.min_gain and not close
-            rule = ("below a claimable size" if small else "dBIC < 0 and dcost < -min_gain (by more than close_margin) "
+            rule = ("common to both sibling readings (sibling_ratio)" if f in self.common else "below a claimable size"
+                    if small else "dBIC < 0 and dcost < -min_gain (by more than close_margin) "
                     "against the model refitted without it")
             tr.add("backward check", f.cand.label, rule, "kept" if keep else "dropped", close=close,
                    other="the model refitted without it" if close else None, dbic=dbic, dcost=dcost, min_gain=st.min_gain,
@@ -565,6 +644,22 @@ def _tone(prob: Problem, model: Model, cand: Candidate) -> tuple[Model, dict]:
     start = zero.at(np.concatenate([model.x, np.clip(amp, lo, hi)]))
     trial, twork, _ = fit(prob, start, iters=prob.settings.tone_iters, hold=frozenset(f.key for f in model.frees))
     return trial, twork
+
+
+def _size(model: Model, cand: Candidate) -> float:
+    """The size of a candidate's first parameter in `model` (its value less its "off" value)."""
+    f = cand.frees[0]
+    return float(get_value(model.params(), f.key)) - f.origin
+
+
+def _ratio(a: float, b: float) -> float:
+    """The larger of two sizes over the smaller (inf when one is 0)."""
+    lo = min(abs(a), abs(b))
+    return max(abs(a), abs(b)) / lo if lo > 0 else float("inf")
+
+
+def _near_ratio(ratio: float, st: SearchSettings) -> bool:
+    return abs(ratio - st.sibling_ratio) < st.close_margin * st.sibling_ratio
 
 
 def _tied(a: Verdict | dict, b: Verdict | dict, min_gain: float = MIN_GAIN) -> bool:

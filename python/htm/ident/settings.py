@@ -82,6 +82,10 @@ class SearchSettings:
          "friction_asymmetry", "valve_deadband", "valve_hysteresis", "supply_pressure_sag",
          "pressure_dependent_friction", "entrained_air", "load_pressure_feedback", "specimen_nonlinearity"),
         "effect ids, most common first", "which of two effects the record cannot tell apart is named")
+    sibling_ratio: float = knob(2.0, "ratio of sizes", "a sensor fault found on one reading whose sibling (the other "
+                                                       "chamber's, measured alike) pays off with the same fault, same sign "
+                                                       "and within this factor in size, is common to both: the plant's form "
+                                                       "(lines, the valve), not two faults (0: no sibling check)")
     close_margin: float = knob(0.2, "share of a threshold", "a decision whose deciding number lies within this share of "
                                                             "its threshold is marked close in the trace")
     # --- structure outside the vocabulary (probes) -----------------------------------------
@@ -107,8 +111,12 @@ class SearchSettings:
     min_asymmetry: float = knob(0.1, "share of the mean Coulomb friction", "a few percent is the friction law's form")
     min_gain_error: float = knob(0.01, "relative gain error", "transducers are calibrated to 0.1-0.5 %")
     min_null_bias: float = knob(0.002, "share of the rated command", "a servo-valve's null is set to about 0.1 % of it")
-    min_leakage: float = knob(0.005, "share of the rated flow at supply", "a valve's own null leakage is 1-3 % of it; the "
-                                                                          "underlap takes a leak that small")
+    min_leakage: float = knob(0.01, "share of the rated flow at supply", "a servo-valve's own null leakage is 1-3 % of "
+                                                                         "it: a piston leak below that is the valve's null "
+                                                                         "flow in another form (the base's underlap takes it)")
+    min_sag: float = knob(0.04, "share of the supply pressure, at the valve's rated flow",
+                          "a power unit's filters, hoses and accumulator drop a few percent at full flow, and the lines' "
+                          "and the valve's pressure-flow form mimic that much: a sag below this is not a sagging supply")
     min_valve_lag: float = knob(1.0, "x the spool's own lag 2*zeta/omega_n", "a first-order valve lag shorter than the lag "
                                                                              "of the base model's own second-order spool "
                                                                              "(declared, or typical) is the spool's form, "

@@ -16,12 +16,13 @@ from htm.ident.records import Record
 from htm.ident.settings import DEFAULT, SearchSettings
 
 # Claim thresholds of this family's effects: `settings.SearchSettings` (min_asymmetry,
-# min_gain_error, min_null_bias, min_leakage: unit and reason there); these names are its defaults.
+# min_gain_error, min_null_bias, min_leakage, min_sag, min_valve_lag: unit and reason there); these names are its defaults.
 MIN_ASYMMETRY = DEFAULT.min_asymmetry
 MIN_GAIN_ERROR = DEFAULT.min_gain_error
 MIN_NULL_BIAS = DEFAULT.min_null_bias
 MIN_LEAKAGE = DEFAULT.min_leakage
 MIN_VALVE_LAG = DEFAULT.min_valve_lag
+MIN_SAG = DEFAULT.min_sag
 # Base-model parameters stated by the metadata (nominal; bounds say how far a rig may be off).
 RIG_FREES = [
     logf("moving_mass_kg", 0.4, 2.5, prior=0.3),
@@ -93,6 +94,8 @@ class ValveFamily(Family):
         self.settings = settings
         self.rec = rec
         self.channels = channels
+        if {"p_a", "p_b"} <= set(channels):  # the chamber pressures: two transducers measuring alike
+            self.siblings = {"p_a": "p_b", "p_b": "p_a"}
         nominal = sim.params_from_meta(rec.meta)
         if "p_s" in channels:  # a measured supply starts the fit at what the gauge reads at rest
             nominal["supply_pressure_pa"] = float(np.nanpercentile(rec.columns["p_s"], 90))
@@ -177,7 +180,9 @@ class ValveFamily(Family):
                  claimable=wider_than_null),
             cand("valve_hysteresis", None, (lin("valve_hysteresis_half_width_v", 0.05, 0.0, 40.0),), "sign(du/dt)",
                  claimable=wider_than_noise),
-            cand("supply_pressure_sag", None, (lin("supply_resistance_pa_s_per_m3", 1e9, 0.0, 1e3),), "v"),
+            cand("supply_pressure_sag", None, (lin("supply_resistance_pa_s_per_m3", 1e9, 0.0, 1e3),), "v",
+                 claimable=_share_of("resistance_pa_s_per_m3", st.min_sag * p["supply_pressure_pa"]
+                                     / max(p["valve_rated_flow_m3_s"], 1e-12))),
             cand("internal_leakage", None, (lin("leakage_coeff_m3_per_s_pa", 1e-12, 0.0, 1e3),), "load pressure",
                  claimable=_share_of("coeff_m3_per_s_pa", st.min_leakage * p["valve_rated_flow_m3_s"]
                                      / max(p["supply_pressure_pa"], 1.0))),
