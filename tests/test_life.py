@@ -211,9 +211,9 @@ def test_strain_life_acceptance_on_the_rig_path():
     """E606 on the rig loop (one control period at a time against the virtual rig's sensors, every
     cycle resolved): a bar whose short crack grows fast enough to finish in seconds."""
     sys.path.insert(0, str(ROOT / "benchmarks"))
-    from life_tests import strain_on_rig
+    from life_tests import strain_on_core_loop
 
-    r = strain_on_rig([0.008, 0.01, 0.012])
+    r = strain_on_core_loop([0.008, 0.01, 0.012])
     for lv in r["levels"]:
         assert lv["end_reason"] in ("load_drop", "separation"), lv
         assert abs(lv["stress_err_pct"]) < 3 and abs(lv["life_err_pct"]) < 2, lv
