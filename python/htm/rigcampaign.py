@@ -21,12 +21,11 @@ from pathlib import Path
 from typing import Any
 
 from htm.campaign import life as life_campaign
+from htm.campaign.engine import LIFE_ENDS
 from htm.control.session import Session
 from htm.devices.config import RigConfig, load_config
 from htm.errors import HtmError, SpecError
 from htm.fatigue import lifetest
-
-ENDS = ("runout", "load_drop", "modulus_drop", "separation")
 
 
 def _specimen_rig(cfg: RigConfig, i: int) -> RigConfig:
@@ -63,7 +62,7 @@ def run_specimen(spec: lifetest.LifeSpec, cfg: RigConfig, *, virtual: bool, stor
         life = int(ctrl.cycle)
     finally:
         s.close()
-    valid = end in ENDS
+    valid = end in LIFE_ENDS  # the ends a campaign counts as an outcome, as on the simulator
     why = None if valid else (trips[-1] if trips else "the test did not end by its criterion")
     return {"life_cycles": life, "end_reason": end or "stopped", "valid": valid, "error": why,
             "wall_s": time.perf_counter() - t0}

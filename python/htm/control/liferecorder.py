@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from htm.control.recorder import stop_reason
 from htm.errors import HtmError
 
 PERIOD_S = 0.5
@@ -79,9 +80,7 @@ class LifeRecorder:
                 if (c.state in ("stopped", "idle") and not lp.powered) or (not lp.powered and lp.safety.latched() == "power_off"):
                     self._drain()
                     end = c.end_reason
-                    from htm.control.recorder import LiveRecorder
-
-                    self._close("finished" if end else "stopped", end or LiveRecorder._stop_reason(lp))
+                    self._close("finished" if end else "stopped", end or stop_reason(lp))
                     return
                 if stopping:
                     self._close("stopped", "session closed")

@@ -46,6 +46,18 @@ def cfg_for_store(spec) -> dict[str, Any]:
     d = {f.name: getattr(spec, f.name) for f in dataclasses.fields(spec) if f.name not in ("config", "_feasibility")}
     return {**d, "phases": [dataclasses.asdict(p) for p in spec.phases], "params": spec.params().to_dict()}
 
+
+def stop_reason(lp: Any) -> str:
+    """Why a test ended that its controller did not end: the e-stop, a stop or power-off
+    interlock (by detector), else the operator (an indicate-only trip stops nothing)."""
+    if lp.safety.estop:
+        return "estop"
+    if lp.safety.interlocked():
+        names = [d["name"] for d in lp.safety.describe() if d["latched"] and d["action"] != "indicate"]
+        return f"interlock {lp.safety.latched()} ({', '.join(names)})"
+    return "operator stop"
+
+
 class LiveRecorder:
     """Drains a `Session`'s loop into a new test of the store at `store_root` until the test ends
     or `stop()`. The store and its writer live on the recorder's own thread (SQLite connections
@@ -126,7 +138,7 @@ class LiveRecorder:
                 if ended or tripped:  # checked first: a session closed right after an e-stop keeps its reason
                     self._drain()
                     end = c.end_reason
-                    self._close("finished" if end else "stopped", end or self._stop_reason(lp))
+                    self._close("finished" if end else "stopped", end or stop_reason(lp))
                     return
                 if stopping:
                     self._close("stopped", "session closed")
@@ -138,17 +150,6 @@ class LiveRecorder:
                 self.w.interrupt("error", str(e))
             except (HtmError, OSError):
                 pass
-
-    @staticmethod
-    def _stop_reason(lp: Any) -> str:
-        """Why a test ended that its controller did not end: the e-stop, a stop or power-off
-        interlock (by detector), else the operator (an indicate-only trip stops nothing)."""
-        if lp.safety.estop:
-            return "estop"
-        if lp.safety.interlocked():
-            names = [d["name"] for d in lp.safety.describe() if d["latched"] and d["action"] != "indicate"]
-            return f"interlock {lp.safety.latched()} ({', '.join(names)})"
-        return "operator stop"
 
     def _close(self, status: str, reason: str | None) -> None:
         if self.status is not None:
