@@ -1,12 +1,12 @@
 """The operator console driven by Textual's pilot, one test per workflow, on the virtual rig."""
 import asyncio
 import re
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 from textual.widgets import DataTable, Input, Static
+from tui_pilot import text, until
 
 from htm.record import Store
 from htm.tui.app import HtmApp
@@ -19,17 +19,6 @@ def run(coro):
     return asyncio.run(coro)
 
 
-async def until(pilot, cond, timeout: float = 20.0, step: float = 0.1) -> None:
-    """Let the app run until `cond()` holds (the loop and the poller run meanwhile)."""
-    t0 = time.monotonic()
-    while not cond():
-        if time.monotonic() - t0 > timeout:
-            raise AssertionError("condition not reached in time")
-        await pilot.pause(step)
-
-
-def text(app, sel: str) -> str:
-    return str(app.query_one(sel, Static).content)
 
 
 def cells(table: DataTable, row_key: str) -> dict[str, str]:

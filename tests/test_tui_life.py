@@ -6,10 +6,10 @@ and the tensile peak's trend with the failure threshold."""
 from __future__ import annotations
 
 import asyncio
-import time
 
 import pytest
 from textual.widgets import Input, Select, Static
+from tui_pilot import text, until
 
 from htm.fatigue import lifetest
 from htm.tui.app import HtmApp
@@ -21,16 +21,6 @@ def run(coro):
     return asyncio.run(coro)
 
 
-async def until(pilot, cond, timeout: float = 30.0, step: float = 0.1) -> None:
-    t0 = time.monotonic()
-    while not cond():
-        if time.monotonic() - t0 > timeout:
-            raise AssertionError("condition not reached in time")
-        await pilot.pause(step)
-
-
-def text(app, sel: str) -> str:
-    return str(app.query_one(sel, Static).content)
 
 
 def test_setup_edits_a_strain_life_test_saves_and_loads_it_back(tmp_path, store):

@@ -3,10 +3,10 @@ and the Identify tab runs `htm rig identify` on the connected rig — Textual's 
 rig with a hidden valve effect."""
 import asyncio
 import json
-import time
 
 from test_twin import write_model
-from textual.widgets import Input, Static
+from textual.widgets import Input
+from tui_pilot import text, until
 
 from htm.control.identify import Plan
 from htm.control.session import Session
@@ -14,18 +14,6 @@ from htm.devices.config import virtual_config
 from htm.record.store import Store
 from htm.tui.app import HtmApp
 from htm.tui.identify import IdentifyPane
-
-
-async def until(pilot, cond, timeout: float = 20.0, step: float = 0.1) -> None:
-    t0 = time.monotonic()
-    while not cond():
-        if time.monotonic() - t0 > timeout:
-            raise AssertionError("condition not reached in time")
-        await pilot.pause(step)
-
-
-def text(app, sel: str) -> str:
-    return str(app.query_one(sel, Static).content)
 
 
 def test_setup_simulates_on_the_twin_a_model_file_names(tmp_path, store):
