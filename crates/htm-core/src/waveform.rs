@@ -151,9 +151,86 @@ pub fn smoothstep(x: f64) -> f64 {
     x * x * (3.0 - 2.0 * x)
 }
 
+/// A test's amplitude ramp at the mean (hold, resume, stop), counted in samples:
+/// scale = from + (to − from)·smoothstep(pos/len). The cycle machine and the life machine share it.
+/// Saved (a checkpoint) as the tuple (from, to, pos, len) it was before it had a name.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(from = "(f64, f64, u64, u64)", into = "(f64, f64, u64, u64)")]
+pub struct Ramp {
+    from: f64,
+    to: f64,
+    pos: u64,
+    len: u64,
+}
+
+impl From<(f64, f64, u64, u64)> for Ramp {
+    fn from((from, to, pos, len): (f64, f64, u64, u64)) -> Self {
+        Ramp { from, to, pos, len }
+    }
+}
+
+impl From<Ramp> for (f64, f64, u64, u64) {
+    fn from(r: Ramp) -> Self {
+        (r.from, r.to, r.pos, r.len)
+    }
+}
+
+impl Ramp {
+    /// Full amplitude, no ramp under way.
+    pub const FULL: Ramp = Ramp { from: 1.0, to: 1.0, pos: 0, len: 0 };
+
+    /// The scale `ahead` samples from now.
+    #[inline]
+    pub fn scale(&self, ahead: u64) -> f64 {
+        let pos = self.pos + ahead;
+        if pos >= self.len { self.to } else { self.from + (self.to - self.from) * smoothstep(pos as f64 / self.len as f64) }
+    }
+
+    /// Ramp from the scale now to `to` over `cycles` cycles of `n` samples (at least 0.05 cycle).
+    pub fn retarget(&mut self, to: f64, cycles: f64, n: usize) {
+        *self = Ramp { from: self.scale(0), to, pos: 0, len: (cycles.max(0.05) * n as f64).round() as u64 };
+    }
+
+    /// One sample on.
+    #[inline]
+    pub fn advance(&mut self) {
+        if self.pos < self.len {
+            self.pos += 1;
+        }
+    }
+
+    /// The ramp has reached its target.
+    pub fn done(&self) -> bool {
+        self.pos >= self.len
+    }
+
+    /// The scale the ramp goes to.
+    pub fn target(&self) -> f64 {
+        self.to
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_ramp_retargeted_midway_starts_from_where_it_stood() {
+        let mut r = Ramp::FULL;
+        assert_eq!(r.scale(0), 1.0);
+        r.retarget(0.0, 1.0, 10);
+        for _ in 0..5 {
+            r.advance();
+        }
+        let mid = r.scale(0);
+        assert!((mid - 0.5).abs() < 1e-12 && !r.done());
+        r.retarget(1.0, 2.0, 10);
+        assert_eq!(r.scale(0), mid);
+        for _ in 0..25 {
+            r.advance();
+        }
+        assert!(r.done() && r.scale(0) == 1.0 && r.scale(3) == 1.0 && r.target() == 1.0);
+    }
 
     #[test]
     fn shapes_span_unit_range_and_start_rising_through_zero() {

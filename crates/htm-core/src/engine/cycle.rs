@@ -7,7 +7,7 @@
 use super::config::{events, hydraulic_stiffness, measure_velocity_gain, measured_k, series_stiffness, targets, Action, ControllerSpec, EndReason, Level, TestConfig};
 use crate::control::{Demod, DemodGains, ForceLoop, PeakValley, PositionForce, Setpoint};
 use crate::error::Result;
-use crate::waveform::{smoothstep, Waveform};
+use crate::waveform::{Ramp, Waveform};
 
 use super::convergence::{Cause, Episode};
 use super::measured::{CrackReader, Reading};
@@ -106,8 +106,8 @@ pub struct CycleMachine {
     counting: bool,
     /// the amplitude scale stayed 1 over the whole cycle
     full: bool,
-    /// amplitude ramp: scale = from + (to − from)·smoothstep(pos/len), per sample
-    ramp: (f64, f64, u64, u64),
+    /// amplitude ramp of hold / resume / stop, per sample
+    ramp: Ramp,
     ramping_in: bool,
     /// peak-valley compensation, and this cycle's rise into the peak relative to its range
     /// (≠ 1 when the previous cycle's valley was another level's)
@@ -194,7 +194,7 @@ impl CycleMachine {
         Ok(CycleMachine {
             drive, stage: Stage::Starting, n, dt, k: 0, rot: (0.0, 1.0), step_rot: (step.sin(), step.cos()), s: 0.0,
             cycle: 0, a: cfg.a0_m, phase_i: 0, a_phase0: cfg.a0_m, f0, t: (0.0, 0.0, 0.0), mid_t: 0.0, amp_t: 0.0, next_mid: 0.0,
-            starting: true, counting: true, full: false, ramp: (1.0, 1.0, 0, 0), ramping_in: false,
+            starting: true, counting: true, full: false, ramp: Ramp::FULL, ramping_in: false,
             pv: PeakValley::new(), k_rise: 1.0, x_fall: cfg.waveform.fall_crossing(),
             // peak-valley compensation corrects the force of both force and position control;
             // a fixed-gain force P is the thesis's uncompensated comparison case
@@ -270,7 +270,7 @@ impl CycleMachine {
 
     /// Start the next cycle: its targets, what it counts as.
     pub fn begin(&mut self, cfg: &TestConfig) -> Result<()> {
-        if self.stage == Stage::Stopping && self.ramp.2 >= self.ramp.3 {
+        if self.stage == Stage::Stopping && self.ramp.done() {
             self.stage = Stage::Stopped;
             self.u_null = self.summary().1.clamp(-1.0, 1.0);
         }
@@ -298,7 +298,7 @@ impl CycleMachine {
             self.stage = Stage::Running;
         }
         self.counting = matches!(self.stage, Stage::Starting | Stage::Running);
-        self.full = self.ramp.2 >= self.ramp.3 && self.ramp.1 >= 1.0;
+        self.full = self.ramp.done() && self.ramp.target() >= 1.0;
         self.acc = EMPTY;
         self.s_hi = f64::MIN;
         self.s_lo = f64::MAX;
@@ -306,12 +306,6 @@ impl CycleMachine {
         self.s = cfg.waveform.shape(0.0);
         self.open = true;
         Ok(())
-    }
-
-    #[inline]
-    fn scale_at(&self, pos: u64) -> f64 {
-        let (from, to, _, len) = self.ramp;
-        if pos >= len { to } else { from + (to - from) * smoothstep(pos as f64 / len as f64) }
     }
 
     /// The nominal (mid-point, half-range) [N] at cycle position x with amplitude scale `scale`,
@@ -352,8 +346,7 @@ impl CycleMachine {
         let (ss, cs) = self.step_rot;
         let rot1 = (sn * cs + cn * ss, cn * cs - sn * ss);
         let s_next = if matches!(cfg.waveform, Waveform::Sine) { rot1.0 } else { cfg.waveform.shape(x1) };
-        let pos = self.ramp.2;
-        let (sc, sc1) = (self.scale_at(pos), self.scale_at(pos + 1));
+        let (sc, sc1) = (self.ramp.scale(0), self.ramp.scale(1));
         let (nmid1, namp1) = self.setpoint(cfg, x1, sc1, false);
         // the nominal setpoint's true peak and valley (mid ± amp where the shape peaks): the
         // sampled shape can miss the corner between two samples (a triangle at 20 Hz, 1 kHz)
@@ -382,9 +375,7 @@ impl CycleMachine {
         } else {
             0.0
         };
-        if self.ramp.2 < self.ramp.3 {
-            self.ramp.2 += 1;
-        }
+        self.ramp.advance();
         self.rot = rot1;
         self.s = s_next;
         self.k = if self.k + 1 == self.n { 0 } else { self.k + 1 };
@@ -587,17 +578,12 @@ impl CycleMachine {
         }
     }
 
-    fn ramp_to(&mut self, to: f64, cycles: f64) {
-        let from = self.scale_at(self.ramp.2);
-        self.ramp = (from, to, 0, (cycles.max(0.05) * self.n as f64).round() as u64);
-        self.full = false;
-    }
-
     /// Freeze at the mean: the amplitude ramps to zero over `HOLD_CYCLES`; cycles stop counting.
     pub fn hold(&mut self) -> bool {
         match self.stage {
             Stage::Starting | Stage::Running => {
-                self.ramp_to(0.0, HOLD_CYCLES);
+                self.ramp.retarget(0.0, HOLD_CYCLES, self.n);
+                self.full = false;
                 self.stage = Stage::Holding;
                 true
             }
@@ -612,7 +598,8 @@ impl CycleMachine {
         if self.stage != Stage::Holding {
             return false;
         }
-        self.ramp_to(1.0, cfg.envelope.amplitude_cycles.max(1.0));
+        self.ramp.retarget(1.0, cfg.envelope.amplitude_cycles.max(1.0), self.n);
+        self.full = false;
         self.stage = if self.cycle < cfg.envelope.start_cycles() { Stage::Starting } else { Stage::Running };
         self.ramping_in = true;
         self.convergence.push(Episode::new(Cause::Resume));
@@ -622,7 +609,8 @@ impl CycleMachine {
     /// Ramp the amplitude to zero at the mean over the spec's stop cycles, then valve null.
     pub fn stop(&mut self, cfg: &TestConfig) {
         if matches!(self.stage, Stage::Starting | Stage::Running | Stage::Holding) {
-            self.ramp_to(0.0, cfg.envelope.stop_cycles.max(0.5));
+            self.ramp.retarget(0.0, cfg.envelope.stop_cycles.max(0.5), self.n);
+            self.full = false;
             self.stage = Stage::Stopping;
         }
     }

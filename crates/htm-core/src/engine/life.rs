@@ -22,7 +22,7 @@ use crate::error::{Error, Result};
 use crate::machine::Y;
 use crate::params::Params;
 use crate::rig::RigPlant;
-use crate::waveform::{smoothstep, Envelope, Waveform};
+use crate::waveform::{Envelope, Ramp, Waveform};
 
 use super::config::{hydraulic_stiffness, measure_velocity_gain, series_stiffness};
 use super::cycle::{Stage, HOLD_CYCLES};
@@ -314,8 +314,8 @@ pub struct LifeMachine {
     pub velocity_gain: f64,
     /// what the test is doing (the cycle machine's stages: hold, resume and stop on a rig)
     pub stage: Stage,
-    /// amplitude ramp of hold / resume / stop: scale = from + (to − from)·smoothstep(pos/len)
-    ramp: (f64, f64, u64, u64),
+    /// amplitude ramp of hold / resume / stop, per sample
+    ramp: Ramp,
     /// the smallest and largest amplitude scale of this cycle's periods
     cycle_scale: (f64, f64),
     /// cycles up to this one are not judged (a resume's ramp and the cycles after it)
@@ -400,7 +400,7 @@ impl LifeMachine {
             drive, pv: PeakValley::new(), n, dt, k: 0, cycle: 0, f0: s0, start_cycles: cfg.envelope.start_cycles(), ea: cfg.ea(), area: cfg.specimen.area_m2(),
             buf: Vec::with_capacity(n), e_ref: f64::NAN, trend: Trend::default(), ratio_trend: Trend::default(), n_drop10: None,
             n_drop50: None, n_modulus: None, end: None, kept_bucket: -1, peak_max: 0.0, velocity_gain: kv, stage: Stage::Starting,
-            ramp: (1.0, 1.0, 0, 0), cycle_scale: (f64::MAX, f64::MIN), judge_after: 0, u_null: 0.0, last_loop: Vec::new(),
+            ramp: Ramp::FULL, cycle_scale: (f64::MAX, f64::MIN), judge_after: 0, u_null: 0.0, last_loop: Vec::new(),
         })
     }
 
@@ -430,10 +430,8 @@ impl LifeMachine {
         let (mid, amp) = self.setpoint_at(cfg, c + x);
         let (mid1, amp1) = self.setpoint_at(cfg, c + x1);
         // hold / resume / stop: the amplitude ramps at the mean
-        let (g, g1) = (self.scale_at(self.ramp.2), self.scale_at(self.ramp.2 + 1));
-        if self.ramp.2 < self.ramp.3 {
-            self.ramp.2 += 1;
-        }
+        let (g, g1) = (self.ramp.scale(0), self.ramp.scale(1));
+        self.ramp.advance();
         self.cycle_scale = (self.cycle_scale.0.min(g), self.cycle_scale.1.max(g));
         // the correction of each reversal (the peak in the first half, the valley in the second)
         let (amp, amp1) = (self.pv.apply(amp * g, x <= 0.5), self.pv.apply(amp1 * g1, x1 <= 0.5));
@@ -563,22 +561,12 @@ impl LifeMachine {
     }
 
     #[inline]
-    fn scale_at(&self, pos: u64) -> f64 {
-        let (from, to, _, len) = self.ramp;
-        if pos >= len { to } else { from + (to - from) * smoothstep(pos as f64 / len as f64) }
-    }
-
-    fn ramp_to(&mut self, to: f64, cycles: f64) {
-        let from = self.scale_at(self.ramp.2);
-        self.ramp = (from, to, 0, (cycles.max(0.05) * self.n as f64).round() as u64);
-    }
-
     /// Freeze at the mean (a rig's hold): the amplitude ramps to zero over `HOLD_CYCLES`; the
     /// cycles held at zero amplitude are not counted. False when no test runs.
     pub fn hold(&mut self) -> bool {
         match self.stage {
             Stage::Starting | Stage::Running => {
-                self.ramp_to(0.0, HOLD_CYCLES);
+                self.ramp.retarget(0.0, HOLD_CYCLES, self.n);
                 self.stage = Stage::Holding;
                 true
             }
@@ -594,7 +582,7 @@ impl LifeMachine {
             return false;
         }
         let len = cfg.envelope.amplitude_cycles.max(1.0);
-        self.ramp_to(1.0, len);
+        self.ramp.retarget(1.0, len, self.n);
         self.judge_after = self.cycle + len.ceil() as u64 + 2;
         self.stage = if self.cycle < self.start_cycles { Stage::Starting } else { Stage::Running };
         true
@@ -603,7 +591,7 @@ impl LifeMachine {
     /// Ramp the amplitude to zero at the mean over the spec's stop cycles, then the valve null.
     pub fn stop(&mut self, cfg: &LifeConfig) {
         if matches!(self.stage, Stage::Starting | Stage::Running | Stage::Holding) {
-            self.ramp_to(0.0, cfg.envelope.stop_cycles.max(0.5));
+            self.ramp.retarget(0.0, cfg.envelope.stop_cycles.max(0.5), self.n);
             self.stage = Stage::Stopping;
         }
     }
@@ -635,7 +623,7 @@ impl LifeMachine {
             }
         }
         self.next_cycle();
-        if self.stage == Stage::Stopping && self.ramp.2 >= self.ramp.3 {
+        if self.stage == Stage::Stopping && self.ramp.done() {
             self.stage = Stage::Stopped;
             self.u_null = self.drive.summary().1.clamp(-1.0, 1.0);
         }
