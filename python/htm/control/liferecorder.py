@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from htm.control.recorder import stop_reason
+from htm.control.recorder import Follower
 from htm.errors import HtmError
 
 PERIOD_S = 0.5
@@ -26,7 +26,7 @@ TABLE = ("cycle", "fmax_n", "fmin_n", "stress_max_pa", "stress_min_pa", "strain_
          "modulus_t_pa", "modulus_c_pa", "stiffness_n_m", "trend", "events")
 
 
-class LifeRecorder:
+class LifeRecorder(Follower):
     """Drains a `Session`'s loop for life test `test_no` into a new test of the store."""
 
     def __init__(self, session: Any, store_root: Any, spec: Any, test_no: int, first_event: int, *, recording: bool = True) -> None:
@@ -69,22 +69,7 @@ class LifeRecorder:
         finally:
             self.ready.set()
         try:
-            while True:
-                stopping = self._stop.wait(PERIOD_S)
-                self._drain()
-                lp = self.s.loop
-                if lp is None or lp.test_no != self.test_no:
-                    self._close("stopped", "replaced by a new test" if lp is not None else "session closed")
-                    return
-                c = lp.ctrl
-                if (c.state in ("stopped", "idle") and not lp.powered) or (not lp.powered and lp.safety.latched() == "power_off"):
-                    self._drain()
-                    end = c.end_reason
-                    self._close("finished" if end else "stopped", end or stop_reason(lp))
-                    return
-                if stopping:
-                    self._close("stopped", "session closed")
-                    return
+            self._follow(PERIOD_S)
         except (HtmError, OSError) as e:  # the store failed: say so; the loop runs on safely
             self.error = str(e)
             self.s.log.add(self.period0, "error", f"life recording stopped: {e}")

@@ -58,7 +58,45 @@ def stop_reason(lp: Any) -> str:
     return "operator stop"
 
 
-class LiveRecorder:
+class Follower:
+    """A recorder's thread loop, one copy for every kind of test: drain what the loop published
+    every `period_s` until the test ends — its controller stopped (finished with its end reason,
+    else stopped with `stop_reason`), a trip powered off, another test replaced it, the session
+    closed — then close the test with the matching status. Subclasses give `s` (the session),
+    `test_no`, `_stop` (an Event), `_drain()` and `_close(status, reason)`."""
+
+    s: Any
+    test_no: int
+    _stop: threading.Event
+
+    def _drain(self) -> None:
+        raise NotImplementedError
+
+    def _close(self, status: str, reason: str | None) -> None:
+        raise NotImplementedError
+
+    def _follow(self, period_s: float) -> None:
+        while True:
+            stopping = self._stop.wait(period_s)
+            self._drain()
+            lp = self.s.loop
+            if lp is None or lp.test_no != self.test_no:  # the session closed or another test replaced this one
+                self._close("stopped", "replaced by a new test" if lp is not None else "session closed")
+                return
+            c = lp.ctrl
+            ended = c.state in ("stopped", "idle") and not lp.powered
+            tripped = not lp.powered and lp.safety.latched() == "power_off"
+            if ended or tripped:  # checked first: a session closed right after an e-stop keeps its reason
+                self._drain()
+                end = c.end_reason
+                self._close("finished" if end else "stopped", end or stop_reason(lp))
+                return
+            if stopping:
+                self._close("stopped", "session closed")
+                return
+
+
+class LiveRecorder(Follower):
     """Drains a `Session`'s loop into a new test of the store at `store_root` until the test ends
     or `stop()`. The store and its writer live on the recorder's own thread (SQLite connections
     stay with the thread that made them)."""
@@ -125,24 +163,7 @@ class LiveRecorder:
         finally:
             self.ready.set()
         try:
-            while True:
-                stopping = self._stop.wait(PERIOD_S)
-                self._drain()
-                lp = self.s.loop
-                if lp is None or lp.test_no != self.test_no:  # the session closed or another test replaced this one
-                    self._close("stopped", "replaced by a new test" if lp is not None else "session closed")
-                    return
-                c = lp.ctrl
-                ended = c.state in ("stopped", "idle") and not lp.powered
-                tripped = not lp.powered and lp.safety.latched() == "power_off"
-                if ended or tripped:  # checked first: a session closed right after an e-stop keeps its reason
-                    self._drain()
-                    end = c.end_reason
-                    self._close("finished" if end else "stopped", end or stop_reason(lp))
-                    return
-                if stopping:
-                    self._close("stopped", "session closed")
-                    return
+            self._follow(PERIOD_S)
         except (HtmError, OSError) as e:  # the store failed: say so; the loop runs on safely
             self.error = str(e)
             self.s.log.add(self.period, "error", f"recording stopped: {e}")
