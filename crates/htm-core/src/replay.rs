@@ -196,11 +196,11 @@ impl<'a> Replay<'a> {
                 let u = held(self.u);
                 let simulated = self.simulated();
                 let every = self.every();
-                for k in 0..n {
-                    if self.open_sample(&mut run, k, u[k], &simulated, every) {
-                        run.m.step(u[k], self.dt)?;
+                for (k, &uk) in u.iter().enumerate() {
+                    if self.open_sample(&mut run, k, uk, &simulated, every) {
+                        run.m.step(uk, self.dt)?;
                     } else {
-                        run.m.step_valve(u[k], self.dt);
+                        run.m.step_valve(uk, self.dt);
                     }
                 }
             }
@@ -230,21 +230,21 @@ impl<'a> Replay<'a> {
         let u = held(self.u);
         let simulated = self.simulated();
         let every = self.every();
-        for k in 0..self.n() {
+        for (k, &uk) in u.iter().enumerate() {
             let mut step = false;
             for r in runs.iter_mut().flatten() {
-                step = self.open_sample(r, k, u[k], &simulated, every);
+                step = self.open_sample(r, k, uk, &simulated, every);
             }
             if !step {
                 for r in runs.iter_mut().flatten() {
-                    r.m.step_valve(u[k], self.dt);
+                    r.m.step_valve(uk, self.dt);
                 }
                 continue;
             }
             let (lead, rest) = runs.split_first_mut().expect("two sets or more");
             let lead = lead.as_mut().expect("the first set started");
             let mut followers: Vec<&mut Machine> = rest.iter_mut().flatten().map(|r| &mut r.m).collect();
-            if lead.m.step_lockstep(&mut followers, u[k], self.dt).is_err() {
+            if lead.m.step_lockstep(&mut followers, uk, self.dt).is_err() {
                 return alone();
             }
             for r in rest.iter_mut() {
@@ -301,7 +301,7 @@ impl<'a> Replay<'a> {
         if k == 0 || !simulated[k - 1] {
             self.restart(m, sensors, k);
             probe.restart();
-        } else if k % every == 0 {
+        } else if k.is_multiple_of(every) {
             self.anchor(m, sensors, k);
         }
         probe.push(&m.outputs());

@@ -25,6 +25,10 @@ JACOBIAN_EVERY = DEFAULT.jacobian_every
 PRIOR_SHARE = DEFAULT.prior_share
 SIGNIFICANT = DEFAULT.significant
 
+# Jacobians simulated in lockstep with their point (`Problem.lockstep`) unless this is False
+# (benchmarks/diagnose.py --lockstep compares both in one run).
+LOCKSTEP = True
+
 Predictor = Callable[..., list[dict[str, np.ndarray]]]
 # Problems are simulated from several threads at once (independent fits run side by side).
 _COUNT = threading.Lock()
@@ -70,9 +74,9 @@ class Problem:
     settings: SearchSettings = DEFAULT
     # Jacobian columns simulated in lockstep with the point (`sim.predict`'s `lockstep`: the
     # neighbours take the point's integrator step sizes, so that the columns are free of
-    # step-size noise and fits converge in fewer iterations). Turned off for good the first time
-    # the simulator refuses the option (the displacement loop).
-    lockstep: bool = True
+    # step-size noise). Default `LOCKSTEP`; turned off for good the first time the simulator
+    # refuses the option (the displacement loop).
+    lockstep: bool = field(default_factory=lambda: LOCKSTEP)
 
     def __post_init__(self) -> None:
         self.meas = {c: np.asarray(self.rec.columns[c], dtype=float) for c in self.channels}
