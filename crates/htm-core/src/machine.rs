@@ -6,7 +6,7 @@ use crate::friction::Friction;
 use crate::friction::sig;
 use crate::hydraulics::{orifice_flow, orifice_flow_ddp, smooth_opening, smooth_opening_dx, BulkModulus, ValveMap};
 use crate::params::Params;
-use crate::solver::{fd_jacobian, follow_step, OdeSystem, Rodas4, Stats};
+use crate::solver::{fd_jacobian, OdeSystem, Rodas4, Stats};
 
 /// State vector layout.
 pub const PA: usize = 0;
@@ -586,9 +586,10 @@ impl Machine {
     /// [`step`](Self::step) for this machine and, in lockstep, for `followers`: machines whose
     /// parameters differ slightly from its own (the finite-difference neighbours of a fit's
     /// Jacobian). A follower takes this machine's accepted step sizes with its own rates and
-    /// Jacobian (`solver::follow_step`): no step size that differs from its neighbour's for
-    /// reasons of step-size control alone, and no rejected step. One whose spool form differs (a
-    /// lag switched on from zero) steps alone.
+    /// Jacobian (`Rodas4::follow`): no step size that differs from its neighbour's for
+    /// reasons of step-size control alone (a step that misses the tolerance for the follower is
+    /// crossed with its own control). One whose spool form differs (a lag switched on from zero)
+    /// steps alone.
     /// A follower that cannot be carried is left with a non-finite state (the caller checks).
     pub fn step_lockstep(&mut self, followers: &mut [&mut Machine], u: f64, dt: f64) -> Result<Outputs> {
         if !u.is_finite() {
@@ -619,8 +620,7 @@ impl Machine {
             solver.advance_with(&*plant, x, dt, |h| {
                 for &i in &lock {
                     let f = &mut *followers[i];
-                    f.solver.stats.rhs_evals += follow_step(&f.plant, &mut f.x, h);
-                    f.solver.stats.accepted += 1;
+                    f.solver.follow(&f.plant, &mut f.x, h);
                 }
             })?;
         } else {
@@ -632,9 +632,8 @@ impl Machine {
                     let f = &mut *followers[i];
                     let mut fx = [0.0; NH];
                     fx.copy_from_slice(&f.x[..NH]);
-                    f.solver.stats.rhs_evals += follow_step(&HeldSpool { plant: &f.plant, x: f.x }, &mut fx, h);
+                    f.solver.follow(&HeldSpool { plant: &f.plant, x: f.x }, &mut fx, h);
                     f.x[..NH].copy_from_slice(&fx);
-                    f.solver.stats.accepted += 1;
                 }
             })?;
             x[..NH].copy_from_slice(&xh);

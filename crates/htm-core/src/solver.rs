@@ -99,7 +99,7 @@ impl Rodas4 {
 
     /// [`advance`](Self::advance), handing the size of every accepted step to `follow`: systems
     /// that differ slightly from this one (finite-difference neighbours) take the same steps with
-    /// [`follow_step`], without a step-size control of their own.
+    /// [`Rodas4::follow`].
     pub fn advance_with<const N: usize, S: OdeSystem<N>>(&mut self, sys: &S, x: &mut [f64; N], dt: f64,
                                                          mut follow: impl FnMut(f64)) -> Result<()> {
         let (rel, scale) = sys.error_weights();
@@ -121,15 +121,7 @@ impl Rodas4 {
             }
             let fac_g = Factored::new(&jac, h);
             let (xn, err) = self.stages(sys, x, &f0, &fac_g);
-            let err_norm = {
-                let mut s = 0.0;
-                for i in (0..N).filter(|i| checked[*i]) {
-                    let w = self.rtol * (x[i].abs().max(xn[i].abs()) * rel[i] + scale[i]);
-                    let e = err[i] / w;
-                    s += e * e;
-                }
-                (s / n_checked).sqrt()
-            };
+            let err_norm = error_norm(self.rtol, (&rel, &scale, &checked, n_checked), x, &xn, &err);
             let finite = err_norm.is_finite() && xn.iter().all(|v| v.is_finite());
             if self.fixed_step.is_some() {
                 if !finite {
@@ -163,6 +155,32 @@ impl Rodas4 {
             }
         }
         Ok(())
+    }
+
+    /// A follower's step: `sys` (a system close to a leader's) advanced from `x` by the leader's
+    /// accepted step size `h`, with its own rates and Jacobian. Its difference to the leader is
+    /// then free of step-size noise (both took the same steps). Where that step misses this
+    /// solver's tolerance for the follower (a neighbour nearer a cavitating chamber than its
+    /// leader), the follower crosses the same interval with its own step-size control instead.
+    /// `x` turns non-finite if the follower cannot be carried.
+    pub fn follow<const N: usize, S: OdeSystem<N>>(&mut self, sys: &S, x: &mut [f64; N], h: f64) {
+        let mut f0 = [0.0; N];
+        sys.rhs(x, &mut f0);
+        let mut jac = [[0.0; N]; N];
+        self.stats.rhs_evals += 1 + sys.jacobian(x, &f0, &mut jac);
+        let (xn, err) = self.stages(sys, x, &f0, &Factored::new(&jac, h));
+        let (rel, scale) = sys.error_weights();
+        let norm = error_norm(self.rtol, (&rel, &scale, &sys.error_checked(), sys.error_count().max(1) as f64), x, &xn, &err);
+        if norm <= 1.0 && xn.iter().all(|v| v.is_finite()) {
+            *x = xn;
+            self.stats.accepted += 1;
+            return;
+        }
+        self.stats.rejected += 1;
+        self.h = 0.5 * h;
+        if self.advance(sys, x, h).is_err() {
+            *x = [f64::NAN; N];
+        }
     }
 
     /// The six stages of one step of size `g.h` from `x` (where the rate is `f0`) with the
@@ -203,6 +221,20 @@ impl Rodas4 {
     }
 }
 
+/// The step-size control's error norm of a step from `x` to `xn` with error estimate `err`:
+/// the RMS over the checked components (weights `w` = relative, scale, checked, count) of the
+/// error against rtol * (|x| * relative + scale).
+fn error_norm<const N: usize>(rtol: f64, w: (&[f64; N], &[f64; N], &[bool; N], f64), x: &[f64; N], xn: &[f64; N], err: &[f64; N]) -> f64 {
+    let (rel, scale, checked, n_checked) = w;
+    let mut s = 0.0;
+    for i in (0..N).filter(|i| checked[*i]) {
+        let w = rtol * (x[i].abs().max(xn[i].abs()) * rel[i] + scale[i]);
+        let e = err[i] / w;
+        s += e * e;
+    }
+    (s / n_checked).sqrt()
+}
+
 /// A step's size and its factorised iteration matrix I/(h*gamma) - J.
 #[derive(Debug, Clone)]
 struct Factored<const N: usize> {
@@ -225,21 +257,7 @@ impl<const N: usize> Factored<N> {
     }
 }
 
-/// A follower's step: `sys` (a system close to the leader's) advanced from `x` by the leader's
-/// accepted step size `h`, with its own rates and Jacobian. Its difference to the leader is then
-/// free of step-size noise (both took the same steps, and neither a rejection nor a changed step
-/// size of its own), and it spends no error estimate or rejected step. Returns the right-hand-side
-/// evaluations spent; `x` turns non-finite if the follower cannot be carried.
-pub fn follow_step<const N: usize, S: OdeSystem<N>>(sys: &S, x: &mut [f64; N], h: f64) -> u64 {
-    let mut f0 = [0.0; N];
-    sys.rhs(x, &mut f0);
-    let mut jac = [[0.0; N]; N];
-    let evals = 1 + sys.jacobian(x, &f0, &mut jac);
-    let mut r = Rodas4::new(1.0);
-    let (xn, _) = r.stages(sys, x, &f0, &Factored::new(&jac, h));
-    *x = xn;
-    evals + r.stats.rhs_evals
-}
+
 
 /// In-place LU with partial pivoting (U's diagonal stored as its reciprocals); singular pivots are replaced by a tiny value (the step
 /// is then rejected by the error test rather than panicking). Returns the row permutation: row i
