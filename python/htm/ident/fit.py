@@ -74,8 +74,9 @@ class Problem:
     settings: SearchSettings = DEFAULT
     # Jacobian columns simulated in lockstep with the point (`sim.predict`'s `lockstep`: the
     # neighbours take the point's integrator step sizes, so that the columns are free of
-    # step-size noise). Default `LOCKSTEP`; turned off for good the first time the simulator
-    # refuses the option (the displacement loop).
+    # step-size noise — the worst column's error against rtol 1e-7 columns 5 % -> 0.4 % on p_a in
+    # benchmarks/replay_speed.py, and the fits need fewer iterations). Default `LOCKSTEP`; turned
+    # off for good the first time the simulator refuses the option (the displacement loop).
     lockstep: bool = field(default_factory=lambda: LOCKSTEP)
 
     def __post_init__(self) -> None:
