@@ -21,7 +21,7 @@ side (`peer`): the same record, the same machine, the same minute.
 
 With `--lockstep`, each path is also diagnosed in this process twice, with the Jacobians'
 neighbours simulated alone (each with its own step-size control, as before issue 31 item 4) and
-in lockstep with their point (on its step sizes: `htm.ident.fit.LOCKSTEP`, the default), with
+in lockstep with their point (on its step sizes: `htm.ident.fit.LOCKSTEP`, off by default), with
 the simulations, CPU seconds, the integrator's steps and the findings side by side (`lockstep`).
 
 Run: .venv/bin/python benchmarks/diagnose.py [--peer 2] [--lockstep]   (prints one JSON object)

@@ -25,9 +25,12 @@ JACOBIAN_EVERY = DEFAULT.jacobian_every
 PRIOR_SHARE = DEFAULT.prior_share
 SIGNIFICANT = DEFAULT.significant
 
-# Jacobians simulated in lockstep with their point (`Problem.lockstep`) unless this is False
-# (benchmarks/diagnose.py --lockstep compares both in one run).
-LOCKSTEP = True
+# Jacobians simulated in lockstep with their point (`Problem.lockstep`) when True. Off: with it
+# on, matrix C's entrained_air record ends unexplained (a probe's fit, better converged, pays off
+# by a hair) — the same record and finding otherwise; on the three paths of benchmarks/diagnose.py
+# the same findings for about as many CPU seconds. `benchmarks/diagnose.py --lockstep` compares
+# both in one run.
+LOCKSTEP = False
 
 Predictor = Callable[..., list[dict[str, np.ndarray]]]
 # Problems are simulated from several threads at once (independent fits run side by side).
@@ -75,8 +78,8 @@ class Problem:
     # Jacobian columns simulated in lockstep with the point (`sim.predict`'s `lockstep`: the
     # neighbours take the point's integrator step sizes, so that the columns are free of
     # step-size noise — the worst column's error against rtol 1e-7 columns 5 % -> 0.4 % on p_a in
-    # benchmarks/replay_speed.py, and the fits need fewer iterations). Default `LOCKSTEP`; turned
-    # off for good the first time the simulator refuses the option (the displacement loop).
+    # benchmarks/replay_speed.py). Default `LOCKSTEP`; turned off for good the first time the
+    # simulator refuses the option (the displacement loop).
     lockstep: bool = field(default_factory=lambda: LOCKSTEP)
 
     def __post_init__(self) -> None:
