@@ -27,9 +27,9 @@ SIGNIFICANT = DEFAULT.significant
 
 # Jacobians simulated in lockstep with their point (`Problem.lockstep`) when True. Off: with it
 # on, matrix C's entrained_air record ends unexplained (a probe's fit, better converged, pays off
-# by a hair) — the same record and finding otherwise; on the three paths of benchmarks/diagnose.py
-# the same findings for about as many CPU seconds. `benchmarks/diagnose.py --lockstep` compares
-# both in one run.
+# by a hair) — the same record and finding otherwise. On the three paths of benchmarks/diagnose.py
+# (in process, same run): the same findings, CPU 11.6/31.8/19.8 s alone vs 11.8/28.8/17.7 s in
+# lockstep, rejected steps halved. `benchmarks/diagnose.py --lockstep` compares both in one run.
 LOCKSTEP = False
 
 Predictor = Callable[..., list[dict[str, np.ndarray]]]
