@@ -19,7 +19,12 @@ are and with the Jacobian differenced afresh every N iterations instead (`jacobi
 the schedule before issue 31), and the simulations and CPU seconds of both are printed side by
 side (`peer`): the same record, the same machine, the same minute.
 
-Run: .venv/bin/python benchmarks/diagnose.py [--peer 2]   (prints one JSON object)
+With `--lockstep`, each path is also diagnosed in this process twice, with the Jacobians'
+neighbours simulated alone (each with its own step-size control, as before issue 31 item 4) and
+in lockstep with their point (on its step sizes: `htm.ident.fit.LOCKSTEP`, off by default), with
+the simulations, CPU seconds, the integrator's steps and the findings side by side (`lockstep`).
+
+Run: .venv/bin/python benchmarks/diagnose.py [--peer 2] [--lockstep]   (prints one JSON object)
 """
 from __future__ import annotations
 
@@ -36,7 +41,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from htm.ident import proving, sim
+from htm.ident import fit, proving, sim
 from htm.ident.diagnose import diagnose
 from htm.ident.records import write_record
 from htm.ident.settings import DEFAULT
@@ -82,16 +87,34 @@ def run_cli(rec) -> tuple[float, float, int, dict, dict]:
     return wall, cpu, sims, report, stage_seconds(res.stderr, wall)
 
 
-def in_process(rec, settings) -> dict:
-    """Simulations, CPU seconds (this process, all its threads) and findings of `diagnose` on
-    `rec` with `settings`, run in this process (no files written)."""
+def in_process(rec, settings, lockstep: bool = fit.LOCKSTEP) -> dict:
+    """Simulations, CPU seconds (this process, all its threads), integrator steps and findings
+    of `diagnose` on `rec` with `settings` (and Jacobians in lockstep or not), run in this process
+    (no files written)."""
     stats: dict = {}
-    r0 = resource.getrusage(resource.RUSAGE_SELF)
-    report = diagnose(rec, settings=settings, stats=stats)
-    r1 = resource.getrusage(resource.RUSAGE_SELF)
+    steps = {"accepted": 0, "rejected": 0, "rhs_evals": 0}
+    replay = sim.replay
+
+    def counted(*a, **kw):
+        out = replay(*a, **kw)
+        for r in out:
+            if isinstance(r, dict):
+                for k, key in (("accepted", "steps"), ("rejected", "rejected"), ("rhs_evals", "rhs_evals")):
+                    steps[k] += r[key]
+        return out
+
+    before, fit.LOCKSTEP, sim.replay = fit.LOCKSTEP, lockstep, counted
+    try:
+        r0 = resource.getrusage(resource.RUSAGE_SELF)
+        report = diagnose(rec, settings=settings, stats=stats)
+        r1 = resource.getrusage(resource.RUSAGE_SELF)
+    finally:
+        fit.LOCKSTEP, sim.replay = before, replay
     cpu = (r1.ru_utime + r1.ru_stime) - (r0.ru_utime + r0.ru_stime)
-    return {"jacobian_every": settings.jacobian_every, "simulations": stats["simulations"], "cpu_seconds": round(cpu, 2),
-            "found": [f"{f['effect']}/{f['channel']}" for f in report["findings"]], "unexplained": report["unexplained"]}
+    return {"jacobian_every": settings.jacobian_every, "lockstep": lockstep, "simulations": stats["simulations"],
+            "cpu_seconds": round(cpu, 2), "integrator": steps,
+            "found": [{"effect": f["effect"], "channel": f["channel"], "params": f["params"]} for f in report["findings"]],
+            "unexplained": report["unexplained"]}
 
 
 def found_and_true(report: dict, truth: dict) -> dict:
@@ -103,6 +126,8 @@ def found_and_true(report: dict, truth: dict) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--peer", type=int, metavar="N", help="also diagnose each path in process with jacobian_every = N")
+    ap.add_argument("--lockstep", action="store_true", help="also diagnose each path in process with the Jacobians' "
+                                                             "neighbours simulated alone and in lockstep")
     a = ap.parse_args()
     out: dict = {"benchmark": "htm diagnose, 60 s records at 500 Hz", "budget_s": BUDGET_S,
                  "load_average_1min_start": round(os.getloadavg()[0], 2)}
@@ -119,6 +144,8 @@ def main() -> None:
                      "rmse_y_before_after_m": [report["baseline"]["rmse"]["y"], report["final"]["rmse"]["y"]]}
         if a.peer:
             out[name]["peer"] = [in_process(rec, DEFAULT), in_process(rec, dataclasses.replace(DEFAULT, jacobian_every=a.peer))]
+        if a.lockstep:
+            out[name]["lockstep"] = [in_process(rec, DEFAULT, lockstep=False), in_process(rec, DEFAULT, lockstep=True)]
     slowest = max(PATHS, key=lambda k: out[k]["seconds"])
     median = float(statistics.median(out[k]["seconds"] for k in PATHS))
     out |= {"slowest_path": slowest, "seconds": out[slowest]["seconds"], "median_seconds": round(median, 2),

@@ -6,6 +6,13 @@ re-simulated with `htm.ident.sim.predict`: one simulation alone at the fit's tol
 32 parameter sets on all cores versus the same batch on one thread (the GIL is released).
 Peer: the speed target of the fit, one 60 s simulation well under 0.1 s.
 
+`jacobian`: what the fit spends on one Jacobian — the point and its 18 neighbours (a step of
+each base parameter of the valve family), simulated as the fit does on the recorded command over
+its fit horizons — simulated alone (each with its own step-size control) and in lockstep with
+the point (on its step sizes, `lockstep=True`), one thread: CPU seconds, the integrator's
+accepted and rejected steps and right-hand sides, and each way's column error against columns
+simulated alone at rtol 1e-7 (median and worst over the columns, relative, channel y and p_a).
+
 Run: .venv/bin/python benchmarks/replay_speed.py   (prints one JSON object)
 """
 from __future__ import annotations
@@ -49,6 +56,7 @@ def main() -> None:
         batch.append(q)
     t_one_thread, _, _ = best_of(lambda: sim.predict(batch, rec, threads=1), n=1)
     t_all, cpu_all, _ = best_of(lambda: sim.predict(batch, rec), n=1)
+    jac = jacobian_peer(rec, p)
     print(json.dumps({
         "record_s": 60.0, "rate_hz": 500, "rtol": sim.RTOL,
         "seconds_per_simulation": round(t_fit, 4),
@@ -64,7 +72,53 @@ def main() -> None:
         "load_average_1min": round(os.getloadavg()[0], 2),
         "cores": os.cpu_count(),
         "peer": {"target_seconds_per_simulation": 0.1},
+        "jacobian": jac,
     }, indent=2))
+
+
+def jacobian_peer(rec, p) -> dict:
+    """One Jacobian of the fit (the point and its neighbours over the fit horizons on the recorded
+    command), alone and in lockstep: CPU, integrator work and column error against rtol 1e-7."""
+    from htm.ident.fit import spread_blocks
+    from htm.ident.model import Model, get_value, has_key
+    from htm.ident.valve import OTHER_FREES, RIG_FREES
+
+    n = len(rec.columns["t"])
+    fit_mask, _ = spread_blocks(n, 500.0, sim.DEFAULT_HORIZON_S, 20.0)
+    frees = [f for f in RIG_FREES + OTHER_FREES if has_key(p, f.key) and (not f.log or get_value(p, f.key) > 0)]
+    model = Model(p, frees, np.zeros(len(frees)))
+    x = model.start()
+    plist = [model.at(x).params()] + [model.at(x + f.step * np.eye(len(x))[i]).params() for i, f in enumerate(frees)]
+    kw = {"command": True, "active": fit_mask, "supply": sim.supply_schedule(rec), "threads": 1}
+    steps_of = sim.replay
+    work: dict = {}
+
+    def counted(*a, **k):
+        out = steps_of(*a, **k)
+        work.update(accepted=sum(r["steps"] for r in out), rejected=sum(r["rejected"] for r in out),
+                    rhs_evals=sum(r["rhs_evals"] for r in out))
+        return out
+
+    sim.replay = counted
+    try:
+        runs = {}
+        for name, lock in (("alone", False), ("lockstep", True)):
+            t, cpu, pred = best_of(lambda lock=lock: sim.predict(plist, rec, lockstep=lock, **kw), n=2)
+            runs[name] = {"cpu_seconds": round(cpu, 3), "seconds": round(t, 3), **work, "pred": pred}
+    finally:
+        sim.replay = steps_of
+    tight = sim.predict(plist, rec, rtol=1e-7, **kw)
+    for r in runs.values():
+        pred = r.pop("pred")
+        for c in ("y", "p_a"):
+            errs = []
+            for i in range(1, len(plist)):
+                ref = (tight[i][c] - tight[0][c])[fit_mask]
+                col = (pred[i][c] - pred[0][c])[fit_mask]
+                if np.linalg.norm(ref) > 0:
+                    errs.append(float(np.linalg.norm(col - ref) / np.linalg.norm(ref)))
+            r[f"column_error_{c}"] = {"median": float(f"{np.median(errs):.3g}"), "worst": float(f"{np.max(errs):.3g}")}
+    return {"columns": len(plist) - 1, **runs}
 
 
 if __name__ == "__main__":

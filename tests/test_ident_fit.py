@@ -53,3 +53,63 @@ def test_a_jacobian_carried_by_broyden_between_differencings_reaches_the_same_fi
         assert abs(every2[k] - v) <= 0.01 * abs(v), (k, every2[k])
         assert abs(every4[k] - v) <= 0.01 * abs(v), (k, every4[k])
     assert sims4 < sims2, (sims4, sims2)
+
+
+def test_jacobian_neighbours_run_in_lockstep_give_the_finite_difference_columns():
+    """A Jacobian's neighbours simulated in lockstep with the point (on its integrator step
+    sizes) give the columns that separate simulations at a tight tolerance give, within a few
+    percent (a neighbour that used the point's Jacobian instead of its own was 15 % off on a
+    valve play's column); the point itself reads exactly as when simulated alone."""
+    from htm.ident import proving, sim
+    from htm.ident.fit import spread_blocks
+
+    rec, _ = proving.make_record({"valve_hysteresis": {"half_width_v": 0.2}}, seed=3, duration_s=6.0, rate_hz=500)
+    n = len(rec.columns["t"])
+    fit_mask, _ = spread_blocks(n, 500.0, 0.5, 2.0)
+    p = sim.params_from_meta(rec.meta)
+    p["valve_natural_hz"] = 300.0
+    p["valve_damping"] = 0.7
+    steps = {"moving_mass_kg": 1.02, "bulk_modulus_pa": 1.02, "dead_volume_a_m3": 1.05, "friction_coulomb_pos_n": 1.05,
+             "valve_rated_flow_m3_s": 1.02, "valve_hysteresis_half_width_v": 0.02, "sensor_offset_p_a": 2e4}
+    plist = []
+    for k, s in steps.items():
+        q = p.copy()
+        q[k] = q[k] * s if k not in ("valve_hysteresis_half_width_v", "sensor_offset_p_a") else q[k] + s
+        plist.append(q)
+    kw = {"command": True, "active": fit_mask}
+    lock = sim.predict([p, *plist], rec, lockstep=True, threads=2, **kw)
+    alone = sim.predict([p, *plist], rec, threads=2, **kw)
+    tight = sim.predict([p, *plist], rec, threads=2, rtol=1e-7, **kw)
+    for c in ("y", "p_a", "p_b"):
+        assert np.array_equal(lock[0][c], alone[0][c], equal_nan=True), c  # the point: the same steps, bit for bit
+        for i, k in enumerate(steps, 1):
+            ref = (tight[i][c] - tight[0][c])[fit_mask]
+            col = (lock[i][c] - lock[0][c])[fit_mask]
+            size = np.linalg.norm(ref)
+            if size < 1e-9 * np.linalg.norm(tight[0][c][fit_mask]):
+                assert np.linalg.norm(col) <= 1e-6 * np.linalg.norm(tight[0][c][fit_mask]), (c, k)
+                continue
+            assert np.linalg.norm(col - ref) <= 0.05 * size, (c, k, np.linalg.norm(col - ref) / size)
+
+
+def test_a_simulator_without_lockstep_has_its_jacobian_simulated_alone():
+    """A problem asked for lockstep columns whose simulator takes no such option (a model of
+    its own, the displacement loop) fits as one that simulates them alone, the option turned off
+    after the first refusal."""
+
+    def strict(plist, rec, **opts):
+        if opts:
+            raise TypeError(f"unexpected options {sorted(opts)}")
+        return _simulate(plist, rec)
+
+    nominal = {"amp": 0.02, "tau": 0.25, "ripple": 0.0}
+    model = Model(nominal, [lin("amp", 0.01, -10, 10, step=0.01), logf("tau", 0.1, 10.0), lin("ripple", 0.001, -20, 20, step=0.01)],
+                  np.zeros(3))
+    fits = []
+    for lockstep in (True, False):
+        prob = dataclasses.replace(_problem(DEFAULT), simulate=strict, lockstep=lockstep)
+        fitted, _, _ = fit(prob, model.at(model.start()), iters=30, ftol=1e-9)
+        assert not prob.lockstep
+        fits.append((fitted.params(), prob.simulations))
+    assert fits[0] == fits[1]
+    assert abs(fits[0][0]["tau"] - TRUE["tau"]) <= 0.01 * TRUE["tau"]

@@ -518,7 +518,7 @@ class RigPlant:
 
 # --- record re-simulation (crates/htm-core/src/replay.rs, measure.rs); see htm.ident.sim ---
 # one parameter set's replay: the readings of each measured channel and the command u per sample,
-# the solver's steps; a failed set is its HtmError, as the item (every batch call's convention)
+# the solver's accepted and rejected steps and right-hand-side evaluations; a failed set is its HtmError, as the item (every batch call's convention)
 class _Replayed(TypedDict, total=False):
     y: npt.NDArray[np.float64]
     v: npt.NDArray[np.float64]
@@ -528,13 +528,15 @@ class _Replayed(TypedDict, total=False):
     f: npt.NDArray[np.float64]
     u: npt.NDArray[np.float64]
     steps: int
+    rejected: int
+    rhs_evals: int
 
 def replay(params: list[Params], dt: float, u: npt.NDArray[np.float64], measured: dict[str, npt.NDArray[np.float64]] | None = None,
            controller: _ControllerArgs | None = None, reference: npt.NDArray[np.float64] | None = None,
            horizon_s: float = ..., preroll_s: float = ..., rtol: float = ...,  # 0.5 s, 1.0 s, 1e-4 (replay.rs DEFAULT_*)
            noise: dict[str, npt.NDArray[np.float64]] | None = None, quantum: dict[str, float] | None = None,
            supply: npt.NDArray[np.float64] | None = None, active: npt.NDArray[np.bool_] | None = None,
-           threads: int = 0) -> list[_Replayed | HtmError]: ...
+           threads: int = 0, lockstep: bool = False) -> list[_Replayed | HtmError]: ...
 
 # --- identification (crates/htm-core/src/python/ident.rs) ---
 

@@ -583,6 +583,66 @@ impl Machine {
         self.plant.outputs(&self.x)
     }
 
+    /// [`step`](Self::step) for this machine and, in lockstep, for `followers`: machines whose
+    /// parameters differ slightly from its own (the finite-difference neighbours of a fit's
+    /// Jacobian). A follower takes this machine's accepted step sizes with its own rates and
+    /// Jacobian (`Rodas4::follow`): no step size that differs from its neighbour's for
+    /// reasons of step-size control alone (a step that misses the tolerance for the follower is
+    /// crossed with its own control). One whose spool form differs (a lag switched on from zero)
+    /// steps alone.
+    /// A follower that cannot be carried is left with a non-finite state (the caller checks).
+    pub fn step_lockstep(&mut self, followers: &mut [&mut Machine], u: f64, dt: f64) -> Result<Outputs> {
+        if !u.is_finite() {
+            return Err(Error::Input(format!("valve command is {u} at t = {:.6} s", self.t)));
+        }
+        if !(dt.is_finite() && dt > 0.0) {
+            return Err(Error::Input(format!("time step dt = {dt} s must be > 0")));
+        }
+        let dynamic = self.plant.spool_has_dynamics();
+        let mut lock = Vec::with_capacity(followers.len());
+        for (i, f) in followers.iter_mut().enumerate() {
+            if f.plant.spool_has_dynamics() != dynamic {
+                if f.step(u, dt).is_err() {
+                    f.x = [f64::NAN; NX];
+                }
+                continue;
+            }
+            f.plant.target = f.plant.spool_target(u, &mut f.backlash);
+            if !dynamic {
+                f.x[SPOOL] = f.plant.target;
+            }
+            f.t += dt;
+            lock.push(i);
+        }
+        self.plant.target = self.plant.spool_target(u, &mut self.backlash);
+        let Machine { plant, solver, x, .. } = self;
+        if dynamic {
+            solver.advance_with(&*plant, x, dt, |h| {
+                for &i in &lock {
+                    let f = &mut *followers[i];
+                    f.solver.follow(&f.plant, &mut f.x, h);
+                }
+            })?;
+        } else {
+            x[SPOOL] = plant.target;
+            let mut xh = [0.0; NH];
+            xh.copy_from_slice(&x[..NH]);
+            solver.advance_with(&HeldSpool { plant, x: *x }, &mut xh, dt, |h| {
+                for &i in &lock {
+                    let f = &mut *followers[i];
+                    let mut fx = [0.0; NH];
+                    fx.copy_from_slice(&f.x[..NH]);
+                    f.solver.follow(&HeldSpool { plant: &f.plant, x: f.x }, &mut fx, h);
+                    f.x[..NH].copy_from_slice(&fx);
+                }
+            })?;
+            x[..NH].copy_from_slice(&xh);
+        }
+        self.t += dt;
+        Ok(self.outputs())
+    }
+
+
     /// Advance only the valve (its play memory and spool states) under command `u` [V] held for
     /// `dt` [s]; the hydraulic and mechanical states stay (the caller sets them). The spool is
     /// linear and not acted on by the hydraulics, so this is the spool of a whole simulation,

@@ -42,7 +42,7 @@ pub struct Replay<'a> {
 }
 
 /// A re-simulated record: per channel what the sensors read, and the command applied.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Default)]
 pub struct Replayed {
     pub readings: [Vec<f64>; NC],
     pub u: Vec<f64>,
@@ -140,109 +140,207 @@ impl<'a> Replay<'a> {
         Ok(())
     }
 
-    /// Re-simulate the record with parameters `p`.
-    pub fn run(&self, p: &Params) -> Result<Replayed> {
-        self.validate()?;
-        let n = self.n();
+    /// A run's start: the machine at rest where the record starts, its sensors and readings.
+    fn start(&self, p: &Params) -> Result<Run> {
         let sensors = Sensors::from_params(p);
-        let mut m = Machine::new(p.clone())?.with_rtol(self.rtol)?;
+        let m = Machine::new(p.clone())?.with_rtol(self.rtol)?;
         // The supply set-point per sample: the schedule is the supply read at rest (above tank,
         // so that the valve keeps a drop), as a factor of `supply_pressure_pa`.
         let setpoints: Option<Vec<f64>> = self.supply.map(|s| {
             s.iter().map(|f| m.plant.setpoint_for_rest((p.supply_pressure_pa * f).max(p.tank_pressure_pa + 1e5))).collect()
         });
-        // a pump's ripple on top, at the sample instants (held over the sample)
-        let ripple = |k: usize| {
-            if p.supply_ripple_hz > 0.0 && (p.supply_ripple_sin_pa != 0.0 || p.supply_ripple_cos_pa != 0.0) {
-                let w = 2.0 * std::f64::consts::PI * p.supply_ripple_hz * k as f64 * self.dt;
-                p.supply_ripple_sin_pa * w.sin() + p.supply_ripple_cos_pa * w.cos()
-            } else {
-                0.0
-            }
+        let ripple = if p.supply_ripple_hz > 0.0 && (p.supply_ripple_sin_pa != 0.0 || p.supply_ripple_cos_pa != 0.0) {
+            Some((p.supply_ripple_hz, p.supply_ripple_sin_pa, p.supply_ripple_cos_pa))
+        } else {
+            None
         };
-        let supply_at = |k: usize| setpoints.as_ref().map(|s| s[k]).unwrap_or(p.supply_pressure_pa) + ripple(k);
-        m.plant.p.supply_pressure_pa = supply_at(0);
-        let y0 = self.start_position(&m, &sensors);
-        m.x = m.plant.rest_state(y0);
+        let mut run = Run { supply_pa: p.supply_pressure_pa, setpoints, ripple, m, sensors, probe: Probe::new(sensors, self.dt, 0), out: Replayed::default() };
+        run.m.plant.p.supply_pressure_pa = run.supply_at(0, self.dt);
+        let y0 = self.start_position(&run.m, &sensors);
+        run.m.x = run.m.plant.rest_state(y0);
+        let n = self.n();
         let pre = match self.closed_loop {
             Some(_) => (self.preroll_s / self.dt).round() as usize,
             None => 0,
         };
-        let mut probe = Probe::new(sensors, self.dt, pre + n);
-        let mut out = Replayed { readings: std::array::from_fn(|_| Vec::with_capacity(n)), u: Vec::with_capacity(n), stats: Stats::default() };
+        run.probe = Probe::new(sensors, self.dt, pre + n);
+        run.out = Replayed { readings: std::array::from_fn(|_| Vec::with_capacity(n)), u: Vec::with_capacity(n), stats: Stats::default() };
+        Ok(run)
+    }
+
+    /// Re-simulate the record with parameters `p`.
+    pub fn run(&self, p: &Params) -> Result<Replayed> {
+        self.validate()?;
+        let n = self.n();
+        let mut run = self.start(p)?;
         match &self.closed_loop {
             Some((ctrl, reference)) => {
+                let pre = (self.preroll_s / self.dt).round() as usize;
                 let r = held(reference);
                 for _ in 0..pre {
-                    probe.push(&m.outputs());
-                    let uk = ctrl.command(r[0], r[0], self.dt, &as_outputs(&probe.read_latest()));
-                    m.step(uk, self.dt)?;
+                    run.probe.push(&run.m.outputs());
+                    let uk = ctrl.command(r[0], r[0], self.dt, &as_outputs(&run.probe.read_latest()));
+                    run.m.step(uk, self.dt)?;
                 }
                 for k in 0..n {
-                    m.plant.p.supply_pressure_pa = supply_at(k); // read at k and held to k + 1
-                    probe.push(&m.outputs());
-                    let mut rd = probe.read_latest();
+                    run.m.plant.p.supply_pressure_pa = run.supply_at(k, self.dt); // read at k and held to k + 1
+                    run.probe.push(&run.m.outputs());
+                    let mut rd = run.probe.read_latest();
                     corrupt(&mut rd, &self.corruption, k);
                     let uk = ctrl.command(r[k], r[(k + 1).min(n - 1)], self.dt, &as_outputs(&rd));
-                    push(&mut out, &rd, uk);
-                    m.step(uk, self.dt)?;
+                    push(&mut run.out, &rd, uk);
+                    run.m.step(uk, self.dt)?;
                 }
             }
             None => {
                 let u = held(self.u);
-                let every = ((self.horizon_s / self.dt).round() as usize).max(1);
-                // Samples simulated: the active ones and a warm-up before each active run, so that
-                // the pressures there are the model's own (see `anchor`), not the measurement's.
-                let warm = ((WARMUP_S / self.dt).round() as usize).max(1);
-                let simulated: Vec<bool> = match self.active {
-                    None => vec![true; n],
-                    Some(a) => {
-                        let mut sim = a.to_vec();
-                        let mut next_active = usize::MAX;
-                        for k in (0..n).rev() {
-                            if a[k] {
-                                next_active = k;
-                            } else if next_active != usize::MAX && next_active - k <= warm {
-                                sim[k] = true;
-                            }
-                        }
-                        sim
+                let simulated = self.simulated();
+                let every = self.every();
+                for (k, &uk) in u.iter().enumerate() {
+                    if self.open_sample(&mut run, k, uk, &simulated, every) {
+                        run.m.step(uk, self.dt)?;
+                    } else {
+                        run.m.step_valve(uk, self.dt);
                     }
-                };
-                for k in 0..n {
-                    m.plant.p.supply_pressure_pa = supply_at(k);
-                    if !simulated[k] {
-                        // not simulated: the state follows the measurement, the valve the command
-                        self.restart(&mut m, &sensors, k);
-                        probe.push(&m.outputs());
-                        push(&mut out, &[f64::NAN; NC], u[k]);
-                        m.step_valve(u[k], self.dt);
-                        continue;
-                    }
-                    if k == 0 || !simulated[k - 1] {
-                        self.restart(&mut m, &sensors, k);
-                        probe.restart();
-                    } else if k % every == 0 {
-                        self.anchor(&mut m, &sensors, k);
-                    }
-                    probe.push(&m.outputs());
-                    let mut rd = probe.read_latest();
-                    corrupt(&mut rd, &self.corruption, k);
-                    if self.active.is_some_and(|a| !a[k]) {
-                        rd = [f64::NAN; NC]; // warm-up: simulated, not reported
-                    }
-                    push(&mut out, &rd, u[k]);
-                    m.step(u[k], self.dt)?;
                 }
             }
         }
-        out.stats = m.stats();
-        Ok(out)
+        run.out.stats = run.m.stats();
+        Ok(run.out)
+    }
+
+    /// Re-simulate with `ps[0]` and, in lockstep with it, every other set of `ps` (sets that
+    /// differ slightly from the first: a fit's finite-difference neighbours): the others take
+    /// the first one's step sizes (`Machine::step_lockstep`), so that their differences to the
+    /// first — a Jacobian's columns — are free of step-size noise, and they spend no rejected
+    /// steps. Open loop only (a closed loop runs each set alone), one thread; a first set that
+    /// fails has every set run alone.
+    pub fn run_lockstep(&self, ps: &[Params]) -> Vec<Result<Replayed>> {
+        let alone = || ps.iter().map(|p| self.run(p)).collect();
+        if ps.len() < 2 || self.closed_loop.is_some() {
+            return alone();
+        }
+        if let Err(e) = self.validate() {
+            return ps.iter().map(|_| Err(e.clone())).collect();
+        }
+        let mut runs: Vec<Result<Run>> = ps.iter().map(|p| self.start(p)).collect();
+        if runs[0].is_err() {
+            return alone();
+        }
+        let u = held(self.u);
+        let simulated = self.simulated();
+        let every = self.every();
+        for (k, &uk) in u.iter().enumerate() {
+            let mut step = false;
+            for r in runs.iter_mut().flatten() {
+                step = self.open_sample(r, k, uk, &simulated, every);
+            }
+            if !step {
+                for r in runs.iter_mut().flatten() {
+                    r.m.step_valve(uk, self.dt);
+                }
+                continue;
+            }
+            let (lead, rest) = runs.split_first_mut().expect("two sets or more");
+            let lead = lead.as_mut().expect("the first set started");
+            let mut followers: Vec<&mut Machine> = rest.iter_mut().flatten().map(|r| &mut r.m).collect();
+            if lead.m.step_lockstep(&mut followers, uk, self.dt).is_err() {
+                return alone();
+            }
+            for r in rest.iter_mut() {
+                if r.as_ref().is_ok_and(|r| !r.m.x.iter().all(|v| v.is_finite())) {
+                    *r = Err(Error::Solver(format!("non-finite state at sample {k} in a step taken in lockstep (t = {:.4} s)", k as f64 * self.dt)));
+                }
+            }
+        }
+        runs.into_iter().map(|r| r.map(|mut r| {
+            r.out.stats = r.m.stats();
+            r.out
+        })).collect()
+    }
+
+    /// Open loop: every `every` samples the position is put back on the measurement.
+    fn every(&self) -> usize {
+        ((self.horizon_s / self.dt).round() as usize).max(1)
+    }
+
+    /// Open loop: the samples simulated, the active ones and a warm-up before each active run,
+    /// so that the pressures there are the model's own (see `anchor`), not the measurement's.
+    fn simulated(&self) -> Vec<bool> {
+        let n = self.n();
+        let warm = ((WARMUP_S / self.dt).round() as usize).max(1);
+        match self.active {
+            None => vec![true; n],
+            Some(a) => {
+                let mut sim = a.to_vec();
+                let mut next_active = usize::MAX;
+                for k in (0..n).rev() {
+                    if a[k] {
+                        next_active = k;
+                    } else if next_active != usize::MAX && next_active - k <= warm {
+                        sim[k] = true;
+                    }
+                }
+                sim
+            }
+        }
+    }
+
+    /// Open loop, sample `k` up to its step: the supply, re-starts and anchors, the readings.
+    /// Returns whether the sample is integrated (else only the valve follows the command).
+    fn open_sample(&self, run: &mut Run, k: usize, uk: f64, simulated: &[bool], every: usize) -> bool {
+        run.m.plant.p.supply_pressure_pa = run.supply_at(k, self.dt);
+        let Run { m, sensors, probe, out, .. } = run;
+        if !simulated[k] {
+            // not simulated: the state follows the measurement, the valve the command
+            self.restart(m, sensors, k);
+            probe.push(&m.outputs());
+            push(out, &[f64::NAN; NC], uk);
+            return false;
+        }
+        if k == 0 || !simulated[k - 1] {
+            self.restart(m, sensors, k);
+            probe.restart();
+        } else if k.is_multiple_of(every) {
+            self.anchor(m, sensors, k);
+        }
+        probe.push(&m.outputs());
+        let mut rd = probe.read_latest();
+        corrupt(&mut rd, &self.corruption, k);
+        if self.active.is_some_and(|a| !a[k]) {
+            rd = [f64::NAN; NC]; // warm-up: simulated, not reported
+        }
+        push(out, &rd, uk);
+        true
     }
 
     /// Re-simulate with every parameter set, spread over `threads` threads (0 = all cores).
     pub fn run_batch(&self, ps: &[Params], threads: usize) -> Vec<Result<Replayed>> {
         crate::batch::par_map(ps, threads, |p| self.run(p))
+    }
+
+    /// [`run_lockstep`](Self::run_lockstep) spread over `threads` threads (0 = all cores): the
+    /// sets after the first in as many contiguous groups, each run in lockstep with its own copy
+    /// of the first (one more simulation of it per extra thread). Results in the order of `ps`.
+    pub fn run_lockstep_batch(&self, ps: &[Params], threads: usize) -> Vec<Result<Replayed>> {
+        let threads = if threads == 0 { std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1) } else { threads };
+        let rest = ps.len().saturating_sub(1);
+        let groups = threads.clamp(1, rest.max(1));
+        if groups <= 1 {
+            return self.run_lockstep(ps);
+        }
+        let bounds: Vec<(usize, usize)> = (0..groups).map(|g| (1 + g * rest / groups, 1 + (g + 1) * rest / groups)).collect();
+        let sets: Vec<Vec<Params>> = bounds.iter().map(|&(a, b)| std::iter::once(ps[0].clone()).chain(ps[a..b].iter().cloned()).collect()).collect();
+        let mut out = Vec::with_capacity(ps.len());
+        for (g, res) in crate::batch::par_map(&sets, groups, |set| self.run_lockstep(set)).into_iter().enumerate() {
+            let mut res = res.into_iter();
+            let first = res.next().expect("each group runs its first set");
+            if g == 0 {
+                out.push(first);
+            }
+            out.extend(res);
+        }
+        out
     }
 
     /// True start position. Position control: where the sensor reads the first reference (the
@@ -308,6 +406,34 @@ impl<'a> Replay<'a> {
             if let Some(pr) = at(c) {
                 m.x[i] = s.0[c].unread(pr).max(floor);
             }
+        }
+    }
+}
+
+/// One parameter set's run over the record: its machine, sensors, readings so far and supply.
+struct Run {
+    /// the parameters' supply set-point [Pa]
+    supply_pa: f64,
+    /// per sample, the set-point that reads the schedule's supply at rest
+    setpoints: Option<Vec<f64>>,
+    /// a pump's ripple (frequency [Hz], sine and cosine amplitudes [Pa])
+    ripple: Option<(f64, f64, f64)>,
+    m: Machine,
+    sensors: Sensors,
+    probe: Probe,
+    out: Replayed,
+}
+
+impl Run {
+    /// The supply set-point at sample `k`, with the ripple at the sample instant (held over it).
+    fn supply_at(&self, k: usize, dt: f64) -> f64 {
+        let base = self.setpoints.as_ref().map(|s| s[k]).unwrap_or(self.supply_pa);
+        match self.ripple {
+            Some((hz, sin, cos)) => {
+                let w = 2.0 * std::f64::consts::PI * hz * k as f64 * dt;
+                base + (sin * w.sin() + cos * w.cos())
+            }
+            None => base,
         }
     }
 }
@@ -419,6 +545,52 @@ mod tests {
         let shifted: Vec<f64> = (0..r.len()).map(|k| ideal.readings[0][k.saturating_sub(5)]).collect();
         assert!(diff(&late.readings[0], &ideal.readings[0]) > 5e-4);
         assert!(diff(&late.readings[0], &shifted) > 2e-4, "{}", diff(&late.readings[0], &shifted));
+    }
+
+    #[test]
+    fn neighbours_in_lockstep_follow_the_first_set_and_differ_from_it_as_when_run_alone() {
+        let mut p = Params::base();
+        p.valve_natural_hz = 200.0;
+        let r = ramp(1500);
+        let u0 = vec![0.0; r.len()];
+        let mut rp = Replay::new(2e-3, &u0);
+        rp.closed_loop = Some((PFF, &r));
+        let truth = rp.run(&p).unwrap();
+        let mut ol = Replay::new(2e-3, &truth.u);
+        for c in 0..4 {
+            ol.measured[c] = Some(&truth.readings[c]);
+        }
+        ol.horizon_s = 0.2;
+        let mask: Vec<bool> = (0..r.len()).map(|k| (k / 100) % 3 == 1).collect();
+        ol.active = Some(&mask);
+        let mut heavier = p.clone();
+        heavier.moving_mass_kg *= 1.02;
+        let mut softer = p.clone();
+        softer.bulk_modulus_pa *= 0.98;
+        let mut lagged = p.clone();
+        lagged.valve_tau_s = 0.002; // a spool form of its own: stepped alone
+        let ps = [p.clone(), heavier, softer, lagged];
+        let alone: Vec<Replayed> = ps.iter().map(|q| ol.run(q).unwrap()).collect();
+        let mut tight = ol.clone();
+        tight.rtol = 1e-7;
+        let exact: Vec<Replayed> = ps.iter().map(|q| tight.run(q).unwrap()).collect();
+        for threads in [1, 2] {
+            let lock: Vec<Replayed> = ol.run_lockstep_batch(&ps, threads).into_iter().map(|x| x.unwrap()).collect();
+            let bits = |r: &Replayed| r.readings.iter().flatten().map(|v| v.to_bits()).collect::<Vec<u64>>();
+            assert!(bits(&lock[0]) == bits(&alone[0]), "the first set takes its own steps");
+            assert!(lock[1].stats.accepted == lock[0].stats.accepted && lock[1].stats.rejected == 0);
+            for i in 1..ps.len() {
+                for c in 0..4 {
+                    let col = |a: &Replayed, b: &Replayed| -> Vec<f64> {
+                        (0..r.len()).filter(|&k| mask[k]).map(|k| a.readings[c][k] - b.readings[c][k]).collect()
+                    };
+                    let (got, want) = (col(&lock[i], &lock[0]), col(&exact[i], &exact[0]));
+                    let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
+                    let err: Vec<f64> = got.iter().zip(&want).map(|(a, b)| a - b).collect();
+                    assert!(norm(&err) <= 0.05 * norm(&want), "set {i} channel {c}: {} of {}", norm(&err), norm(&want));
+                }
+            }
+        }
     }
 
     #[test]

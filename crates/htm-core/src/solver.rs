@@ -94,6 +94,14 @@ impl Rodas4 {
 
     /// Integrate `x` forward by `dt` with the input held; ends exactly at dt.
     pub fn advance<const N: usize, S: OdeSystem<N>>(&mut self, sys: &S, x: &mut [f64; N], dt: f64) -> Result<()> {
+        self.advance_with(sys, x, dt, |_| {})
+    }
+
+    /// [`advance`](Self::advance), handing the size of every accepted step to `follow`: systems
+    /// that differ slightly from this one (finite-difference neighbours) take the same steps with
+    /// [`Rodas4::follow`].
+    pub fn advance_with<const N: usize, S: OdeSystem<N>>(&mut self, sys: &S, x: &mut [f64; N], dt: f64,
+                                                         mut follow: impl FnMut(f64)) -> Result<()> {
         let (rel, scale) = sys.error_weights();
         let checked = sys.error_checked();
         let n_checked = sys.error_count().max(1) as f64;
@@ -111,21 +119,15 @@ impl Rodas4 {
                 self.stats.rhs_evals += 1 + sys.jacobian(x, &f0, &mut jac);
                 have_jac = true;
             }
-            let (xn, err) = self.step(sys, x, &f0, &jac, h);
-            let err_norm = {
-                let mut s = 0.0;
-                for i in (0..N).filter(|i| checked[*i]) {
-                    let w = self.rtol * (x[i].abs().max(xn[i].abs()) * rel[i] + scale[i]);
-                    let e = err[i] / w;
-                    s += e * e;
-                }
-                (s / n_checked).sqrt()
-            };
+            let fac_g = Factored::new(&jac, h);
+            let (xn, err) = self.stages(sys, x, &f0, &fac_g);
+            let err_norm = error_norm(self.rtol, (&rel, &scale, &checked, n_checked), x, &xn, &err);
             let finite = err_norm.is_finite() && xn.iter().all(|v| v.is_finite());
             if self.fixed_step.is_some() {
                 if !finite {
                     return Err(Error::Solver("non-finite state in fixed-step integration".into()));
                 }
+                follow(h);
                 *x = xn;
                 t += h;
                 have_jac = false;
@@ -135,6 +137,7 @@ impl Rodas4 {
             // err^(-1/4) by two square roots (a pow costs several times more, once per step)
             let fac = if finite { (0.9 / err_norm.max(1e-10).sqrt().sqrt()).clamp(0.2, 6.0) } else { 0.1 };
             if finite && err_norm <= 1.0 {
+                follow(h);
                 *x = xn;
                 t = if clipped || h == remaining { dt } else { t + h };
                 have_jac = false;
@@ -154,16 +157,36 @@ impl Rodas4 {
         Ok(())
     }
 
-    pub(crate) fn step<const N: usize, S: OdeSystem<N>>(&mut self, sys: &S, x: &[f64; N], f0: &[f64; N], jac: &[[f64; N]; N], h: f64) -> ([f64; N], [f64; N]) {
-        // G = I/(h*gamma) - J, factorised once per step.
-        let mut g = [[0.0; N]; N];
-        for i in 0..N {
-            for j in 0..N {
-                g[i][j] = -jac[i][j];
-            }
-            g[i][i] += 1.0 / (h * GAMMA);
+    /// A follower's step: `sys` (a system close to a leader's) advanced from `x` by the leader's
+    /// accepted step size `h`, with its own rates and Jacobian. Its difference to the leader is
+    /// then free of step-size noise (both took the same steps). Where that step misses this
+    /// solver's tolerance for the follower (a neighbour nearer a cavitating chamber than its
+    /// leader), the follower crosses the same interval with its own step-size control instead.
+    /// `x` turns non-finite if the follower cannot be carried.
+    pub fn follow<const N: usize, S: OdeSystem<N>>(&mut self, sys: &S, x: &mut [f64; N], h: f64) {
+        let mut f0 = [0.0; N];
+        sys.rhs(x, &mut f0);
+        let mut jac = [[0.0; N]; N];
+        self.stats.rhs_evals += 1 + sys.jacobian(x, &f0, &mut jac);
+        let (xn, err) = self.stages(sys, x, &f0, &Factored::new(&jac, h));
+        let (rel, scale) = sys.error_weights();
+        let norm = error_norm(self.rtol, (&rel, &scale, &sys.error_checked(), sys.error_count().max(1) as f64), x, &xn, &err);
+        if norm <= 1.0 && xn.iter().all(|v| v.is_finite()) {
+            *x = xn;
+            self.stats.accepted += 1;
+            return;
         }
-        let piv = lu_factor(&mut g);
+        self.stats.rejected += 1;
+        self.h = 0.5 * h;
+        if self.advance(sys, x, h).is_err() {
+            *x = [f64::NAN; N];
+        }
+    }
+
+    /// The six stages of one step of size `g.h` from `x` (where the rate is `f0`) with the
+    /// factorised iteration matrix `g`: the new state and the error estimate.
+    fn stages<const N: usize, S: OdeSystem<N>>(&mut self, sys: &S, x: &[f64; N], f0: &[f64; N], fac: &Factored<N>) -> ([f64; N], [f64; N]) {
+        let (h, g, piv) = (fac.h, &fac.lu, &fac.perm);
         let mut k = [[0.0; N]; 6];
         let mut y = [0.0; N];
         let mut f = [0.0; N];
@@ -188,7 +211,7 @@ impl Rodas4 {
                     b[i] += c * k[j][i];
                 }
             }
-            lu_solve(&g, &piv, &b, &mut k[s]);
+            lu_solve(g, piv, &b, &mut k[s]);
         }
         let mut xn = [0.0; N];
         for i in 0..N {
@@ -197,6 +220,44 @@ impl Rodas4 {
         (xn, k[5])
     }
 }
+
+/// The step-size control's error norm of a step from `x` to `xn` with error estimate `err`:
+/// the RMS over the checked components (weights `w` = relative, scale, checked, count) of the
+/// error against rtol * (|x| * relative + scale).
+fn error_norm<const N: usize>(rtol: f64, w: (&[f64; N], &[f64; N], &[bool; N], f64), x: &[f64; N], xn: &[f64; N], err: &[f64; N]) -> f64 {
+    let (rel, scale, checked, n_checked) = w;
+    let mut s = 0.0;
+    for i in (0..N).filter(|i| checked[*i]) {
+        let w = rtol * (x[i].abs().max(xn[i].abs()) * rel[i] + scale[i]);
+        let e = err[i] / w;
+        s += e * e;
+    }
+    (s / n_checked).sqrt()
+}
+
+/// A step's size and its factorised iteration matrix I/(h*gamma) - J.
+#[derive(Debug, Clone)]
+struct Factored<const N: usize> {
+    h: f64,
+    lu: [[f64; N]; N],
+    perm: [usize; N],
+}
+
+impl<const N: usize> Factored<N> {
+    fn new(jac: &[[f64; N]; N], h: f64) -> Self {
+        let mut lu = [[0.0; N]; N];
+        for i in 0..N {
+            for j in 0..N {
+                lu[i][j] = -jac[i][j];
+            }
+            lu[i][i] += 1.0 / (h * GAMMA);
+        }
+        let perm = lu_factor(&mut lu);
+        Factored { h, lu, perm }
+    }
+}
+
+
 
 /// In-place LU with partial pivoting (U's diagonal stored as its reciprocals); singular pivots are replaced by a tiny value (the step
 /// is then rejected by the error test rather than panicking). Returns the row permutation: row i

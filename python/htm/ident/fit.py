@@ -11,6 +11,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from htm.errors import RecordError
 from htm.ident import features as ft
 from htm.ident.model import Model
 from htm.ident.records import Record
@@ -23,6 +24,13 @@ RADIUS_MAX = DEFAULT.radius_max
 JACOBIAN_EVERY = DEFAULT.jacobian_every
 PRIOR_SHARE = DEFAULT.prior_share
 SIGNIFICANT = DEFAULT.significant
+
+# Jacobians simulated in lockstep with their point (`Problem.lockstep`) when True. Off: with it
+# on, matrix C's entrained_air record ends unexplained (a probe's fit, better converged, pays off
+# by a hair) — the same record and finding otherwise. On the three paths of benchmarks/diagnose.py
+# (in process, same run): the same findings, CPU 11.6/31.8/19.8 s alone vs 11.8/28.8/17.7 s in
+# lockstep, rejected steps halved. `benchmarks/diagnose.py --lockstep` compares both in one run.
+LOCKSTEP = False
 
 Predictor = Callable[..., list[dict[str, np.ndarray]]]
 # Problems are simulated from several threads at once (independent fits run side by side).
@@ -67,6 +75,12 @@ class Problem:
     meas: dict[str, np.ndarray] = field(default_factory=dict)
     work: Record | None = None
     settings: SearchSettings = DEFAULT
+    # Jacobian columns simulated in lockstep with the point (`sim.predict`'s `lockstep`: the
+    # neighbours take the point's integrator step sizes, so that the columns are free of
+    # step-size noise — the worst column's error against rtol 1e-7 columns 5 % -> 0.4 % on p_a in
+    # benchmarks/replay_speed.py). Default `LOCKSTEP`; turned off for good the first time the
+    # simulator refuses the option (the displacement loop).
+    lockstep: bool = field(default_factory=lambda: LOCKSTEP)
 
     def __post_init__(self) -> None:
         self.meas = {c: np.asarray(self.rec.columns[c], dtype=float) for c in self.channels}
@@ -77,7 +91,7 @@ class Problem:
     def variant(self, **opts: Any) -> "Problem":
         """The same problem simulated with other options (e.g. on the recorded command)."""
         return Problem(self.rec, self.simulate, self.channels, self.sigma, self.n_work, self.fit_mask, self.val_mask,
-                       {**self.opts, **opts}, self.sparse, settings=self.settings)
+                       {**self.opts, **opts}, self.sparse, settings=self.settings, lockstep=self.lockstep)
 
     @property
     def truncated(self) -> bool:
@@ -85,8 +99,6 @@ class Problem:
 
     def predict(self, plist: list[Any], *, whole: bool = False, **extra: Any) -> list[dict[str, np.ndarray]]:
         """Sensor readings predicted for each parameter set over the working window (or the whole record)."""
-        with _COUNT:
-            self.simulations += len(plist)
         n = len(self.rec.columns["t"])
         opts = {**self.opts, **extra}
         if not whole and self.truncated:
@@ -94,7 +106,21 @@ class Problem:
         if not whole and self.sparse:
             opts["active"] = self.fit_mask
         out = self.simulate(plist, self.rec if whole else self.work, **opts)
+        with _COUNT:
+            self.simulations += len(plist)
         return [{c: np.asarray(pr[c], dtype=float) for c in self.channels} for pr in out]
+
+    def neighbours(self, point: Any, plist: list[Any]) -> list[dict[str, np.ndarray]]:
+        """Predictions of `plist`, parameter sets that each differ slightly from `point` (a
+        Jacobian's finite-difference neighbours): run in lockstep with `point` where the
+        simulator can (on its integrator step sizes; `point` simulated again beside them, once a
+        thread, and counted once), else alone."""
+        if self.lockstep and plist:
+            try:
+                return self.predict([point, *plist], lockstep=True)[1:]
+            except (RecordError, TypeError):  # a simulator that takes no such option
+                self.lockstep = False
+        return self.predict(plist)
 
     def whole(self, model: Model, work_pred: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         """The whole-record prediction of a model whose working-window prediction is known."""
@@ -276,7 +302,7 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, f
         if fresh == 0 or fresh >= st.jacobian_every:
             hs = np.where(x + steps <= hi, steps, -steps)  # step inwards at an upper bound
             idx = np.flatnonzero(moving)
-            preds = prob.predict([model.at(x + hs[i] * np.eye(len(x))[i]).params() for i in idx])
+            preds = prob.neighbours(model.at(x).params(), [model.at(x + hs[i] * np.eye(len(x))[i]).params() for i in idx])
             jac = np.zeros((n_data, len(x)))
             for i, pr in zip(idx, preds):
                 jac[:, i] = (prob.residual(pr, prob.fit_mask) - r[:n_data]) / hs[i]

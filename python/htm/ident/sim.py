@@ -238,7 +238,7 @@ def _setup(rec: Record, command: bool = False) -> dict[str, Any]:
 def predict(params: Params | list[Params], rec: Record, *, horizon_s: float | None = None, threads: int = 0,
             rtol: float = RTOL, supply: np.ndarray | None | str = "auto", command: bool = False,
             noise: Mapping[str, np.ndarray] | None = None, quantum: Mapping[str, float] | None = None,
-            active: np.ndarray | None = None,
+            active: np.ndarray | None = None, lockstep: bool = False,
             with_command: bool = False) -> dict[str, np.ndarray] | list[dict[str, np.ndarray]]:
     """The record's channels (those of y, v, p_a, p_b, p_s, f it has) as the model's sensors would
     read them, noise-free (unless `noise` is given), SI units.
@@ -253,8 +253,11 @@ def predict(params: Params | list[Params], rec: Record, *, horizon_s: float | No
     (a prediction error that stays well posed when the closed loop hunts on its sensor noise).
     `noise`/`quantum` per channel: added to the readings inside the loop (a synthetic record of
     the model; the returned readings include them). `active` (bool per sample; open loop or
-    `command` only): simulate just those samples, the others read NaN. `with_command`: also
-    return the command `u` applied (the model's own controller's in closed loop).
+    `command` only): simulate just those samples, the others read NaN. `lockstep` (open loop or
+    `command`): the sets after the first differ from it slightly (a fit's finite-difference
+    neighbours) and take its integrator step sizes: their differences to it are free of
+    step-size noise (and they spend no rejected steps). `with_command`: also return the command `u`
+    applied (the model's own controller's in closed loop).
 
     A list of Params runs in parallel in Rust with the GIL released (`threads` = 0: all cores)
     and a failed simulation gives NaN arrays; a single Params raises SolverError instead.
@@ -272,7 +275,7 @@ def predict(params: Params | list[Params], rec: Record, *, horizon_s: float | No
     if active is not None and "controller" not in args:
         args["active"] = np.ascontiguousarray(active, dtype=bool)
     out = replay(plist, horizon_s=DEFAULT_HORIZON_S if horizon_s is None else float(horizon_s),
-                 preroll_s=PREROLL_S, rtol=rtol, threads=threads, **args)
+                 preroll_s=PREROLL_S, rtol=rtol, threads=threads, lockstep=lockstep and "controller" not in args, **args)
     keep = list(args["measured"]) + (["u"] if with_command else [])
     if single and isinstance(out[0], HtmError):
         raise SolverError(f"record `{rec.name}`: {out[0]}")

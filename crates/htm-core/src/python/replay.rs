@@ -35,6 +35,8 @@ fn result_item<'py>(py: Python<'py>, r: Result<Replayed, crate::Error>) -> PyRes
             }
             d.set_item("u", PyArray1::from_vec(py, o.u))?;
             d.set_item("steps", o.stats.accepted)?;
+            d.set_item("rejected", o.stats.rejected)?;
+            d.set_item("rhs_evals", o.stats.rhs_evals)?;
             Ok(d.into_any())
         }
         Err(e) => Ok(PyErr::from(e).into_value(py).into_bound(py).into_any()),
@@ -49,11 +51,13 @@ fn result_item<'py>(py: Python<'py>, r: Result<Replayed, crate::Error>) -> PyRes
 /// `noise` (per-channel arrays added to the readings) and `quantum` (per-channel steps) make a
 /// record's realistic sensors. `supply` (one factor per sample) scales the supply set-point
 /// `supply_pressure_pa` over time (a power unit switched between pressure levels). Returns one item per parameter set: a dict of the readings per channel,
-/// `u` and `steps` — or, for a set the solver could not carry, its `HtmError` as the item (every batch call's convention). Bad arguments raise.
+/// `u`, `steps`, `rejected` and `rhs_evals` — or, for a set the solver could not carry, its `HtmError` as the item (every batch call's
+/// convention). `lockstep` (open loop): the sets after the first differ from it slightly (a fit's finite-difference neighbours)
+/// and take its integrator step sizes (`Replay::run_lockstep`). Bad arguments raise.
 #[pyfunction]
 #[pyo3(signature = (params, dt, u, measured = None, controller = None, reference = None, horizon_s = DEFAULT_HORIZON_S,
                     preroll_s = DEFAULT_PREROLL_S, rtol = DEFAULT_RTOL, noise = None, quantum = None, supply = None, active = None,
-                    threads = 0))]
+                    threads = 0, lockstep = false))]
 #[allow(clippy::too_many_arguments)]
 fn replay<'py>(
     py: Python<'py>,
@@ -71,6 +75,7 @@ fn replay<'py>(
     supply: Option<PyReadonlyArray1<'py, f64>>,
     active: Option<PyReadonlyArray1<'py, bool>>,
     threads: usize,
+    lockstep: bool,
 ) -> PyResult<Bound<'py, PyList>> {
     let meas = channel_arrays(measured)?;
     let noise = channel_arrays(noise)?;
@@ -114,7 +119,7 @@ fn replay<'py>(
     rp.validate()?;
     let ps: Vec<_> = params.into_iter().map(|p| p.inner).collect();
     let rp_ref = &rp;
-    let results = py.detach(move || rp_ref.run_batch(&ps, threads));
+    let results = py.detach(move || if lockstep { rp_ref.run_lockstep_batch(&ps, threads) } else { rp_ref.run_batch(&ps, threads) });
     let out = PyList::empty(py);
     for r in results {
         out.append(result_item(py, r)?)?;
