@@ -475,6 +475,11 @@ impl CycleMachine {
                 let f_op = reader.opening_force_n();
                 r.opening_force_n = f_op;
                 r.delta_k_eff = if f_op.is_finite() { crate::crack_measure::delta_k(spec, self.a, fmin, fmax, f_op).1 } else { dk };
+                if reader.opening_unresolved() {
+                    // the gauge's noise hides the closure: no opening force, ΔK_eff not claimed
+                    r.delta_k_eff = f64::NAN;
+                    ev |= events::CLOSURE_UNRESOLVED;
+                }
             }
         }
         if self.ramping_in && !r.judged {

@@ -132,7 +132,9 @@ impl Measurement {
 }
 
 /// One reading: the cycle it was taken at, crack size [m] and its standard uncertainty from the
-/// reading's own fit [m], opening force (2 % offset) [N], ΔK_eff.
+/// reading's own fit [m], opening force (2 % offset) [N], ΔK_eff; whether the opening force is
+/// resolved (NaN and ΔK_eff NaN when not), the offset noise and the curves the closure rests on
+/// (`crack_measure::Interval`).
 #[derive(serde::Serialize, serde::Deserialize, Debug, Clone, Copy, PartialEq)]
 pub struct Reading {
     pub cycle: f64,
@@ -140,6 +142,21 @@ pub struct Reading {
     pub a_std_m: f64,
     pub opening_force_n: f64,
     pub dk_eff: f64,
+    #[serde(default)]
+    pub opening_resolved: bool,
+    #[serde(default)]
+    pub offset_noise: f64,
+    #[serde(default)]
+    pub closure_pooled: u32,
+}
+
+impl Reading {
+    fn of(cycle: f64, iv: &meas::Interval) -> Self {
+        Reading {
+            cycle, a_m: iv.a_m, a_std_m: iv.a_std_m, opening_force_n: iv.opening_force_n[1], dk_eff: iv.dk_eff, opening_resolved: iv.opening_resolved,
+            offset_noise: iv.offset_noise, closure_pooled: iv.closure_pooled as u32,
+        }
+    }
 }
 
 /// The running crack's line reaches back until its standard uncertainty at the current cycle is
@@ -332,10 +349,10 @@ impl CrackReader {
     fn take_done(&mut self, spec: &Specimen) -> Option<Reading> {
         let (r, mid) = self.done.take()?;
         if let Ok(oc) = &r {
-            self.pool.push(oc.hint_frac);
+            self.pool.push_interval(oc);
         }
         let r = r.map_err(Error::Input).and_then(|oc| meas::compliance_interval(spec, &self.method, &oc));
-        let r = r.map(|iv| Reading { cycle: mid, a_m: iv.a_m, a_std_m: iv.a_std_m, opening_force_n: iv.opening_force_n[1], dk_eff: iv.dk_eff });
+        let r = r.map(|iv| Reading::of(mid, &iv));
         self.accept(r)
     }
 
@@ -370,7 +387,7 @@ impl CrackReader {
         }
         let iv = self.pd.interval(spec, &self.method)?;
         // the interval's crack is the crack half-way through it (cycles counted, as `a_at` takes them)
-        Ok(Reading { cycle: mid, a_m: iv.a_m, a_std_m: iv.a_std_m, opening_force_n: iv.opening_force_n[1], dk_eff: iv.dk_eff })
+        Ok(Reading::of(mid, &iv))
     }
 
     /// The measured crack once `cycle` cycles are counted: a weighted least-squares line through
@@ -394,12 +411,11 @@ impl CrackReader {
         match n {
             0 => return (self.a0, f64::NAN, 0),
             1 => return (r[0].a_m, r[0].a_std_m, 1),
-            2 => return (r[1].a_m + (r[1].a_m - r[0].a_m) / (r[1].cycle - r[0].cycle) * (cycle as f64 - r[1].cycle), f64::NAN, 2),
             _ => {}
         }
         let target = LINE_PRECISION_RESOLUTIONS * self.resolution;
         let reach = LINE_EXTENSION_RESOLUTIONS * self.resolution;
-        let min_n = self.fitted.clamp(3, n);
+        let min_n = self.fitted.max(3).min(n);
         // each reading's uncertainty, never below the median of the last ones (a reading whose own
         // fit happens to scatter little must not outweigh the rest); none: the median
         let typical = {
@@ -442,7 +458,7 @@ impl CrackReader {
             sxy += w * x * y;
             syy += w * y * y;
             let m = k + 1;
-            if m < 3 {
+            if m < 2 {
                 continue;
             }
             let (xm, ym) = (sx / sw, sy / sw);
@@ -451,10 +467,16 @@ impl CrackReader {
                 continue;
             }
             let slope = cxy / cxx;
-            let at = ym - slope * xm; // the line at x = 0, i.e. at `cycle`
-            // the weights' variance at `cycle`, scaled by the reduced χ² of the scatter when above 1
-            let chi2 = ((cyy - slope * cxy).max(0.0) / (m as f64 - 2.0)).max(1.0);
-            let se = ((1.0 / sw + xm * xm / cxx) * chi2).sqrt();
+            // the weights' variance, scaled by the reduced χ² of the scatter when above 1
+            let chi2 = if m > 2 { ((cyy - slope * cxy).max(0.0) / (m as f64 - 2.0)).max(1.0) } else { 1.0 };
+            // the slope shrunk by its own precision (a slope its noise could make is mostly not
+            // extrapolated: the first readings' line, a few noisy points, would carry their scatter
+            // far ahead): k = s²/(s² + σ_s²); the estimate's error at `cycle` counts the lag it leaves
+            let var_slope = chi2 / cxx;
+            let shrink = slope * slope / (slope * slope + var_slope);
+            let at = ym - shrink * slope * xm; // the line at x = 0, i.e. at `cycle`
+            let lag = (1.0 - shrink) * slope * xm;
+            let se = (chi2 / sw + shrink * shrink * xm * xm * var_slope + lag * lag).sqrt();
             best = (y0 + at, se, m);
             if m >= min_n && (se <= target || r[n - 1].cycle - rd.cycle >= cycles_reach) {
                 break;
@@ -467,12 +489,20 @@ impl CrackReader {
         self.readings.last().copied()
     }
 
-    /// The opening force [N]: the mean over the readings the crack is fitted through (E647 X2
-    /// allows averaging; one interval's is noisy); NaN without one.
+    /// The opening force [N]: the mean over the resolved opening forces of the readings the crack
+    /// is fitted through (E647 X2 allows averaging; one interval's is noisy); NaN without one.
     pub fn opening_force_n(&self) -> f64 {
         let r = &self.readings[self.readings.len().saturating_sub(self.fitted)..];
         let v: Vec<f64> = r.iter().map(|r| r.opening_force_n).filter(|f| f.is_finite()).collect();
         if v.is_empty() { f64::NAN } else { v.iter().sum::<f64>() / v.len() as f64 }
+    }
+
+    /// A compliance reader whose last readings (those `opening_force_n` averages) all left the
+    /// opening force not resolved: the gauge's noise hides the closure (the offset noise of the
+    /// newest is `last().offset_noise`); ΔK_eff is then not claimed.
+    pub fn opening_unresolved(&self) -> bool {
+        let r = &self.readings[self.readings.len().saturating_sub(self.fitted)..];
+        !self.potential() && !r.is_empty() && r.iter().all(|r| !r.opening_resolved)
     }
 
     /// A cycle jump moved the crack to `a` (simulation): the readings start again from it.
@@ -679,7 +709,7 @@ mod tests {
             };
             let at_once = crate::crack_measure::reduce_compliance_interval(&spec, &reader.method, &f, &v, &c, &mut Default::default()).unwrap();
             assert_eq!(got[0].a_m, at_once.a_m, "{n} samples per cycle");
-            assert_eq!(got[0].opening_force_n, at_once.opening_force_n[1]);
+            assert_eq!(got[0].opening_force_n.to_bits(), at_once.opening_force_n[1].to_bits());
             assert!((got[0].a_m - 0.012).abs() < 2e-4, "a {}", got[0].a_m);
             let share = crate::crack_measure::ComplianceJob::units_bound(5 * n).div_ceil(5 * n);
             assert!(reader.max_units_per_period <= share, "{} units in one period > {share}", reader.max_units_per_period);
