@@ -139,7 +139,7 @@ def run(geometry: str, accel: float, r: float, crack: str, seed: int, closure: f
         "a_err_max_mm": round(float(np.max(np.abs(a_meas[win] - a_true[win]))) * 1e3, 4) if win.any() else None,
         "a_resolution_mm": round(res * 1e3, 4),
     }
-    if crack == "compliance" and closure > 0:
+    if crack == "compliance":  # closure 0: the crack open at Fmin (no closure invented)
         k = win & np.isfinite(f_op)
         # a crack that closes below the minimum force opens at the minimum (R above the closure)
         want = np.maximum(closure * fmax[k], fmin[k])

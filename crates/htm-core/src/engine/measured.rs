@@ -470,17 +470,12 @@ impl CrackReader {
             // the weights' variance, scaled by the reduced χ² of the scatter when above 1
             let chi2 = if m > 2 { ((cyy - slope * cxy).max(0.0) / (m as f64 - 2.0)).max(1.0) } else { 1.0 };
             // at the start of the test (the line through every reading so far) the slope shrunk by
-            // its own precision: a slope its noise could make (under two standard errors) is not
-            // extrapolated at all, a clear one nearly whole: k = max(0, 1 − 4σ_s²/s²), none from
-            // two readings (the first
+            // its own precision: a slope its noise could make (under three standard errors) is not
+            // extrapolated at all, a clear one nearly whole, k = max(0, 1 − 9σ_s²/s²) (the first
             // readings' line, a few noisy points, would carry their scatter far ahead); the
             // estimate's error at `cycle` counts the lag it leaves
             let var_slope = chi2 / cxx;
-            let shrink = match m {
-                _ if m < n => 1.0,
-                2 => 0.0, // two readings: no scatter to judge their slope by
-                _ => (1.0 - 4.0 * var_slope / (slope * slope)).max(0.0),
-            };
+            let shrink = if m < n { 1.0 } else { (1.0 - 9.0 * var_slope / (slope * slope)).max(0.0) };
             let at = ym - shrink * slope * xm; // the line at x = 0, i.e. at `cycle`
             let lag = (1.0 - shrink) * slope * xm;
             let se = (chi2 / sw + shrink * shrink * xm * xm * var_slope + lag * lag).sqrt();
