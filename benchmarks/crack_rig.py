@@ -144,15 +144,15 @@ def run(geometry: str, accel: float, r: float, crack: str, seed: int, closure: f
         # a crack that closes below the minimum force opens at the minimum (R above the closure)
         want = np.maximum(closure * fmax[k], fmin[k])
         out["opening_force_err_max_pct_fmax"] = round(float(np.max(np.abs(f_op[k] - want) / fmax[k])) * 100, 3) if k.any() else None
-        # cycles whose opening force is not resolved (NaN, event `closure_unresolved`: the gauge's
-        # noise hides the closure) and the first cycle from which every opening force is resolved
+        # cycles whose opening force is not resolved (NaN: the gauge's noise hides the closure;
+        # event `closure_unresolved` on the readings that leave it so), the first resolved one
         ev = np.array([c["events"] for c in rows], dtype=np.int64)
-        unres = win & ((ev & core.EVENTS["closure_unresolved"]) != 0)
+        unres = win & ~np.isfinite(f_op)
+        flagged = (ev & core.EVENTS["closure_unresolved"]) != 0
         out["opening_force_unresolved_cycles"] = int(unres.sum())
-        out["opening_force_unresolved_with_value"] = int((unres & np.isfinite(f_op)).sum())
-        late = np.nonzero(win & ~np.isfinite(f_op))[0]
-        out["opening_force_resolved_from_cycle"] = int(cyc[late[-1] + 1]) if late.size and late[-1] + 1 < len(cyc) else (
-            int(cyc[np.argmax(win)]) if not late.size else None)
+        out["opening_force_unresolved_readings"] = int((win & flagged).sum())
+        out["opening_force_flagged_with_value"] = int((flagged & np.isfinite(f_op)).sum())
+        out["opening_force_first_resolved_cycle"] = int(cyc[np.argmax(k)]) if k.any() else None
         out["opening_force_judged_cycles"] = int(k.sum())
     return out
 

@@ -133,7 +133,7 @@ def opening_section(cycles: np.ndarray, op: np.ndarray, pmax: np.ndarray | float
                     unresolved: int | None = None) -> list[str]:
     """The report's closure section: the opening force per measurement (range, as a share of
     Pmax) and ΔK_eff beside ΔK, with a table of up to 25 rows spread over the test; `unresolved`
-    rows whose opening force the noise left undetermined are counted."""
+    readings whose opening force the noise left undetermined are counted."""
     ok = np.isfinite(op)
     if not ok.any():
         return []
@@ -148,7 +148,7 @@ def opening_section(cycles: np.ndarray, op: np.ndarray, pmax: np.ndarray | float
             lines[-1] += f"; ΔK_eff/ΔK {np.nanmin(ratio):.3f}–{np.nanmax(ratio):.3f}"
     lines[-1] += "."
     if unresolved:
-        lines[-1] += (f" Not resolved on {unresolved:,} of {len(op):,} rows: the gauge's noise hides the closure there "
+        lines[-1] += (f" {unresolved:,} readings leave it not resolved: the gauge's noise hides the closure there "
                       "(no opening force, ΔK_eff not claimed).")
     idx = np.flatnonzero(ok)
     idx = idx[np.unique(np.linspace(0, len(idx) - 1, min(25, len(idx))).round().astype(int))]

@@ -275,8 +275,9 @@ pub mod events {
     pub const READING: u32 = 1024;
     /// a crack reading failed (too few samples, gauge out of its range): the last ones stand
     pub const READING_FAILED: u32 = 2048;
-    /// the last crack readings leave the opening force not resolved (the clip gauge's noise hides
-    /// any closure): `opening_force_n` and ΔK_eff are NaN, not claimed
+    /// a crack reading taken this cycle leaves the opening force not resolved (the clip gauge's
+    /// noise hides any closure): `opening_force_n` and ΔK_eff are NaN, not claimed, until a
+    /// reading resolves it
     pub const CLOSURE_UNRESOLVED: u32 = 4096;
 
     /// Every bit by its name, the one list the bindings export.
