@@ -139,11 +139,21 @@ def run(geometry: str, accel: float, r: float, crack: str, seed: int, closure: f
         "a_err_max_mm": round(float(np.max(np.abs(a_meas[win] - a_true[win]))) * 1e3, 4) if win.any() else None,
         "a_resolution_mm": round(res * 1e3, 4),
     }
-    if crack == "compliance" and closure > 0:
+    if crack == "compliance":  # closure 0: the crack open at Fmin (no closure invented)
         k = win & np.isfinite(f_op)
         # a crack that closes below the minimum force opens at the minimum (R above the closure)
         want = np.maximum(closure * fmax[k], fmin[k])
-        out["opening_force_err_max_pct_fmax"] = round(float(np.max(np.abs(f_op[k] - want) / fmax[k])) * 100, 3)
+        out["opening_force_err_max_pct_fmax"] = round(float(np.max(np.abs(f_op[k] - want) / fmax[k])) * 100, 3) if k.any() else None
+        # cycles whose opening force is not resolved (NaN: the gauge's noise hides the closure;
+        # event `closure_unresolved` on the readings that leave it so), the first resolved one
+        ev = np.array([c["events"] for c in rows], dtype=np.int64)
+        unres = win & ~np.isfinite(f_op)
+        flagged = (ev & core.EVENTS["closure_unresolved"]) != 0
+        out["opening_force_unresolved_cycles"] = int(unres.sum())
+        out["opening_force_unresolved_readings"] = int((win & flagged).sum())
+        out["opening_force_flagged_with_value"] = int((flagged & np.isfinite(f_op)).sum())
+        out["opening_force_first_resolved_cycle"] = int(cyc[np.argmax(k)]) if k.any() else None
+        out["opening_force_judged_cycles"] = int(k.sum())
     return out
 
 

@@ -24,7 +24,11 @@ METHODS = ("compliance", "potential_drop")
 _EXTRA = (("a_std_m", "a_std_m"), ("fmin_n", "fmin_n"), ("fmax_n", "fmax_n"),
           ("opening_force_1pct_n", "opening_force_1pct_n"), ("opening_force_4pct_n", "opening_force_4pct_n"),
           ("opening_force_segments_n", "opening_force_x2_segments_n"), ("dk_pa_sqrt_m", "delta_k_pa_sqrt_m"),
-          ("dk_eff_pa_sqrt_m", "delta_k_eff_pa_sqrt_m"))
+          ("dk_eff_pa_sqrt_m", "delta_k_eff_pa_sqrt_m"), ("opening_resolved", "opening_resolved"), ("offset_noise", "offset_noise"),
+          ("closure_pooled", "closure_pooled"))
+# integer columns, and the closure columns a potential-drop row leaves empty
+_INT = {"opening_resolved", "closure_pooled"}
+_CLOSURE = {"opening_resolved", "offset_noise", "closure_pooled"}
 
 
 @dataclass(frozen=True)
@@ -166,18 +170,26 @@ def write_a_n(m: Measurement, out: Path) -> Path:
         value_col = "compliance_m_per_n" if m.method == "compliance" else "dcpd_v"
         w.writerow(["cycles", "a_m", "opening_force_n", value_col, *(n for _, n in _EXTRA)])
 
-        def fmt(x: float) -> str:
-            return "" if not np.isfinite(x) else repr(float(x))
+        def fmt(x: float, k: str = "") -> str:
+            if not np.isfinite(x) or (k in _CLOSURE and m.method != "compliance"):
+                return ""
+            return str(int(x)) if k in _INT else repr(float(x))
 
         for i in range(len(m)):
             w.writerow([str(int(c["cycles"][i])), fmt(c["a_m"][i]), fmt(c["opening_force_n"][i]), fmt(c["value"][i]),
-                        *(fmt(c[k][i]) for k, _ in _EXTRA)])
+                        *(fmt(c[k][i], k) for k, _ in _EXTRA)])
     a_std = c["a_std_m"]
     coarse = int(np.count_nonzero(np.isfinite(a_std) & (a_std > m.resolution_m)))
+    unresolved = int(np.count_nonzero(c["opening_resolved"] == 0)) if m.method == "compliance" else None
     (out / "measure.json").write_text(json.dumps({
         "format": "htm-crack-measure/1", "method": m.method, "expression": m.expression, "constants": m.constants,
         "rows": len(m), "resolution_m": m.resolution_m, "rows_coarser_than_resolution": coarse,
         "opening_force": "compliance offset 2 % (E647 X2) on a closure curve fitted to each interval's loading branches; "
-                         "1 % and 4 % beside it, and E647's 10 % segments (x2_segments)" if m.method == "compliance" else None,
+                         "1 % and 4 % beside it, and E647's 10 % segments (x2_segments); a closure one interval does not "
+                         "show is fitted on the loading curves of the last intervals pooled (closure_pooled); the opening force "
+                         "is empty (opening_resolved 0, ΔK_eff not claimed) where the noise leaves it undetermined: curves as "
+                         "good as the best opening more than ±5 % of Fmax apart, or no closure shown while the offset noise "
+                         "(offset_noise) exceeds 0.05" if m.method == "compliance" else None,
+        "rows_opening_not_resolved": unresolved,
     }, indent=1) + "\n")
     return path

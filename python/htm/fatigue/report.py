@@ -123,14 +123,17 @@ def _opening_columns(source: str | Path | None) -> dict[str, np.ndarray] | None:
                 out.append(np.nan)
         return np.array(out)
 
-    return {k: col(k) for k in ("cycles", "a_m", "opening_force_n", "fmax_n", "fmin_n", "delta_k_pa_sqrt_m", "delta_k_eff_pa_sqrt_m")
+    return {k: col(k) for k in ("cycles", "a_m", "opening_force_n", "fmax_n", "fmin_n", "delta_k_pa_sqrt_m", "delta_k_eff_pa_sqrt_m",
+                                "opening_resolved")
             if k in rows[0]}
 
 
 def opening_section(cycles: np.ndarray, op: np.ndarray, pmax: np.ndarray | float, dk: np.ndarray | None = None,
-                    dk_eff: np.ndarray | None = None, method: str = "E647 X2 compliance offset, 2 % criterion") -> list[str]:
+                    dk_eff: np.ndarray | None = None, method: str = "E647 X2 compliance offset, 2 % criterion",
+                    unresolved: int | None = None) -> list[str]:
     """The report's closure section: the opening force per measurement (range, as a share of
-    Pmax) and ΔK_eff beside ΔK, with a table of up to 25 rows spread over the test."""
+    Pmax) and ΔK_eff beside ΔK, with a table of up to 25 rows spread over the test; `unresolved`
+    readings whose opening force the noise left undetermined are counted."""
     ok = np.isfinite(op)
     if not ok.any():
         return []
@@ -144,6 +147,9 @@ def opening_section(cycles: np.ndarray, op: np.ndarray, pmax: np.ndarray | float
         if np.isfinite(ratio).any():
             lines[-1] += f"; ΔK_eff/ΔK {np.nanmin(ratio):.3f}–{np.nanmax(ratio):.3f}"
     lines[-1] += "."
+    if unresolved:
+        lines[-1] += (f" {unresolved:,} readings leave it not resolved: the gauge's noise hides the closure there "
+                      "(no opening force, ΔK_eff not claimed).")
     idx = np.flatnonzero(ok)
     idx = idx[np.unique(np.linspace(0, len(idx) - 1, min(25, len(idx))).round().astype(int))]
     head = ["N", "F_op [kN]", "F_op / Pmax"] + (["ΔK [MPa·√m]", "ΔK_eff [MPa·√m]"] if dk is not None and dk_eff is not None else [])
@@ -208,7 +214,8 @@ def e647_report(out: Path, datas: list[CrackData], setup: Setup, reds: list[Redu
     oc = _opening_columns(source)
     if oc is not None and "opening_force_n" in oc:
         pmax = oc["fmax_n"] if "fmax_n" in oc and np.isfinite(oc["fmax_n"]).any() else setup.pmax_n
-        lines += opening_section(oc["cycles"], oc["opening_force_n"], pmax, oc.get("delta_k_pa_sqrt_m"), oc.get("delta_k_eff_pa_sqrt_m"))
+        lines += opening_section(oc["cycles"], oc["opening_force_n"], pmax, oc.get("delta_k_pa_sqrt_m"), oc.get("delta_k_eff_pa_sqrt_m"),
+                                 unresolved=int((oc["opening_resolved"] == 0).sum()) if "opening_resolved" in oc else None)
     lines += ["## Plots", "", f"![a-N]({a_n.name})", "", f"![da/dN-dK]({dadn.name})", ""]
     p = out / "report.md"
     p.write_text("\n".join(lines))
@@ -363,7 +370,11 @@ def write_test_report(out: str | Path, table: dict, setup: Setup, *, specimen_in
         pm = np.asarray(table["pmax_n"], float) if "pmax_n" in table else setup.pmax_n
         dk_t = np.asarray(table["delta_k_pa_sqrt_m"], float) if "delta_k_pa_sqrt_m" in table else None
         dke_t = np.asarray(table["delta_k_eff_pa_sqrt_m"], float) if "delta_k_eff_pa_sqrt_m" in table else None
-        lines += opening_section(cycles, op, pm, dk_t, dke_t)
+        from htm import core
+
+        ev = np.asarray(table["events"]).astype(np.int64) if "events" in table else None
+        lines += opening_section(cycles, op, pm, dk_t, dke_t,
+                                 unresolved=int(((ev & core.EVENTS["closure_unresolved"]) != 0).sum()) if ev is not None else None)
     if errs is not None:
         w = errs[1]
         pct = f"±{w['band_pct']:g} %"
@@ -421,7 +432,7 @@ def spec_test_report(out_dir: Path, spec, table: dict, title: str) -> str | None
         crack = spec.measurement.get("crack", "model")
         if crack != "model":  # the law's crack beside the measured one, the opening force and ΔK_eff
             cols.update(a_law_m="a_law_m", opening_force_n="opening_force_n", delta_k_pa_sqrt_m="delta_k_pa_sqrt_m",
-                        delta_k_eff_pa_sqrt_m="delta_k_eff_pa_sqrt_m")
+                        delta_k_eff_pa_sqrt_m="delta_k_eff_pa_sqrt_m", events="events")
         write_test_report(out_dir, {k: np.asarray(table[c])[test] for k, c in cols.items() if c in table}, setup,
                           title=title, band=ph.tolerance, variable_amplitude=spec.variable_amplitude, crack=crack)
     except HtmError as e:  # too little growth for the E647 reduction: the test itself stands

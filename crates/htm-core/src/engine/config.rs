@@ -275,9 +275,13 @@ pub mod events {
     pub const READING: u32 = 1024;
     /// a crack reading failed (too few samples, gauge out of its range): the last ones stand
     pub const READING_FAILED: u32 = 2048;
+    /// a crack reading taken this cycle leaves the opening force not resolved (the clip gauge's
+    /// noise hides any closure): `opening_force_n` and ΔK_eff are NaN, not claimed, until a
+    /// reading resolves it
+    pub const CLOSURE_UNRESOLVED: u32 = 4096;
 
     /// Every bit by its name, the one list the bindings export.
-    pub const NAMED: [(&str, u32); 12] = [
+    pub const NAMED: [(&str, u32); 13] = [
         ("start", START),
         ("out_of_tolerance", OUT_OF_TOLERANCE),
         ("tolerance_exceeded", TOLERANCE_EXCEEDED),
@@ -290,6 +294,7 @@ pub mod events {
         ("ramp", RAMP),
         ("reading", READING),
         ("reading_failed", READING_FAILED),
+        ("closure_unresolved", CLOSURE_UNRESOLVED),
     ];
 }
 

@@ -466,6 +466,15 @@ impl CycleMachine {
                 let f_op = reader.opening_force_n();
                 r.opening_force_n = f_op;
                 r.delta_k_eff = if f_op.is_finite() { crate::crack_measure::delta_k(spec, self.a, fmin, fmax, f_op).1 } else { dk };
+                if reader.opening_unresolved() {
+                    // the gauge's noise hides the closure: no opening force, ΔK_eff not claimed; the
+                    // bit marks the readings that leave it so (not every cycle: a recording thins
+                    // the cycles without events)
+                    r.delta_k_eff = f64::NAN;
+                    if ev & events::READING != 0 {
+                        ev |= events::CLOSURE_UNRESOLVED;
+                    }
+                }
             }
         }
         if self.ramping_in && !r.judged {

@@ -132,7 +132,9 @@ impl Measurement {
 }
 
 /// One reading: the cycle it was taken at, crack size [m] and its standard uncertainty from the
-/// reading's own fit [m], opening force (2 % offset) [N], ΔK_eff.
+/// reading's own fit [m], opening force (2 % offset) [N], ΔK_eff; whether the opening force is
+/// resolved (NaN and ΔK_eff NaN when not), the offset noise and the curves the closure rests on
+/// (`crack_measure::Interval`).
 #[derive(serde::Serialize, serde::Deserialize, Debug, Clone, Copy, PartialEq)]
 pub struct Reading {
     pub cycle: f64,
@@ -140,6 +142,21 @@ pub struct Reading {
     pub a_std_m: f64,
     pub opening_force_n: f64,
     pub dk_eff: f64,
+    #[serde(default)]
+    pub opening_resolved: bool,
+    #[serde(default)]
+    pub offset_noise: f64,
+    #[serde(default)]
+    pub closure_pooled: u32,
+}
+
+impl Reading {
+    fn of(cycle: f64, iv: &meas::Interval) -> Self {
+        Reading {
+            cycle, a_m: iv.a_m, a_std_m: iv.a_std_m, opening_force_n: iv.opening_force_n[1], dk_eff: iv.dk_eff, opening_resolved: iv.opening_resolved,
+            offset_noise: iv.offset_noise, closure_pooled: iv.closure_pooled as u32,
+        }
+    }
 }
 
 /// The running crack's line reaches back until its standard uncertainty at the current cycle is
@@ -332,10 +349,10 @@ impl CrackReader {
     fn take_done(&mut self, spec: &Specimen) -> Option<Reading> {
         let (r, mid) = self.done.take()?;
         if let Ok(oc) = &r {
-            self.pool.push(oc.hint_frac);
+            self.pool.push_interval(oc);
         }
         let r = r.map_err(Error::Input).and_then(|oc| meas::compliance_interval(spec, &self.method, &oc));
-        let r = r.map(|iv| Reading { cycle: mid, a_m: iv.a_m, a_std_m: iv.a_std_m, opening_force_n: iv.opening_force_n[1], dk_eff: iv.dk_eff });
+        let r = r.map(|iv| Reading::of(mid, &iv));
         self.accept(r)
     }
 
@@ -370,7 +387,7 @@ impl CrackReader {
         }
         let iv = self.pd.interval(spec, &self.method)?;
         // the interval's crack is the crack half-way through it (cycles counted, as `a_at` takes them)
-        Ok(Reading { cycle: mid, a_m: iv.a_m, a_std_m: iv.a_std_m, opening_force_n: iv.opening_force_n[1], dk_eff: iv.dk_eff })
+        Ok(Reading::of(mid, &iv))
     }
 
     /// The measured crack once `cycle` cycles are counted: a weighted least-squares line through
@@ -467,12 +484,20 @@ impl CrackReader {
         self.readings.last().copied()
     }
 
-    /// The opening force [N]: the mean over the readings the crack is fitted through (E647 X2
-    /// allows averaging; one interval's is noisy); NaN without one.
+    /// The opening force [N]: the mean over the resolved opening forces of the readings the crack
+    /// is fitted through (E647 X2 allows averaging; one interval's is noisy); NaN without one.
     pub fn opening_force_n(&self) -> f64 {
         let r = &self.readings[self.readings.len().saturating_sub(self.fitted)..];
         let v: Vec<f64> = r.iter().map(|r| r.opening_force_n).filter(|f| f.is_finite()).collect();
         if v.is_empty() { f64::NAN } else { v.iter().sum::<f64>() / v.len() as f64 }
+    }
+
+    /// A compliance reader whose last readings (those `opening_force_n` averages) all left the
+    /// opening force not resolved: the gauge's noise hides the closure (the offset noise of the
+    /// newest is `last().offset_noise`); ΔK_eff is then not claimed.
+    pub fn opening_unresolved(&self) -> bool {
+        let r = &self.readings[self.readings.len().saturating_sub(self.fitted)..];
+        !self.potential() && !r.is_empty() && r.iter().all(|r| !r.opening_resolved)
     }
 
     /// A cycle jump moved the crack to `a` (simulation): the readings start again from it.
@@ -679,12 +704,60 @@ mod tests {
             };
             let at_once = crate::crack_measure::reduce_compliance_interval(&spec, &reader.method, &f, &v, &c, &mut Default::default()).unwrap();
             assert_eq!(got[0].a_m, at_once.a_m, "{n} samples per cycle");
-            assert_eq!(got[0].opening_force_n, at_once.opening_force_n[1]);
+            assert_eq!(got[0].opening_force_n.to_bits(), at_once.opening_force_n[1].to_bits());
             assert!((got[0].a_m - 0.012).abs() < 2e-4, "a {}", got[0].a_m);
             let share = crate::crack_measure::ComplianceJob::units_bound(5 * n).div_ceil(5 * n);
             assert!(reader.max_units_per_period <= share, "{} units in one period > {share}", reader.max_units_per_period);
             assert!(share <= 2 * crate::crack_measure::CLOSURE_GRID_POINTS, "the share does not grow with the samples: {share}");
             assert_eq!(reader.overruns, 0);
+        }
+    }
+
+    #[test]
+    fn a_closure_too_weak_for_one_reading_is_found_on_the_pooled_readings_or_said_not_resolved() {
+        // a small M(T) whose closure changes the opening by about the gauge's noise (0.5 µm): one
+        // reading cannot show it, so its opening force is NaN and not resolved (never Fmin as if
+        // measured); the curves of the last readings pooled show it at its declared force, or say
+        // it is not resolved; without closure none is invented, and a quiet gauge says "open"
+        let spec = Specimen::new(Geometry::MT, 0.1006, 0.00254).unwrap();
+        let mat = Material { youngs_modulus_pa: 71e9, ..Material::default() };
+        let (fmax, fmin) = (5800.0, 580.0);
+        for (frac, noise, seed) in [(0.3, 0.3e-6, 11u64), (0.3, 0.3e-6, 3), (0.3, 0.5e-6, 3), (0.0, 0.5e-6, 3), (0.0, 0.05e-6, 5)] {
+            let m = Measurement { crack: CrackSource::Compliance, gauge_y_m: 0.01, noise, closure_opening_fraction: frac, seed, ..Measurement::model() };
+            let mut chain = GaugeChain::new(&m, &spec, &mat, 0.006).unwrap();
+            let mut reader = CrackReader::new(&m, &spec, &mat, 0.006).unwrap();
+            let (got, _) = feed(&mut reader, &mut chain, &spec, 0.006, 1..=400, 50, fmin, fmax);
+            assert_eq!(got.len(), 79);
+            let tag = format!("closure {frac}, noise {noise}, seed {seed}");
+            for r in &got {
+                // a value is a measurement; NaN goes with "not resolved" and ΔK_eff not claimed
+                assert_eq!(r.opening_force_n.is_finite(), r.opening_resolved, "{tag}: {r:?}");
+                assert_eq!(r.dk_eff.is_finite(), r.opening_resolved, "{tag}: {r:?}");
+            }
+            let resolved: Vec<_> = got.iter().filter(|r| r.opening_resolved).collect();
+            if noise > 0.1e-6 {
+                assert!(!got[0].opening_resolved && got[0].offset_noise > crate::crack_measure::OFFSET_NOISE_MAX, "{tag}: {:?}", got[0]);
+            }
+            if frac > 0.0 {
+                // what is reported is within ±5 % of Fmax; at 0.3 µm the pooled readings find it
+                // (most readings from the 40th on), at 0.5 µm they may still not resolve it
+                for r in &resolved {
+                    assert!((r.opening_force_n - frac * fmax).abs() < 0.05 * fmax, "{tag}: F_op {} ({} pooled)", r.opening_force_n, r.closure_pooled);
+                }
+                if noise < 0.4e-6 {
+                    let found = got[40..].iter().filter(|r| r.opening_resolved && r.closure_pooled > 1).count();
+                    assert!(2 * found > got.len() - 40, "{tag}: the pooled curves give it on {found} of {}", got.len() - 40);
+                }
+            } else {
+                for r in &resolved {
+                    assert!(r.opening_force_n < fmin + 0.05 * fmax, "{tag}: no closure invented: {} ({} pooled)", r.opening_force_n, r.closure_pooled);
+                }
+                if noise < 0.1e-6 {
+                    for r in &got {
+                        assert!(r.opening_resolved && r.opening_force_n < fmin + 0.01 * fmax, "{tag}: open at Fmin: {r:?}");
+                    }
+                }
+            }
         }
     }
 }

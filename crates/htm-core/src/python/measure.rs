@@ -67,7 +67,7 @@ fn crack_reduce<'py>(py: Python<'py>, geometry: &str, width_m: f64, thickness_m:
     let rows = py.detach(|| cm::reduce_record(&s, &m, c, fs, sig, cycles_per_interval))?;
     let d = PyDict::new(py);
     let col = |g: &dyn Fn(&cm::Interval) -> f64| rows.iter().map(g).collect::<Vec<f64>>();
-    let cols: [(&str, Vec<f64>); 14] = [
+    let cols: [(&str, Vec<f64>); 17] = [
         ("cycles", col(&|r| r.cycle)),
         ("n_cycles", col(&|r| r.n_cycles as f64)),
         ("a_m", col(&|r| r.a_m)),
@@ -81,6 +81,9 @@ fn crack_reduce<'py>(py: Python<'py>, geometry: &str, width_m: f64, thickness_m:
         ("opening_force_segments_n", col(&|r| r.opening_force_segments_n)),
         ("dk_pa_sqrt_m", col(&|r| r.dk)),
         ("dk_eff_pa_sqrt_m", col(&|r| r.dk_eff)),
+        ("opening_resolved", col(&|r| if r.opening_resolved { 1.0 } else { 0.0 })),
+        ("offset_noise", col(&|r| r.offset_noise)),
+        ("closure_pooled", col(&|r| r.closure_pooled as f64)),
         ("resolution_m", col(&|_| cm::resolution_m(width_m))),
     ];
     for (k, v) in cols {
