@@ -578,7 +578,12 @@ mod tests {
             let lock: Vec<Replayed> = ol.run_lockstep_batch(&ps, threads).into_iter().map(|x| x.unwrap()).collect();
             let bits = |r: &Replayed| r.readings.iter().flatten().map(|v| v.to_bits()).collect::<Vec<u64>>();
             assert!(bits(&lock[0]) == bits(&alone[0]), "the first set takes its own steps");
-            assert!(lock[1].stats.accepted == lock[0].stats.accepted && lock[1].stats.rejected == 0);
+            // the neighbours take the first set's steps (a step that misses their tolerance is
+            // crossed with their own control: a rejection or two, not the leader's own ten)
+            for l in &lock[1..3] {
+                assert!(l.stats.rejected <= 2 && l.stats.accepted.abs_diff(lock[0].stats.accepted) <= 5, "{:?} vs {:?}", l.stats, lock[0].stats);
+            }
+            assert!(lock[0].stats.rejected >= 5, "the leader's own step control rejects: {:?}", lock[0].stats);
             for i in 1..ps.len() {
                 for c in 0..4 {
                     let col = |a: &Replayed, b: &Replayed| -> Vec<f64> {
