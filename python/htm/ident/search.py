@@ -359,8 +359,10 @@ class Selector:
                 self.pool = [c for c in self.pool if c.key != cand.key]
                 too_small = True
                 tr.add("judge", cand.label, "claimable size", "left the pool: too small to claim")
-            if verdict.dcost < -st.min_gain:
-                # Not the effect but a better fit of the base parameters: remember those.
+            if verdict.dcost < -st.min_gain and RULES[6] not in verdict.failed:
+                # Not the effect but a better fit of the base parameters: remember those (not a
+                # phase fault's, dropped for what it does to the other readings: its base
+                # parameters were bent around it, and would carry it into the next round).
                 cost = prob.fit_cost(twork)
                 if better_base is None or cost < better_base.cost:
                     better_base = _BetterBase(cost, trial.truncated(len(self.model.x)), cand.label)
