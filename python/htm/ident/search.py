@@ -359,10 +359,12 @@ class Selector:
                 self.pool = [c for c in self.pool if c.key != cand.key]
                 too_small = True
                 tr.add("judge", cand.label, "claimable size", "left the pool: too small to claim")
-            if verdict.dcost < -st.min_gain and RULES[6] not in verdict.failed:
-                # Not the effect but a better fit of the base parameters: remember those (not a
-                # phase fault's, dropped for what it does to the other readings: its base
-                # parameters were bent around it, and would carry it into the next round).
+            if verdict.dcost < -st.min_gain and verdict.ablation_dcost > -st.min_gain:
+                # Not the effect (switched off again, the cost is as good) but a better fit of the
+                # base parameters: remember those. A refit whose effect does matter but is not
+                # claimed (too small, a phase fault that worsens the other readings) leaves no
+                # base behind: its base parameters were bent around that effect and would carry
+                # it into the next round under another name.
                 cost = prob.fit_cost(twork)
                 if better_base is None or cost < better_base.cost:
                     better_base = _BetterBase(cost, trial.truncated(len(self.model.x)), cand.label)
@@ -798,19 +800,21 @@ def pays_off(prob: Problem, pred0: dict, trial: Model, tpred: dict, before: Mode
 
 
 def others_worse(prob: Problem, pred0: dict, tpred: dict, cand: Candidate) -> float:
-    """For a fault of one reading that trades with the loop's phase (`PHASE_FAULTS`): the relative
-    change of the other readings' held-out cost (noise-weighted, summed) from `pred0` to `tpred`.
-    A true delay of one reading reaches the others only through the loop (the controller acts on
-    the delayed reading), and fitted there it fits them better; a delay that fits its own reading
-    while the others get worse stands in for the phase of something else — a valve's lag, a
-    ripple, the base's form. 0 for other candidates."""
+    """For a fault of one reading that trades with the loop's phase (`PHASE_FAULTS`): how much the
+    other readings' held-out mean square rises from `pred0` to `tpred`, in units of their noise
+    variance (noise-weighted residuals, summed over the other channels). A true delay of one
+    reading reaches the others only through the loop (the controller acts on the delayed
+    reading), and fitted there it leaves them as they were or fits them better (a refit's base
+    parameters move them by a sliver of their noise); a delay that fits its own reading while
+    the others get systematically worse stands in for the phase of something else — a valve's
+    lag, a ripple, the base's form. 0 for other candidates."""
     if cand.effect not in PHASE_FAULTS or not cand.own_reading or cand.channel not in prob.channels:
         return 0.0
     s0 = prob.channel_ssr(pred0, prob.val_mask)
     s1 = prob.channel_ssr(tpred, prob.val_mask)
     others = [c for c in prob.channels if c != cand.channel]
-    before = sum(s0[c][0] for c in others)
-    return (sum(s1[c][0] for c in others) / before - 1.0) if before > 0 else 0.0
+    n = sum(s0[c][1] for c in others)
+    return sum(s1[c][0] - s0[c][0] for c in others) / n if n > 0 else 0.0
 
 
 def _against(v: Verdict, st: SearchSettings) -> dict[str, Any]:

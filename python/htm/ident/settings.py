@@ -119,11 +119,12 @@ class SearchSettings:
     min_sag: float = knob(0.04, "share of the supply pressure, at the valve's rated flow",
                           "a power unit's filters, hoses and accumulator drop a few percent at full flow, and the lines' "
                           "and the valve's pressure-flow form mimic that much: a sag below this is not a sagging supply")
-    max_others_worse: float = knob(0.05, "share of the other readings' held-out cost",
+    max_others_worse: float = knob(0.5, "noise variances of the other readings' held-out mean square",
                                    "a sensor delay is a fault of one reading: the others see it only through the loop, "
-                                   "and there a true delay fits them better, not worse. A delay that buys its own reading "
-                                   "at the cost of the others (a ripple, a lag of the valve) is the loop's phase moved into "
-                                   "one reading: not claimed where it adds more than this to the others' cost")
+                                   "and there a true delay leaves them as they were or fits them better (a refit moves them "
+                                   "by a sliver of their noise). A delay that buys its own reading at the cost of the others "
+                                   "(a ripple, a lag of the valve) is the loop's phase moved into one reading: not claimed "
+                                   "where the others' mean square rises by more than this")
     min_valve_lag: float = knob(1.0, "x the spool's own lag 2*zeta/omega_n", "a first-order valve lag shorter than the lag "
                                                                              "of the base model's own second-order spool "
                                                                              "(declared; undeclared, the slowest its bound "
