@@ -359,12 +359,13 @@ class Selector:
                 self.pool = [c for c in self.pool if c.key != cand.key]
                 too_small = True
                 tr.add("judge", cand.label, "claimable size", "left the pool: too small to claim")
-            if verdict.dcost < -st.min_gain and verdict.ablation_dcost > -st.min_gain:
-                # Not the effect (switched off again, the cost is as good) but a better fit of the
-                # base parameters: remember those. A refit whose effect does matter but is not
-                # claimed (too small, a phase fault that worsens the other readings) leaves no
-                # base behind: its base parameters were bent around that effect and would carry
-                # it into the next round under another name.
+            if verdict.dcost < -st.min_gain and RULES[6] not in verdict.failed:
+                # Not the effect but a better fit of the base parameters: remember those — not a
+                # phase fault's, dropped for what it does to the other readings: its base
+                # parameters were bent around it and would carry it into the next round. (A refit
+                # whose effect is too small to claim does leave its base: a lag the spool's form
+                # makes, and its base's spool is the better one — a clean record otherwise gains
+                # a leak in the spool's place.)
                 cost = prob.fit_cost(twork)
                 if better_base is None or cost < better_base.cost:
                     better_base = _BetterBase(cost, trial.truncated(len(self.model.x)), cand.label)
