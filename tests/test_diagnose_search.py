@@ -149,7 +149,8 @@ def test_a_valve_lag_is_claimed_only_clear_of_the_spools_own_lag():
     """The base model has a second-order spool (declared, or a typical 150 Hz at damping 0.7):
     its low-frequency lag is 2*zeta/omega_n. A first-order lag shorter than that is the spool's
     own form (sub-millisecond lags claimed on clean records of other rigs): not claimable; one
-    clear of it is, and min_valve_lag moves the line."""
+    clear of it is, and min_valve_lag moves the line. An undeclared spool is unknown down to its
+    bound: the line is the slowest spool's lag."""
     import numpy as np
 
     from htm.ident.features import measured_channels
@@ -169,7 +170,11 @@ def test_a_valve_lag_is_claimed_only_clear_of_the_spools_own_lag():
     fam, claim = lag_claim({})
     typical = 2 * 0.7 / (2 * np.pi * 150.0)
     assert spool_lag(fam.nominal) == pytest.approx(typical)
-    assert not claim({"tau_s": 0.5 * typical}) and claim({"tau_s": 1.5 * typical})
+    # Undeclared, the spool may be as slow as its bound (60 Hz) at the typical damping: a lag
+    # shorter than that spool's (a true 100 Hz spool fitted as a 2.3 ms lag) is not claimed.
+    slowest = 2 * 0.7 / (2 * np.pi * 60.0)
+    assert fam.slowest_spool_lag() == pytest.approx(slowest)
+    assert not claim({"tau_s": 0.9 * slowest}) and claim({"tau_s": 1.1 * slowest})
     fam, claim = lag_claim({"valve_natural_hz": 40.0, "valve_damping": 0.9})
     slow = 2 * 0.9 / (2 * np.pi * 40.0)
     assert not claim({"tau_s": 0.8 * slow}) and claim({"tau_s": 1.2 * slow})
@@ -243,3 +248,65 @@ def test_a_sag_or_a_leak_below_its_claimable_size_is_the_bases_form_and_the_sett
     assert not leak({"coeff_m3_per_s_pa": 0.5 * c_line}) and leak({"coeff_m3_per_s_pa": 1.5 * c_line})
     sag2, leak2, _, _ = claims(dataclasses.replace(DEFAULT, min_sag=0.25 * DEFAULT.min_sag, min_leakage=0.25 * DEFAULT.min_leakage))
     assert sag2({"resistance_pa_s_per_m3": 0.5 * r_line}) and leak2({"coeff_m3_per_s_pa": 0.5 * c_line})
+
+
+def test_a_play_narrower_than_the_valves_null_tolerance_is_not_claimed_and_the_setting_moves_the_line():
+    """A play of the command (valve_hysteresis) is a band of the command like a dead band: one
+    narrower than the valve's null tolerance (min_null_bias of the rated command) is the valve's
+    null form — on a vertical rig a friction asymmetry's small reversal error read as a 0.01 V
+    play — not claimable; a wider one is, and min_null_bias moves the line."""
+    from htm.ident.features import measured_channels
+    from htm.ident.valve import ValveFamily
+
+    rec, _ = offset_record()
+    channels = measured_channels(rec.columns)
+    scales = dict.fromkeys(channels, 1.0)
+
+    def claim(settings: SearchSettings = DEFAULT):
+        fam = ValveFamily(rec, channels, settings=settings)
+        [c] = [c for c in fam.candidates(scales, 500.0) if c.effect == "valve_hysteresis"]
+        return c.claimable, settings.min_null_bias * fam.nominal["valve_max_command_v"]
+
+    play, line = claim()
+    assert not play({"half_width_v": 0.5 * line}) and play({"half_width_v": 1.5 * line})
+    play2, _ = claim(dataclasses.replace(DEFAULT, min_null_bias=0.25 * DEFAULT.min_null_bias))
+    assert play2({"half_width_v": 0.5 * line})
+
+
+def test_a_delay_that_fits_its_own_reading_at_the_others_cost_is_not_claimed_and_the_rule_is_named():
+    """A sensor delay is a fault of one reading: the others see it only through the loop, and a
+    true one fits them better. A delay on y that takes y's residual away while the pressure's
+    held-out mean square grows by 22 noise variances (a ripple's or a valve lag's phase moved into
+    y) fails the rule
+    `others no worse than max_others_worse`, which the verdict names; an offset (not a phase
+    fault) with the same numbers is not held to it, and a looser setting lets the delay pass."""
+    import numpy as np
+
+    from htm.ident.fit import Problem, blocks
+    from htm.ident.model import Candidate, lin
+    from htm.ident.records import Record
+    from htm.ident.search import pays_off
+
+    rate, n = 500.0, 4000
+    t = np.arange(n) / rate
+    rng = np.random.default_rng(1)
+    meas = {"y": 0.05 + 0.01 * np.sin(2 * np.pi * t), "p_a": 1e7 + 1e6 * np.sin(2 * np.pi * t + 0.3)}
+    sigma = {"y": 1e-6, "p_a": 1e4}
+    cols = {"t": t, "u": np.zeros(n), **{c: meas[c] + sigma[c] * rng.standard_normal(n) for c in meas}}
+    rec = Record(cols, {"sample_rate_hz": rate, "rig": {}}, "phase")
+    fit_mask, val_mask = blocks(n, n, rate)
+    prob = Problem(rec, lambda *a, **k: [], list(meas), sigma, n, fit_mask, val_mask)
+    wave = np.sin(2 * np.pi * 3 * t)
+    before = {"y": meas["y"] + 2e-5 * wave, "p_a": meas["p_a"] + 1e5 * wave}
+    after = {"y": meas["y"], "p_a": meas["p_a"] + 1.2e5 * wave}
+
+    def verdict(effect: str, settings: SearchSettings = DEFAULT):
+        prob.settings = settings
+        cand = Candidate(effect, "y", (lin("k", 1e-3, -1.0, 1.0),), "constant", own_reading=True)
+        return pays_off(prob, before, None, after, None, cand, abl=before)
+
+    v = verdict("sensor_delay")
+    assert not v.ok and v.failed == ("others no worse than max_others_worse",)
+    assert v.numbers()["others_worse"] == pytest.approx(22.0, rel=0.1)
+    assert verdict("sensor_offset").ok
+    assert verdict("sensor_delay", dataclasses.replace(DEFAULT, max_others_worse=30.0)).ok

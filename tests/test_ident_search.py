@@ -202,3 +202,39 @@ def test_a_channel_at_its_noise_has_no_systematic_part_to_share():
     assert prob.explained(before, after, only="a") == 0.0
     assert prob.explained(before, after) > 0.95
     assert prob.explained(before, before) == 0.0
+
+
+def test_a_phase_fault_dropped_for_the_other_readings_leaves_no_better_base():
+    """A refit that cuts the cost without paying off leaves its base parameters behind for the
+    next round (the base's convergence) — but not a sensor delay dropped because it made the
+    other readings worse (`others no worse than max_others_worse`): its base parameters were bent
+    around that delay and would carry it into the next round (a y delay on a ripple record).
+    A lag too small to claim does leave its base (the spool's form)."""
+    from htm.ident.model import Candidate, lin
+    from htm.ident.search import RULES, Screened, Selector, Trial, Verdict
+    from htm.ident.settings import DEFAULT
+    from htm.ident.trace import Trace
+
+    base = Model({"a": 1.0}, [logf("a", 0.5, 2.0)], np.zeros(1))
+
+    class Prob:
+        settings = DEFAULT
+
+        @staticmethod
+        def fit_cost(work: dict) -> float:
+            return 1.0
+
+    def refit_with(effect: str, verdict: Verdict):
+        cand = Candidate(effect, "y" if effect == "sensor_delay" else None, (lin("k", 1e-3, 0.0, 1.0),), "du/dt")
+        sel = Selector.__new__(Selector)
+        sel.prob, sel.st, sel.trace, sel.log, sel.pool = Prob(), DEFAULT, Trace(), lambda *a: None, [cand]
+        sel.model, sel.jac = base, np.eye(4, 1)
+        sel.refit_one = lambda sc, q: Trial(sc.cand, base, {}, {}, verdict)
+        return sel.refit([Screened(cand, 1.0, 1e-3)], 1)
+
+    phase = Verdict(False, -1e4, -0.55, -0.62, 0.96, failed=(RULES[6],), others_worse=5.7)
+    good, better, _ = refit_with("sensor_delay", phase)
+    assert not good and better is None
+    small = Verdict(False, -1e4, -0.42, -0.67, 0.97, claimable=False, failed=("claimable size",))
+    good, better, too_small = refit_with("valve_dynamics", small)
+    assert not good and better is not None and better.cand == "valve_dynamics" and too_small

@@ -69,6 +69,7 @@ class Verdict:
     close: bool = False
     close_rules: tuple[str, ...] = ()
     alternative: str = ""
+    others_worse: float = 0.0
 
     def __getitem__(self, key: str) -> Any:
         return getattr(self, key)
@@ -77,8 +78,11 @@ class Verdict:
         return getattr(self, key, default)
 
     def numbers(self) -> dict[str, Any]:
-        return {"dbic": self.dbic, "dcost": self.dcost, "ablation_dcost": self.ablation_dcost, "explained": self.explained,
-                "claimable": self.claimable}
+        out = {"dbic": self.dbic, "dcost": self.dcost, "ablation_dcost": self.ablation_dcost, "explained": self.explained,
+               "claimable": self.claimable}
+        if self.others_worse:
+            out["others_worse"] = self.others_worse
+        return out
 
     @property
     def rule(self) -> str:
@@ -96,7 +100,10 @@ class Verdict:
 
 # The rules of `pays_off`, by the names the trace uses.
 RULES = ("dBIC < 0", "dcost < -min_gain", "ablation dBIC < 0", "ablation dcost < -min_gain", "explained >= min_share",
-         "claimable size")
+         "claimable size", "others no worse than max_others_worse")
+# The effects whose fault is one reading's and that trade with the loop's phase (every channel):
+# judged also by what they do to the other readings (`others_worse`).
+PHASE_FAULTS = ("sensor_delay",)
 
 
 class Screened(NamedTuple):
@@ -352,8 +359,13 @@ class Selector:
                 self.pool = [c for c in self.pool if c.key != cand.key]
                 too_small = True
                 tr.add("judge", cand.label, "claimable size", "left the pool: too small to claim")
-            if verdict.dcost < -st.min_gain:
-                # Not the effect but a better fit of the base parameters: remember those.
+            if verdict.dcost < -st.min_gain and RULES[6] not in verdict.failed:
+                # Not the effect but a better fit of the base parameters: remember those — not a
+                # phase fault's, dropped for what it does to the other readings: its base
+                # parameters were bent around it and would carry it into the next round. (A refit
+                # whose effect is too small to claim does leave its base: a lag the spool's form
+                # makes, and its base's spool is the better one — a clean record otherwise gains
+                # a leak in the spool's place.)
                 cost = prob.fit_cost(twork)
                 if better_base is None or cost < better_base.cost:
                     better_base = _BetterBase(cost, trial.truncated(len(self.model.x)), cand.label)
@@ -774,7 +786,9 @@ def pays_off(prob: Problem, pred0: dict, trial: Model, tpred: dict, before: Mode
     own = cand.channel if cand.own_reading and cand.channel in prob.channels else None
     share = prob.explained(pred0, tpred, only=own)
     big = cand.claimable is None or cand.claimable(cand.report(trial.params()))
-    met = (dbic < 0, dcost < -st.min_gain, abic < 0, acost < -st.min_gain, share >= st.min_share, big)
+    worse = others_worse(prob, pred0, tpred, cand)
+    met = (dbic < 0, dcost < -st.min_gain, abic < 0, acost < -st.min_gain, share >= st.min_share, big,
+           worse <= st.max_others_worse)
     near = _near(st, dcost, acost, share)
     failed = [i for i, ok in enumerate(met) if not ok]
     # Close: a graded number within close_margin of its threshold (the ΔBIC and the size are not
@@ -783,7 +797,25 @@ def pays_off(prob: Problem, pred0: dict, trial: Model, tpred: dict, before: Mode
     close = any(near) if not failed else all(near[i] for i in failed)
     close_rules = tuple(RULES[i] for i, n in enumerate(near) if n and met[i])
     return Verdict(all(met) and not close_rules, dbic, dcost, acost, share, bool(big), tuple(RULES[i] for i in failed),
-                   bool(close), close_rules=close_rules)
+                   bool(close), close_rules=close_rules, others_worse=worse)
+
+
+def others_worse(prob: Problem, pred0: dict, tpred: dict, cand: Candidate) -> float:
+    """For a fault of one reading that trades with the loop's phase (`PHASE_FAULTS`): how much the
+    other readings' held-out mean square rises from `pred0` to `tpred`, in units of their noise
+    variance (noise-weighted residuals, summed over the other channels). A true delay of one
+    reading reaches the others only through the loop (the controller acts on the delayed
+    reading), and fitted there it leaves them as they were or fits them better (a refit's base
+    parameters move them by a sliver of their noise); a delay that fits its own reading while
+    the others get systematically worse stands in for the phase of something else — a valve's
+    lag, a ripple, the base's form. 0 for other candidates."""
+    if cand.effect not in PHASE_FAULTS or not cand.own_reading or cand.channel not in prob.channels:
+        return 0.0
+    s0 = prob.channel_ssr(pred0, prob.val_mask)
+    s1 = prob.channel_ssr(tpred, prob.val_mask)
+    others = [c for c in prob.channels if c != cand.channel]
+    n = sum(s0[c][1] for c in others)
+    return sum(s1[c][0] - s0[c][0] for c in others) / n if n > 0 else 0.0
 
 
 def _against(v: Verdict, st: SearchSettings) -> dict[str, Any]:
@@ -799,7 +831,7 @@ def _near(st: SearchSettings, dcost: float, acost: float, share: float) -> tuple
     """Per rule of `RULES`: does its graded number lie within close_margin of its threshold?"""
     m = st.close_margin
     return (False, abs(dcost + st.min_gain) < m * st.min_gain, False, abs(acost + st.min_gain) < m * st.min_gain,
-            abs(share - st.min_share) < m * st.min_share, False)
+            abs(share - st.min_share) < m * st.min_share, False, False)
 
 
 def screen(prob: Problem, model: Model, work_pred: dict, jac: np.ndarray,

@@ -110,17 +110,26 @@ class SearchSettings:
     # --- claim thresholds of the valve family's effects ---------------------------------------
     min_asymmetry: float = knob(0.1, "share of the mean Coulomb friction", "a few percent is the friction law's form")
     min_gain_error: float = knob(0.01, "relative gain error", "transducers are calibrated to 0.1-0.5 %")
-    min_null_bias: float = knob(0.002, "share of the rated command", "a servo-valve's null is set to about 0.1 % of it")
+    min_null_bias: float = knob(0.002, "share of the rated command", "a servo-valve's null is set to about 0.1 % of it; "
+                                                                     "a dead band or a play of the command (valve_hysteresis) "
+                                                                     "narrower than that is the valve's null form, not a band")
     min_leakage: float = knob(0.01, "share of the rated flow at supply", "a servo-valve's own null leakage is 1-3 % of "
                                                                          "it: a piston leak below that is the valve's null "
                                                                          "flow in another form (the base's underlap takes it)")
     min_sag: float = knob(0.04, "share of the supply pressure, at the valve's rated flow",
                           "a power unit's filters, hoses and accumulator drop a few percent at full flow, and the lines' "
                           "and the valve's pressure-flow form mimic that much: a sag below this is not a sagging supply")
+    max_others_worse: float = knob(0.5, "noise variances of the other readings' held-out mean square",
+                                   "a sensor delay is a fault of one reading: the others see it only through the loop, "
+                                   "and there a true delay leaves them as they were or fits them better (a refit moves them "
+                                   "by a sliver of their noise). A delay that buys its own reading at the cost of the others "
+                                   "(a ripple, a lag of the valve) is the loop's phase moved into one reading: not claimed "
+                                   "where the others' mean square rises by more than this")
     min_valve_lag: float = knob(1.0, "x the spool's own lag 2*zeta/omega_n", "a first-order valve lag shorter than the lag "
                                                                              "of the base model's own second-order spool "
-                                                                             "(declared, or typical) is the spool's form, "
-                                                                             "not a lag of its own")
+                                                                             "(declared; undeclared, the slowest its bound "
+                                                                             "admits, 60 Hz at damping 0.7) is the spool's "
+                                                                             "form, not a lag of its own")
 
     def describe(self) -> dict[str, dict[str, Any]]:
         """{name: {value, unit, reason}} of every setting."""

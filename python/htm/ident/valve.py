@@ -111,6 +111,18 @@ class ValveFamily(Family):
         if horizon_s is not None:
             self.opts["horizon_s"] = horizon_s
 
+    def slowest_spool_lag(self) -> float:
+        """The longest low-frequency lag [s] the base model's own spool can make: a declared spool's
+        2*zeta/omega_n; an undeclared one may be as slow as its bound (60 Hz: servo-valve spools
+        run at 60-200 Hz and up) at the typical damping, and a first-order lag shorter than that
+        is a spool the record does not state, fitted as a lag (a 2.3 ms lag in place of a true
+        100 Hz spool while the fit sends its spool to 1 kHz)."""
+        rig = self.rec.meta.get("rig") or {}
+        if rig.get("valve_natural_hz"):
+            return spool_lag(self.nominal)
+        p = dict(valve_natural_hz=_spool_lo() * SPOOL_HZ, valve_damping=float(rig.get("valve_damping") or SPOOL_DAMPING))
+        return spool_lag(p)
+
     def start(self, base: Model) -> np.ndarray:
         """Coordinates the fit starts from: the nominal values, the spool as fast as its bound
         allows (a static valve until the second stage frees it)."""
@@ -175,11 +187,14 @@ class ValveFamily(Family):
             cand("valve_null_bias", None, (lin("valve_null_bias_v", 0.02, -50.0, 50.0),), "small |u|",
                  claimable=_share_of("bias_v", st.min_null_bias * p["valve_max_command_v"])),
             cand("valve_dynamics", None, (lin("valve_tau_s", 1e-3, 0.0, 100.0, step=2.0),), "du/dt",
-                 claimable=_share_of("tau_s", st.min_valve_lag * spool_lag(p))),
+                 claimable=_share_of("tau_s", st.min_valve_lag * self.slowest_spool_lag())),
             cand("valve_deadband", None, (lin("valve_deadband_half_width_v", 0.05, 0.0, 40.0),), "small |u|",
                  claimable=wider_than_null),
+            # A play is a band of the command like a dead band: narrower than the valve's null
+            # tolerance it is the valve's null form (a friction asymmetry's small reversal error
+            # reads as such a play), not a play of its own.
             cand("valve_hysteresis", None, (lin("valve_hysteresis_half_width_v", 0.05, 0.0, 40.0),), "sign(du/dt)",
-                 claimable=wider_than_noise),
+                 claimable=wider_than_null),
             cand("supply_pressure_sag", None, (lin("supply_resistance_pa_s_per_m3", 1e9, 0.0, 1e3),), "v",
                  claimable=_share_of("resistance_pa_s_per_m3", st.min_sag * p["supply_pressure_pa"]
                                      / max(p["valve_rated_flow_m3_s"], 1e-12))),
@@ -237,6 +252,12 @@ class ValveFamily(Family):
                                      fields=(("sin_pa", "supply_ripple_sin_pa"), ("cos_pa", "supply_ripple_cos_pa"),
                                              ("frequency_hz", "supply_ripple_hz"))))
         return [c for c in out if all(has_key(p, f.key) for f in c.frees)]
+
+
+def _spool_lo() -> float:
+    """The lower bound of the base's spool frequency, as a share of its nominal (`OTHER_FREES`)."""
+    [f] = [f for f in OTHER_FREES if f.key == "valve_natural_hz"]
+    return float(np.exp(f.lo)) if f.log else float(f.lo)
 
 
 def spool_lag(p: Any) -> float:
