@@ -234,6 +234,11 @@ pub struct CrackReader {
     pub failed: u64,
     pub last_error: Option<String>,
     a0: f64,
+    /// `a0` is the initial crack measured visually after precracking (E647 8.3), not a simulated
+    /// jump's restart: the running line takes it as a reading at cycle 0 with E647's visual
+    /// tolerance as two standard uncertainties (`line_at`)
+    #[serde(default)]
+    a0_visual: bool,
     /// potential drop: the sum and count of the reference samples (before the crack grows)
     reference: (f64, u64),
     /// E647's crack-size resolution of the specimen [m]
@@ -249,7 +254,7 @@ impl CrackReader {
         let method = meas.method(spec, material, a0_m)?;
         Some(CrackReader {
             method, every: meas.cycles_per_reading, fitted: meas.readings_fitted, f: Vec::new(), m: Vec::new(), cyc: Vec::new(),
-            pd: meas::PotentialSums::default(), cycles_in: 0, job: None, pool: meas::OpeningPool::default(), done: None, readings: Vec::new(), failed: 0, last_error: None, a0: a0_m,
+            pd: meas::PotentialSums::default(), cycles_in: 0, job: None, pool: meas::OpeningPool::default(), done: None, readings: Vec::new(), failed: 0, last_error: None, a0: a0_m, a0_visual: a0_m.is_finite(),
             reference: (0.0, 0), resolution: meas::resolution_m(spec.width_m), max_units_per_period: 0, overruns: 0,
         })
     }
@@ -399,31 +404,54 @@ impl CrackReader {
     /// from the growth curve's bend (a''·L²/12) stays under that precision: a crack that a single
     /// reading resolves coarsely (an M(T) at short cracks, whose compliance changes little with
     /// the crack) is averaged over more readings, a finely resolved one follows the newest.
-    /// Before the first reading the initial crack; one reading: itself; two: the line through them.
+    /// Before the first reading the initial crack. Where the line through the readings is less
+    /// certain than half E647's resolution, the visually measured initial crack is a reading of its
+    /// own at cycle 0 of that standard uncertainty (not after a simulated jump's `restart`); else
+    /// one reading is itself, two the line through them.
     pub fn a_at(&self, cycle: u64) -> f64 {
         self.line_at(cycle).0
     }
 
     /// `a_at` with the line's standard uncertainty at `cycle` [m] and the readings it took.
     pub fn line_at(&self, cycle: u64) -> (f64, f64, usize) {
+        let plain = self.line_with(cycle, None);
+        if !self.a0_visual || self.readings.is_empty() {
+            return plain;
+        }
+        // the visually measured initial crack: a reading at cycle 0 of standard uncertainty half
+        // E647's resolution, taken where the line through the readings is less certain than that
+        // (a noisy gauge on a short crack: it holds the line while the first readings scatter);
+        // a finer line follows the crack on its own (bent back to cycle 0 it would lag a fast
+        // early growth). The line's uncertainty is scaled by its scatter; under three readings
+        // the readings' own
+        let visual = 0.5 * self.resolution;
+        let se = if plain.1.is_finite() { plain.1 } else { self.typical_sd().unwrap_or(f64::NAN) };
+        if se > visual { self.line_with(cycle, Some((0.0, self.a0, visual))) } else { plain }
+    }
+
+    /// The median uncertainty of the last readings that state one.
+    fn typical_sd(&self) -> Option<f64> {
+        let mut v: Vec<f64> = self.readings.iter().rev().take(TYPICAL_READINGS).map(|x| x.a_std_m).filter(|s| s.is_finite() && *s > 0.0).collect();
+        v.sort_by(|a, b| a.total_cmp(b));
+        v.get(v.len() / 2).copied()
+    }
+
+    /// The line of `line_at` through the readings and `prior` (cycle, crack, standard uncertainty).
+    fn line_with(&self, cycle: u64, prior: Option<(f64, f64, f64)>) -> (f64, f64, usize) {
         let r = &self.readings;
         let n = r.len();
-        match n {
-            0 => return (self.a0, f64::NAN, 0),
-            1 => return (r[0].a_m, r[0].a_std_m, 1),
-            2 => return (r[1].a_m + (r[1].a_m - r[0].a_m) / (r[1].cycle - r[0].cycle) * (cycle as f64 - r[1].cycle), f64::NAN, 2),
+        // each reading's uncertainty, never below the median of the last ones (a reading whose own
+        // fit happens to scatter little must not outweigh the rest); none: the median
+        let typical = self.typical_sd().unwrap_or(1.0);
+        match (n, prior) {
+            (0, _) => return (self.a0, f64::NAN, 0),
+            (1, None) => return (r[0].a_m, r[0].a_std_m, 1),
+            (2, None) => return (r[1].a_m + (r[1].a_m - r[0].a_m) / (r[1].cycle - r[0].cycle) * (cycle as f64 - r[1].cycle), f64::NAN, 2),
             _ => {}
         }
         let target = LINE_PRECISION_RESOLUTIONS * self.resolution;
         let reach = LINE_EXTENSION_RESOLUTIONS * self.resolution;
-        let min_n = self.fitted.clamp(3, n);
-        // each reading's uncertainty, never below the median of the last ones (a reading whose own
-        // fit happens to scatter little must not outweigh the rest); none: the median
-        let typical = {
-            let mut v: Vec<f64> = r.iter().rev().take(TYPICAL_READINGS).map(|x| x.a_std_m).filter(|s| s.is_finite() && *s > 0.0).collect();
-            v.sort_by(|a, b| a.total_cmp(b));
-            if v.is_empty() { 1.0 } else { v[v.len() / 2] }
-        };
+        let min_n = self.fitted.max(3).min(n + usize::from(prior.is_some()));
         let sd = |rd: &Reading| if rd.a_std_m.is_finite() { rd.a_std_m.max(typical) } else { typical };
         let x0 = cycle as f64;
         // the growth rate over all the readings kept (few noisy readings give no rate): the line
@@ -449,9 +477,10 @@ impl CrackReader {
         let y0 = r[n - 1].a_m;
         let (mut sw, mut sx, mut sy, mut sxx, mut sxy, mut syy) = (0.0f64, 0.0, 0.0, 0.0, 0.0, 0.0);
         let mut best = (r[n - 1].a_m, f64::NAN, 1usize);
-        for (k, rd) in r.iter().rev().enumerate() {
-            let w = 1.0 / sd(rd).powi(2);
-            let (x, y) = (rd.cycle - x0, rd.a_m - y0);
+        let points = r.iter().rev().map(|rd| (rd.cycle, rd.a_m, sd(rd))).chain(prior);
+        for (k, (c, a, s)) in points.enumerate() {
+            let w = 1.0 / (s * s);
+            let (x, y) = (c - x0, a - y0);
             sw += w;
             sx += w * x;
             sy += w * y;
@@ -459,7 +488,7 @@ impl CrackReader {
             sxy += w * x * y;
             syy += w * y * y;
             let m = k + 1;
-            if m < 3 {
+            if m < 2 {
                 continue;
             }
             let (xm, ym) = (sx / sw, sy / sw);
@@ -470,10 +499,10 @@ impl CrackReader {
             let slope = cxy / cxx;
             let at = ym - slope * xm; // the line at x = 0, i.e. at `cycle`
             // the weights' variance at `cycle`, scaled by the reduced χ² of the scatter when above 1
-            let chi2 = ((cyy - slope * cxy).max(0.0) / (m as f64 - 2.0)).max(1.0);
+            let chi2 = if m > 2 { ((cyy - slope * cxy).max(0.0) / (m as f64 - 2.0)).max(1.0) } else { 1.0 };
             let se = ((1.0 / sw + xm * xm / cxx) * chi2).sqrt();
             best = (y0 + at, se, m);
-            if m >= min_n && (se <= target || r[n - 1].cycle - rd.cycle >= cycles_reach) {
+            if m >= min_n && (se <= target || r[n - 1].cycle - c >= cycles_reach) {
                 break;
             }
         }
@@ -508,6 +537,7 @@ impl CrackReader {
         self.pool.clear();
         self.readings.clear();
         self.a0 = a;
+        self.a0_visual = false;
     }
 }
 
@@ -667,6 +697,35 @@ mod tests {
             got.extend(reader.cycle_closed(spec, c));
         }
         (got, fed)
+    }
+
+    #[test]
+    fn the_visual_initial_crack_holds_the_line_where_the_first_readings_scatter_and_only_there() {
+        // an M(T) of W 100 mm (E647's resolution 0.2 mm); a crack of 10 mm that does not grow
+        let spec = Specimen::new(Geometry::MT, 0.1, 0.00254).unwrap();
+        let mat = Material::default();
+        let m = Measurement { crack: CrackSource::Compliance, ..Measurement::model() };
+        let a0 = 0.010;
+        let read = |devs: &[f64], sd: f64| -> (f64, f64) {
+            let mut with = CrackReader::new(&m, &spec, &mat, a0).unwrap();
+            let mut plain = with.clone();
+            plain.restart(a0); // a simulated jump's restart: no visual measurement behind a0
+            for (k, d) in devs.iter().enumerate() {
+                let r = Reading { cycle: 2.5 + 5.0 * k as f64, a_m: a0 + d, a_std_m: sd, opening_force_n: f64::NAN, dk_eff: f64::NAN,
+                                  opening_resolved: false, offset_noise: f64::NAN, closure_pooled: 0 };
+                with.readings.push(r);
+                plain.readings.push(r);
+            }
+            let at = 5 * devs.len() as u64;
+            (with.a_at(at) - a0, plain.a_at(at) - a0)
+        };
+        // coarse readings (0.2 mm each): the first three scatter by 0.3 mm as if the crack grew;
+        // the line through them alone runs off 0.48 mm, the visual a0 holds it back
+        let (with, plain) = read(&[-0.3e-3, 0.1e-3, 0.3e-3], 0.2e-3);
+        assert!(plain.abs() > 0.4e-3 && with.abs() < 0.65 * plain.abs(), "with a0 {with}, without {plain}");
+        // fine readings (10 µm): the visual a0 (0.1 mm) is not taken, the line is the readings' own
+        let (with, plain) = read(&[-3e-6, 1e-6, 4e-6, 2e-6], 10e-6);
+        assert_eq!(with.to_bits(), plain.to_bits());
     }
 
     #[test]
