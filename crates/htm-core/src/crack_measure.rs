@@ -280,6 +280,35 @@ fn softplus(z: f64) -> f64 {
 /// The F statistic a fitted closure needs over the straight loading line to be kept.
 pub const CLOSURE_F_MIN: f64 = 25.0;
 
+/// Weighted least-squares sums of a line (points of weight w = 1/σ²), and their centred moments.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct WeightedSums {
+    sw: f64,
+    sx: f64,
+    sy: f64,
+    sxx: f64,
+    sxy: f64,
+    syy: f64,
+}
+
+impl WeightedSums {
+    #[inline]
+    pub fn push(&mut self, x: f64, y: f64, w: f64) {
+        self.sw += w;
+        self.sx += w * x;
+        self.sy += w * y;
+        self.sxx += w * x * x;
+        self.sxy += w * x * y;
+        self.syy += w * y * y;
+    }
+
+    /// (Σw, weighted mean x, weighted mean y, Σw(x−x̄)², Σw(x−x̄)(y−ȳ), Σw(y−ȳ)²).
+    pub fn centred(&self) -> (f64, f64, f64, f64, f64, f64) {
+        let (mx, my) = (self.sx / self.sw, self.sy / self.sw);
+        (self.sw, mx, my, self.sxx - self.sw * mx * mx, self.sxy - self.sw * mx * my, self.syy - self.sw * my * my)
+    }
+}
+
 /// Running least-squares sums of a line y = c0 + c1·x (one sample at a time, O(1) each).
 #[derive(serde::Serialize, serde::Deserialize, Debug, Clone, Copy, Default, PartialEq)]
 pub struct LineSums {
@@ -431,17 +460,12 @@ impl ClosureSearch {
     /// The search over points with weights `wt` (a pooled curve's bin means, weighted by their
     /// sample counts: each bin mean's variance is the samples' over its count).
     pub fn weighted(x: Vec<f64>, y: Vec<f64>, wt: Vec<f64>, unit: f64) -> Self {
-        let (mut sw, mut sx, mut sy, mut sxx, mut sxy, mut syy) = (0.0f64, 0.0, 0.0, 0.0, 0.0, 0.0);
+        let mut sums = WeightedSums::default();
         for ((&xi, &yi), &w) in x.iter().zip(&y).zip(&wt) {
-            sw += w;
-            sx += w * xi;
-            sy += w * yi;
-            sxx += w * xi * xi;
-            sxy += w * xi * yi;
-            syy += w * yi * yi;
+            sums.push(xi, yi, w);
         }
-        let (mx, my) = (sx / sw, sy / sw);
-        let (cxx, cxy, cyy) = (sxx - sw * mx * mx, sxy - sw * mx * my, syy - sw * my * my);
+        let (sw, mx, my, cxx, cxy, cyy) = sums.centred();
+        let syy = sums.syy;
         let line = if sw > 0.0 && cxx > 0.0 {
             let c1 = cxy / cxx;
             ((cyy - c1 * cxy).max(0.0), [my - c1 * mx, c1, 0.0])

@@ -475,24 +475,16 @@ impl CrackReader {
         }
         // weighted sums from the newest reading back (x relative to `cycle`, y relative to the newest)
         let y0 = r[n - 1].a_m;
-        let (mut sw, mut sx, mut sy, mut sxx, mut sxy, mut syy) = (0.0f64, 0.0, 0.0, 0.0, 0.0, 0.0);
+        let mut sums = meas::WeightedSums::default();
         let mut best = (r[n - 1].a_m, f64::NAN, 1usize);
         let points = r.iter().rev().map(|rd| (rd.cycle, rd.a_m, sd(rd))).chain(prior);
         for (k, (c, a, s)) in points.enumerate() {
-            let w = 1.0 / (s * s);
-            let (x, y) = (c - x0, a - y0);
-            sw += w;
-            sx += w * x;
-            sy += w * y;
-            sxx += w * x * x;
-            sxy += w * x * y;
-            syy += w * y * y;
+            sums.push(c - x0, a - y0, 1.0 / (s * s));
             let m = k + 1;
             if m < 2 {
                 continue;
             }
-            let (xm, ym) = (sx / sw, sy / sw);
-            let (cxx, cxy, cyy) = (sxx - sw * xm * xm, sxy - sw * xm * ym, syy - sw * ym * ym);
+            let (sw, xm, ym, cxx, cxy, cyy) = sums.centred();
             if !(cxx > 0.0) {
                 continue;
             }
