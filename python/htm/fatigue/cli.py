@@ -229,12 +229,13 @@ def cmd_crack_measure(args: argparse.Namespace) -> int:
     path = write_a_n(m, Path(args.out))
     c = m.columns
     a = c["a_m"]
+    un = m.opening_not_resolved()
     if args.json:
         op = c["opening_force_n"]
         emit_json({"method": m.method, "expression": m.expression, "rows": len(m), "resolution_m": m.resolution_m,
                    "cycles": [int(c["cycles"][0]), int(c["cycles"][-1])], "a_m": [float(a[0]), float(a[-1])],
                    "opening_force_n": [float(np.nanmin(op)), float(np.nanmax(op))] if np.isfinite(op).any() else None,
-                   "opening_force_not_resolved_rows": int((c["opening_resolved"] == 0).sum()) if m.method == "compliance" else None,
+                   "opening_force_not_resolved_rows": None if un is None else int(un.sum()),
                    "outputs": [str(path), str(path.parent / "measure.json")]})
         return 0
     print(f"crack size from {m.method.replace('_', ' ')}: {m.expression}")
@@ -244,8 +245,7 @@ def cmd_crack_measure(args: argparse.Namespace) -> int:
     if np.isfinite(op).any():
         print(f"opening force (2 % compliance offset, E647 X2): {np.nanmin(op):.0f}..{np.nanmax(op):.0f} N "
               f"= {100 * np.nanmin(op / c['fmax_n']):.1f}..{100 * np.nanmax(op / c['fmax_n']):.1f} % of Fmax")
-    if m.method == "compliance" and (c["opening_resolved"] == 0).any():
-        un = c["opening_resolved"] == 0
+    if un is not None and un.any():
         print(f"opening force not resolved on {int(un.sum())} of {len(m)} rows: the gauge's noise hides the closure "
               f"(offset noise {np.nanmin(c['offset_noise'][un]):.3f}..{np.nanmax(c['offset_noise'][un]):.3f}); "
               "left empty, ΔK_eff not claimed")

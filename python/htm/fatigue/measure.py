@@ -44,6 +44,10 @@ class Measurement:
     def __len__(self) -> int:
         return len(self.columns["a_m"])
 
+    def opening_not_resolved(self) -> np.ndarray | None:
+        """Rows whose opening force the gauge's noise left undetermined (compliance only; None else)."""
+        return self.columns["opening_resolved"] == 0 if self.method == "compliance" else None
+
 
 def read_table(path: str | Path, meta: str | Path | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """The columns (SI arrays) and metadata of a record (`htm.recordfile`, the one reader);
@@ -180,7 +184,7 @@ def write_a_n(m: Measurement, out: Path) -> Path:
                         *(fmt(c[k][i], k) for k, _ in _EXTRA)])
     a_std = c["a_std_m"]
     coarse = int(np.count_nonzero(np.isfinite(a_std) & (a_std > m.resolution_m)))
-    unresolved = int(np.count_nonzero(c["opening_resolved"] == 0)) if m.method == "compliance" else None
+    un = m.opening_not_resolved()
     (out / "measure.json").write_text(json.dumps({
         "format": "htm-crack-measure/1", "method": m.method, "expression": m.expression, "constants": m.constants,
         "rows": len(m), "resolution_m": m.resolution_m, "rows_coarser_than_resolution": coarse,
@@ -190,6 +194,6 @@ def write_a_n(m: Measurement, out: Path) -> Path:
                          "is empty (opening_resolved 0, ΔK_eff not claimed) where the noise leaves it undetermined: curves as "
                          "good as the best opening more than ±5 % of Fmax apart, or no closure shown while the offset noise "
                          "(offset_noise) exceeds 0.05" if m.method == "compliance" else None,
-        "rows_opening_not_resolved": unresolved,
+        "rows_opening_not_resolved": None if un is None else int(un.sum()),
     }, indent=1) + "\n")
     return path
