@@ -344,6 +344,10 @@ impl Plant {
 }
 
 impl OdeSystem<NX> for Plant {
+    /// The spool states (SPOOL, SPOOL_V, LAG): their rates depend on the held target and on
+    /// themselves, never on the hydraulics.
+    const DECOUPLED_TAIL: usize = NX - SPOOL;
+
     #[inline]
     fn rhs(&self, x: &[f64; NX], dx: &mut [f64; NX]) {
         self.derivatives(x, self.target, dx)

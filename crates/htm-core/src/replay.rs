@@ -39,6 +39,9 @@ pub struct Replay<'a> {
     /// and the valve (its play and spool, which the hydraulics do not act on) follows the
     /// recorded command throughout, so a simulated sample reads the same as in a whole run
     pub active: Option<&'a [bool]>,
+    /// the integrator solves its stages as one dense system (`Rodas4::dense_stages`: the
+    /// coupled form, a benchmark's peer) instead of the spool's block apart
+    pub dense_stages: bool,
 }
 
 /// A re-simulated record: per channel what the sensors read, and the command applied.
@@ -73,6 +76,7 @@ impl<'a> Replay<'a> {
             corruption: Corruption::default(),
             supply: None,
             active: None,
+            dense_stages: false,
         }
     }
 
@@ -143,7 +147,8 @@ impl<'a> Replay<'a> {
     /// A run's start: the machine at rest where the record starts, its sensors and readings.
     fn start(&self, p: &Params) -> Result<Run> {
         let sensors = Sensors::from_params(p);
-        let m = Machine::new(p.clone())?.with_rtol(self.rtol)?;
+        let mut m = Machine::new(p.clone())?.with_rtol(self.rtol)?;
+        m.solver.dense_stages = self.dense_stages;
         // The supply set-point per sample: the schedule is the supply read at rest (above tank,
         // so that the valve keeps a drop), as a factor of `supply_pressure_pa`.
         let setpoints: Option<Vec<f64>> = self.supply.map(|s| {
@@ -594,6 +599,52 @@ mod tests {
                     let err: Vec<f64> = got.iter().zip(&want).map(|(a, b)| a - b).collect();
                     assert!(norm(&err) <= 0.05 * norm(&want), "set {i} channel {c}: {} of {}", norm(&err), norm(&want));
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn the_spool_solved_apart_reads_as_the_coupled_form_with_every_valve_effect() {
+        // an open-loop record of a rig with a second-order spool, then each valve effect on it
+        let mut base = Params::base();
+        base.valve_natural_hz = 150.0;
+        base.valve_damping = 0.7;
+        let r: Vec<f64> = (0..2500).map(|k| {
+            let t = k as f64 * 2e-3;
+            0.1 + 0.02 * (3.0 * t).sin() + 0.004 * (23.0 * t).sin()
+        }).collect();
+        let u0 = vec![0.0; r.len()];
+        let mut rp = Replay::new(2e-3, &u0);
+        rp.closed_loop = Some((PFF, &r));
+        let truth = rp.run(&base).unwrap();
+        let mut ol = Replay::new(2e-3, &truth.u);
+        for c in 0..4 {
+            ol.measured[c] = Some(&truth.readings[c]);
+        }
+        let effects: [(&str, fn(&mut Params)); 6] = [
+            ("spool only", |_| {}),
+            ("play (hysteresis)", |p| p.valve_hysteresis_half_width_v = 0.2),
+            ("dead band", |p| p.valve_deadband_half_width_v = 0.15),
+            ("lag", |p| p.valve_tau_s = 0.01),
+            ("fast spool", |p| p.valve_natural_hz = 2000.0),
+            ("slow spool", |p| { p.valve_natural_hz = 60.0; p.valve_damping = 1.3 }),
+        ];
+        for (name, set) in effects {
+            let mut p = base.clone();
+            set(&mut p);
+            ol.dense_stages = true;
+            let coupled = ol.run(&p).unwrap();
+            ol.dense_stages = false;
+            let apart = ol.run(&p).unwrap();
+            let worst = |c: usize| coupled.readings[c].iter().zip(&apart.readings[c]).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+            // far below the sensor noise (~1 um, ~10 kPa): the same steps, rounding apart
+            assert!(worst(0) < 1e-9 && worst(2) < 1.0 && worst(3) < 1.0, "{name}: y {:.2e} m, p_a {:.2e} Pa, p_b {:.2e} Pa", worst(0), worst(2), worst(3));
+            assert_eq!(coupled.stats.accepted, apart.stats.accepted, "{name}");
+            // and the effect is there to be carried: it moves the readings by far more
+            let plain = ol.run(&base).unwrap();
+            if name != "spool only" {
+                let moved = plain.readings[2].iter().zip(&apart.readings[2]).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+                assert!(moved > 1e4, "{name}: {moved}");
             }
         }
     }
