@@ -5,7 +5,7 @@
 
 use crate::control::Controller;
 use crate::error::{Error, Result};
-use crate::machine::{Machine, PA, PB, V, Y};
+use crate::machine::{Machine, Outputs, PA, PB, V, Y};
 use crate::measure::{as_outputs, corrupt, held, Corruption, Probe, Sensors, NC};
 use crate::params::Params;
 use crate::solver::Stats;
@@ -159,7 +159,7 @@ impl<'a> Replay<'a> {
         } else {
             None
         };
-        let mut run = Run { supply_pa: p.supply_pressure_pa, setpoints, ripple, m, sensors, probe: Probe::new(sensors, self.dt, 0), out: Replayed::default() };
+        let mut run = Run { supply_pa: p.supply_pressure_pa, setpoints, ripple, m, sensors, probe: Probe::new(sensors, self.dt, 0), out: Replayed::default(), followed: Vec::new() };
         run.m.plant.p.supply_pressure_pa = run.supply_at(0, self.dt);
         let y0 = self.start_position(&run.m, &sensors);
         run.m.x = run.m.plant.rest_state(y0);
@@ -200,6 +200,7 @@ impl<'a> Replay<'a> {
             None => {
                 let u = held(self.u);
                 let simulated = self.simulated();
+                run.followed = self.followed(&simulated, &run.sensors);
                 let every = self.every();
                 for (k, &uk) in u.iter().enumerate() {
                     if self.open_sample(&mut run, k, uk, &simulated, every) {
@@ -234,6 +235,9 @@ impl<'a> Replay<'a> {
         }
         let u = held(self.u);
         let simulated = self.simulated();
+        for r in runs.iter_mut().flatten() {
+            r.followed = self.followed(&simulated, &r.sensors);
+        }
         let every = self.every();
         for (k, &uk) in u.iter().enumerate() {
             let mut step = false;
@@ -291,15 +295,43 @@ impl<'a> Replay<'a> {
         }
     }
 
+    /// Open loop on some samples only: the samples not simulated whose state must still follow
+    /// the measurement (restarted from it, read by the sensors): those a delayed reading of a
+    /// simulated sample can reach back to. The others push a placeholder that nothing reads:
+    /// a simulated run starts its filters afresh (`Probe::restart`), and a sensor delayed by d
+    /// reads back d. Empty (every sample followed) when all samples are simulated, or when a
+    /// channel is both delayed and filtered (its filter would carry the placeholder into what a
+    /// delayed reading sees).
+    fn followed(&self, simulated: &[bool], s: &Sensors) -> Vec<bool> {
+        if self.active.is_none() || s.0.iter().any(|c| c.delay_s > 0.0 && c.lowpass_hz > 0.0) {
+            return Vec::new();
+        }
+        let reach = (s.0.iter().map(|c| c.delay_s.max(0.0)).fold(0.0, f64::max) / self.dt).ceil() as usize + 2;
+        let mut out = vec![false; simulated.len()];
+        let mut next_sim = usize::MAX;
+        for k in (0..simulated.len()).rev() {
+            if simulated[k] {
+                next_sim = k;
+            }
+            out[k] = simulated[k] || (next_sim != usize::MAX && next_sim - k <= reach);
+        }
+        out
+    }
+
     /// Open loop, sample `k` up to its step: the supply, re-starts and anchors, the readings.
     /// Returns whether the sample is integrated (else only the valve follows the command).
     fn open_sample(&self, run: &mut Run, k: usize, uk: f64, simulated: &[bool], every: usize) -> bool {
         run.m.plant.p.supply_pressure_pa = run.supply_at(k, self.dt);
-        let Run { m, sensors, probe, out, .. } = run;
+        let Run { m, sensors, probe, out, followed, .. } = run;
         if !simulated[k] {
-            // not simulated: the state follows the measurement, the valve the command
-            self.restart(m, sensors, k);
-            probe.push(&m.outputs());
+            // not simulated: the state follows the measurement, the valve the command — where
+            // a delayed reading can reach back to it; elsewhere its history is never read
+            if followed.get(k).is_none_or(|f| *f) {
+                self.restart(m, sensors, k);
+                probe.push(&m.outputs());
+            } else {
+                probe.push(&Outputs::default());
+            }
             push(out, &[f64::NAN; NC], uk);
             return false;
         }
@@ -427,6 +459,9 @@ struct Run {
     sensors: Sensors,
     probe: Probe,
     out: Replayed,
+    /// open loop on some samples: the samples not simulated that follow the measurement
+    /// (`Replay::followed`; empty = all)
+    followed: Vec<bool>,
 }
 
 impl Run {
@@ -511,6 +546,36 @@ mod tests {
             }
         }
         assert!(part.stats.accepted < whole.stats.accepted);
+    }
+
+    #[test]
+    fn a_reading_delayed_past_the_warm_up_reads_the_measured_state_before_it() {
+        let p = Params::base();
+        let r = ramp(1500);
+        let u0 = vec![0.0; r.len()];
+        let mut rp = Replay::new(2e-3, &u0);
+        rp.closed_loop = Some((PFF, &r));
+        let truth = rp.run(&p).unwrap();
+        let mut ol = Replay::new(2e-3, &truth.u);
+        for c in 0..4 {
+            ol.measured[c] = Some(&truth.readings[c]);
+        }
+        let mask: Vec<bool> = (0..r.len()).map(|k| (k / 200) % 3 == 2).collect();
+        ol.active = Some(&mask);
+        let mut late = p.clone();
+        late.sensor_delay_y_s = 0.13; // 65 samples, past the 50-sample warm-up
+        let out = ol.run(&late).unwrap();
+        let mut checked = 0;
+        for k in (0..r.len()).filter(|&k| mask[k] && !mask[k - 15]) {
+            // the sample 65 back is not simulated: the state there followed the measurement
+            // (restarted from the reading 65 later), so the reading is the measured one
+            assert!((out.readings[0][k] - truth.readings[0][k]).abs() < 1e-12, "sample {k}: {} vs {}", out.readings[0][k], truth.readings[0][k]);
+            checked += 1;
+        }
+        assert_eq!(checked, 2 * 15);
+        // a sample past the reach of any reading: never read, never restarted
+        let run_far = ol.followed(&ol.simulated(), &Sensors::from_params(&late));
+        assert!(!run_far[0] && !run_far[200] && run_far[400 - 50 - 67] && run_far[350] && run_far[700 - 1] == mask[699]);
     }
 
     #[test]

@@ -130,8 +130,7 @@ impl Rodas4 {
                 self.stats.rhs_evals += 1 + sys.jacobian(x, &f0, &mut jac);
                 have_jac = true;
             }
-            let fac_g = Factored::new(&jac, h, self.lead::<N, S>());
-            let (xn, err) = self.stages(sys, x, &f0, &fac_g);
+            let (xn, err) = self.attempt(sys, x, &f0, &jac, h);
             let err_norm = error_norm(self.rtol, (&rel, &scale, &checked, n_checked), x, &xn, &err);
             let finite = err_norm.is_finite() && xn.iter().all(|v| v.is_finite());
             if self.fixed_step.is_some() {
@@ -179,7 +178,7 @@ impl Rodas4 {
         sys.rhs(x, &mut f0);
         let mut jac = [[0.0; N]; N];
         self.stats.rhs_evals += 1 + sys.jacobian(x, &f0, &mut jac);
-        let (xn, err) = self.stages(sys, x, &f0, &Factored::new(&jac, h, self.lead::<N, S>()));
+        let (xn, err) = self.attempt(sys, x, &f0, &jac, h);
         let (rel, scale) = sys.error_weights();
         let norm = error_norm(self.rtol, (&rel, &scale, &sys.error_checked(), sys.error_count().max(1) as f64), x, &xn, &err);
         if norm <= 1.0 && xn.iter().all(|v| v.is_finite()) {
@@ -194,17 +193,26 @@ impl Rodas4 {
         }
     }
 
-    /// The size of the leading block of the iteration matrix (the whole of it for a system
-    /// without a decoupled tail, or with `dense_stages`).
+    /// One step of size `h` from `x` (rate `f0`, Jacobian `jac`): the iteration matrix
+    /// factorised, by blocks where the system has a decoupled tail (unless `dense_stages`), and
+    /// the stages; the new state and the error estimate. The leading block's size is a constant
+    /// in each branch, so that the factorisation's and the solves' loops unroll for it.
     #[inline(always)]
-    fn lead<const N: usize, S: OdeSystem<N>>(&self) -> usize {
-        if self.dense_stages || S::DECOUPLED_TAIL == 0 || S::DECOUPLED_TAIL >= N { N } else { N - S::DECOUPLED_TAIL }
+    fn attempt<const N: usize, S: OdeSystem<N>>(&mut self, sys: &S, x: &[f64; N], f0: &[f64; N], jac: &[[f64; N]; N], h: f64) -> ([f64; N], [f64; N]) {
+        let tail = S::DECOUPLED_TAIL;
+        if self.dense_stages || tail == 0 || tail >= N {
+            self.stages(sys, x, f0, &Factored::new(jac, h, N), N)
+        } else {
+            self.stages(sys, x, f0, &Factored::new(jac, h, N - tail), N - tail)
+        }
     }
 
     /// The six stages of one step of size `g.h` from `x` (where the rate is `f0`) with the
-    /// factorised iteration matrix `g`: the new state and the error estimate.
-    fn stages<const N: usize, S: OdeSystem<N>>(&mut self, sys: &S, x: &[f64; N], f0: &[f64; N], fac: &Factored<N>) -> ([f64; N], [f64; N]) {
-        let (h, g, piv) = (fac.h, &fac.lu, &fac.perm);
+    /// factorised iteration matrix `g` (its leading block `lead`): the new state and the error estimate.
+    #[inline(always)]
+    fn stages<const N: usize, S: OdeSystem<N>>(&mut self, sys: &S, x: &[f64; N], f0: &[f64; N], fac: &Factored<N>, lead: usize) -> ([f64; N], [f64; N]) {
+        let (g, piv) = (&fac.lu, &fac.perm);
+        let inv_h = 1.0 / fac.h;
         let mut k = [[0.0; N]; 6];
         let mut y = [0.0; N];
         let mut f = [0.0; N];
@@ -224,12 +232,12 @@ impl Rodas4 {
             }
             let mut b = f;
             for j in 0..s {
-                let c = C[s][j] / h;
+                let c = C[s][j] * inv_h;
                 for i in 0..N {
                     b[i] += c * k[j][i];
                 }
             }
-            lu_solve(g, piv, fac.lead, &b, &mut k[s]);
+            lu_solve(g, piv, lead, &b, &mut k[s]);
         }
         let mut xn = [0.0; N];
         for i in 0..N {
@@ -261,7 +269,6 @@ struct Factored<const N: usize> {
     h: f64,
     lu: [[f64; N]; N],
     perm: [usize; N],
-    lead: usize,
 }
 
 impl<const N: usize> Factored<N> {
@@ -275,7 +282,7 @@ impl<const N: usize> Factored<N> {
             lu[i][i] += 1.0 / (h * GAMMA);
         }
         let perm = lu_factor(&mut lu, lead);
-        Factored { h, lu, perm, lead }
+        Factored { h, lu, perm }
     }
 }
 
