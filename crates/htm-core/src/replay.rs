@@ -686,7 +686,8 @@ mod tests {
         for c in 0..4 {
             ol.measured[c] = Some(&truth.readings[c]);
         }
-        let effects: [(&str, fn(&mut Params)); 6] = [
+        type Effect = (&'static str, fn(&mut Params));
+        let effects: [Effect; 6] = [
             ("spool only", |_| {}),
             ("play (hysteresis)", |p| p.valve_hysteresis_half_width_v = 0.2),
             ("dead band", |p| p.valve_deadband_half_width_v = 0.15),
