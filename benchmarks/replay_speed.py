@@ -13,6 +13,12 @@ the point (on its step sizes, `lockstep=True`), one thread: CPU seconds, the int
 accepted and rejected steps and right-hand sides, and each way's column error against columns
 simulated alone at rtol 1e-7 (median and worst over the columns, relative, channel y and p_a).
 
+`spool_block`: one 60 s simulation on the recorded command (open loop, one thread, the base
+model's second-order spool at 150 Hz as a diagnosis fits it), its integrator stages solved with the
+spool's decoupled block apart (`OdeSystem::DECOUPLED_TAIL`, the default) against one dense solve
+of the coupled 7-state system (`dense_stages=True`, the form before): CPU and wall seconds (best of
+5, interleaved), steps, and the largest difference of the readings between the two.
+
 Run: .venv/bin/python benchmarks/replay_speed.py   (prints one JSON object)
 """
 from __future__ import annotations
@@ -57,6 +63,7 @@ def main() -> None:
     t_one_thread, _, _ = best_of(lambda: sim.predict(batch, rec, threads=1), n=1)
     t_all, cpu_all, _ = best_of(lambda: sim.predict(batch, rec), n=1)
     jac = jacobian_peer(rec, p)
+    block = spool_block(rec, p)
     print(json.dumps({
         "record_s": 60.0, "rate_hz": 500, "rtol": sim.RTOL,
         "seconds_per_simulation": round(t_fit, 4),
@@ -73,7 +80,34 @@ def main() -> None:
         "cores": os.cpu_count(),
         "peer": {"target_seconds_per_simulation": 0.1},
         "jacobian": jac,
+        "spool_block": block,
     }, indent=2))
+
+
+def spool_block(rec, p) -> dict:
+    """One 60 s open-loop simulation with the spool's block solved apart vs one dense solve."""
+    from htm.core import CHANNELS, replay
+
+    q = p.copy()
+    q["valve_natural_hz"], q["valve_damping"] = 150.0, 0.7
+    t = np.asarray(rec.columns["t"], dtype=float)
+    args = {"dt": float(np.median(np.diff(t))), "u": np.ascontiguousarray(rec.columns["u"], dtype=float),
+            "measured": {c: np.ascontiguousarray(rec.columns[c], dtype=float) for c in CHANNELS if c in rec.columns},
+            "rtol": sim.RTOL, "threads": 1}
+    best = {False: (np.inf, np.inf), True: (np.inf, np.inf)}
+    out = {}
+    for _ in range(5):
+        for dense in (True, False):
+            t0, c0 = time.perf_counter(), time.process_time()
+            out[dense] = replay([q], dense_stages=dense, **args)[0]
+            wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+            best[dense] = (min(best[dense][0], wall), min(best[dense][1], cpu))
+    diff = {c: float(f"{np.nanmax(np.abs(out[True][c] - out[False][c])):.3g}") for c in ("y", "v", "p_a", "p_b")}
+    return {"cpu_seconds": {"block": round(best[False][1], 4), "dense_coupled": round(best[True][1], 4)},
+            "seconds": {"block": round(best[False][0], 4), "dense_coupled": round(best[True][0], 4)},
+            "cpu_ratio_block_over_dense": round(best[False][1] / best[True][1], 3),
+            "steps": {"block": [out[False]["steps"], out[False]["rejected"]], "dense_coupled": [out[True]["steps"], out[True]["rejected"]]},
+            "max_abs_difference": diff}
 
 
 def jacobian_peer(rec, p) -> dict:

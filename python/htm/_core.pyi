@@ -536,7 +536,7 @@ def replay(params: list[Params], dt: float, u: npt.NDArray[np.float64], measured
            horizon_s: float = ..., preroll_s: float = ..., rtol: float = ...,  # 0.5 s, 1.0 s, 1e-4 (replay.rs DEFAULT_*)
            noise: dict[str, npt.NDArray[np.float64]] | None = None, quantum: dict[str, float] | None = None,
            supply: npt.NDArray[np.float64] | None = None, active: npt.NDArray[np.bool_] | None = None,
-           threads: int = 0, lockstep: bool = False) -> list[_Replayed | HtmError]: ...
+           threads: int = 0, lockstep: bool = False, dense_stages: bool = False) -> list[_Replayed | HtmError]: ...
 
 # --- identification (crates/htm-core/src/python/ident.rs) ---
 

@@ -67,6 +67,38 @@ impl BulkModulus {
         let r4 = (r * r) * (r * r);
         b * r4 / (1.0 + r4)
     }
+
+    /// [`at`](Self::at) and its derivative d(beta)/dp [Pa/Pa] at gauge pressure `p` (the
+    /// plant's analytic Jacobian), by the same formulas.
+    #[inline]
+    pub fn at_and_slope(&self, p: f64) -> (f64, f64) {
+        let p_abs = p + self.p_atm;
+        if p_abs <= 0.0 {
+            return (0.0, 0.0);
+        }
+        let (mut b, mut db) = if self.k1 > 0.0 {
+            let q = (p_abs / 1.0e5).powf(-self.lambda);
+            let g = self.k1 + self.k2 * q;
+            // d(q)/dp = -lambda q / p_abs
+            (1.0 / g, self.k2 * self.lambda * q / (p_abs * g * g))
+        } else if self.beta + self.slope * p > 0.5 * self.beta {
+            (self.beta + self.slope * p, self.slope)
+        } else {
+            (0.5 * self.beta, 0.0)
+        };
+        if self.air > 0.0 {
+            // b / (1 + b c / p_abs^2), c = air * p_atm
+            let c = self.air * self.p_atm;
+            let d = 1.0 + b * self.air * self.p_atm / (p_abs * p_abs);
+            let dd = c * db / (p_abs * p_abs) - 2.0 * c * b / (p_abs * p_abs * p_abs);
+            (b, db) = (b / d, (db * d - b * dd) / (d * d));
+        }
+        let r = p_abs / self.p_cav;
+        let r4 = (r * r) * (r * r);
+        let s = r4 / (1.0 + r4);
+        let ds = 4.0 * r * r * r / (self.p_cav * (1.0 + r4) * (1.0 + r4));
+        (b * r4 / (1.0 + r4), db * s + b * ds)
+    }
 }
 
 /// A monotone, odd-symmetric command-to-spool characteristic through given knots
@@ -177,6 +209,21 @@ mod tests {
         assert!(air.at(1e5) < 0.5 * b.at(1e5) && air.at(2e7) > 0.95 * b.at(2e7));
         let stiffening = BulkModulus { slope: 8.0, ..b };
         assert!((stiffening.at(2e7) / (1.2e9 + 8.0 * 2e7) - 1.0).abs() < 1e-9 && (stiffening.at(0.0) / b.at(0.0) - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn the_bulk_modulus_slope_matches_differences_in_every_regime() {
+        let b = BulkModulus { beta: 1.2e9, slope: 7.0, k1: 0.0, k2: 0.0, lambda: 0.0, air: 0.0, p_atm: 101325.0, p_cav: 2e4 };
+        let eggerth = BulkModulus { k1: 1.0 / 1.6e9, k2: 1e-10, lambda: 1.0, ..b };
+        for m in [b, BulkModulus { air: 0.01, ..b }, eggerth, BulkModulus { air: 0.02, ..eggerth }, BulkModulus { beta: 1e9, slope: 5e3, ..b }] {
+            for p in [-9.9e4, -9e4, -5e4, 0.0, 3e5, 2e6, 1.5e7, 3e7] {
+                let (v, d) = m.at_and_slope(p);
+                assert_eq!(v, m.at(p));
+                let h = 1e-5 * (p + m.p_atm);
+                let fd = (m.at(p + h) - m.at(p - h)) / (2.0 * h);
+                assert!((d - fd).abs() <= 1e-5 * fd.abs() + 1e-9 * m.beta / m.p_atm, "{m:?} at {p}: {d} vs {fd}");
+            }
+        }
     }
 
     #[test]

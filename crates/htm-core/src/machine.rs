@@ -344,6 +344,10 @@ impl Plant {
 }
 
 impl OdeSystem<NX> for Plant {
+    /// The spool states (SPOOL, SPOOL_V, LAG): their rates depend on the held target and on
+    /// themselves, never on the hydraulics.
+    const DECOUPLED_TAIL: usize = NX - SPOOL;
+
     #[inline]
     fn rhs(&self, x: &[f64; NX], dx: &mut [f64; NX]) {
         self.derivatives(x, self.target, dx)
@@ -377,15 +381,11 @@ impl OdeSystem<NX> for Plant {
         let va = p.dead_volume_a_m3 + p.area_a_m2 * y.clamp(0.0, p.stroke_m);
         let vb = p.dead_volume_b_m3 + p.area_b_m2 * (p.stroke_m - y).clamp(0.0, p.stroke_m);
         let (dva, dvb) = if inside { (p.area_a_m2, -p.area_b_m2) } else { (0.0, 0.0) };
-        let dbeta = |pp: f64| {
-            let h = 1e-6 * (pp.abs() + p.atmospheric_pressure_pa);
-            (self.bulk.at(pp + h) - self.bulk.at(pp - h)) / (2.0 * h)
-        };
-        let (ba, bb) = (self.bulk.at(pa), self.bulk.at(pb));
+        let ((ba, dba), (bb, dbb)) = (self.bulk.at_and_slope(pa), self.bulk.at_and_slope(pb));
         let na = qa - p.area_a_m2 * v - ql;
         let nb = qb + p.area_b_m2 * v + ql;
-        jac[PA] = [dbeta(pa) / va * na + ba / va * (dqa_dpa - c), ba / va * c, -ba * na / (va * va) * dva, -ba * p.area_a_m2 / va, ba / va * dqa_dxs, 0.0, 0.0];
-        jac[PB] = [bb / vb * c, dbeta(pb) / vb * nb + bb / vb * (dqb_dpb - c), -bb * nb / (vb * vb) * dvb, bb * p.area_b_m2 / vb, bb / vb * dqb_dxs, 0.0, 0.0];
+        jac[PA] = [dba / va * na + ba / va * (dqa_dpa - c), ba / va * c, -ba * na / (va * va) * dva, -ba * p.area_a_m2 / va, ba / va * dqa_dxs, 0.0, 0.0];
+        jac[PB] = [bb / vb * c, dbb / vb * nb + bb / vb * (dqb_dpb - c), -bb * nb / (vb * vb) * dvb, bb * p.area_b_m2 / vb, bb / vb * dqb_dxs, 0.0, 0.0];
         jac[Y] = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0];
         // friction derivatives
         let fr = &self.friction;

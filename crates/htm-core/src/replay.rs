@@ -5,7 +5,7 @@
 
 use crate::control::Controller;
 use crate::error::{Error, Result};
-use crate::machine::{Machine, PA, PB, V, Y};
+use crate::machine::{Machine, Outputs, PA, PB, V, Y};
 use crate::measure::{as_outputs, corrupt, held, Corruption, Probe, Sensors, NC};
 use crate::params::Params;
 use crate::solver::Stats;
@@ -39,6 +39,9 @@ pub struct Replay<'a> {
     /// and the valve (its play and spool, which the hydraulics do not act on) follows the
     /// recorded command throughout, so a simulated sample reads the same as in a whole run
     pub active: Option<&'a [bool]>,
+    /// the integrator solves its stages as one dense system (`Rodas4::dense_stages`: the
+    /// coupled form, a benchmark's peer) instead of the spool's block apart
+    pub dense_stages: bool,
 }
 
 /// A re-simulated record: per channel what the sensors read, and the command applied.
@@ -73,6 +76,7 @@ impl<'a> Replay<'a> {
             corruption: Corruption::default(),
             supply: None,
             active: None,
+            dense_stages: false,
         }
     }
 
@@ -143,7 +147,8 @@ impl<'a> Replay<'a> {
     /// A run's start: the machine at rest where the record starts, its sensors and readings.
     fn start(&self, p: &Params) -> Result<Run> {
         let sensors = Sensors::from_params(p);
-        let m = Machine::new(p.clone())?.with_rtol(self.rtol)?;
+        let mut m = Machine::new(p.clone())?.with_rtol(self.rtol)?;
+        m.solver.dense_stages = self.dense_stages;
         // The supply set-point per sample: the schedule is the supply read at rest (above tank,
         // so that the valve keeps a drop), as a factor of `supply_pressure_pa`.
         let setpoints: Option<Vec<f64>> = self.supply.map(|s| {
@@ -154,7 +159,7 @@ impl<'a> Replay<'a> {
         } else {
             None
         };
-        let mut run = Run { supply_pa: p.supply_pressure_pa, setpoints, ripple, m, sensors, probe: Probe::new(sensors, self.dt, 0), out: Replayed::default() };
+        let mut run = Run { supply_pa: p.supply_pressure_pa, setpoints, ripple, m, sensors, probe: Probe::new(sensors, self.dt, 0), out: Replayed::default(), followed: Vec::new() };
         run.m.plant.p.supply_pressure_pa = run.supply_at(0, self.dt);
         let y0 = self.start_position(&run.m, &sensors);
         run.m.x = run.m.plant.rest_state(y0);
@@ -195,6 +200,7 @@ impl<'a> Replay<'a> {
             None => {
                 let u = held(self.u);
                 let simulated = self.simulated();
+                run.followed = self.followed(&simulated, &run.sensors);
                 let every = self.every();
                 for (k, &uk) in u.iter().enumerate() {
                     if self.open_sample(&mut run, k, uk, &simulated, every) {
@@ -229,6 +235,9 @@ impl<'a> Replay<'a> {
         }
         let u = held(self.u);
         let simulated = self.simulated();
+        for r in runs.iter_mut().flatten() {
+            r.followed = self.followed(&simulated, &r.sensors);
+        }
         let every = self.every();
         for (k, &uk) in u.iter().enumerate() {
             let mut step = false;
@@ -286,15 +295,43 @@ impl<'a> Replay<'a> {
         }
     }
 
+    /// Open loop on some samples only: the samples not simulated whose state must still follow
+    /// the measurement (restarted from it, read by the sensors): those a delayed reading of a
+    /// simulated sample can reach back to. The others push a placeholder that nothing reads:
+    /// a simulated run starts its filters afresh (`Probe::restart`), and a sensor delayed by d
+    /// reads back d. Empty (every sample followed) when all samples are simulated, or when a
+    /// channel is both delayed and filtered (its filter would carry the placeholder into what a
+    /// delayed reading sees).
+    fn followed(&self, simulated: &[bool], s: &Sensors) -> Vec<bool> {
+        if self.active.is_none() || s.0.iter().any(|c| c.delay_s > 0.0 && c.lowpass_hz > 0.0) {
+            return Vec::new();
+        }
+        let reach = (s.0.iter().map(|c| c.delay_s.max(0.0)).fold(0.0, f64::max) / self.dt).ceil() as usize + 2;
+        let mut out = vec![false; simulated.len()];
+        let mut next_sim = usize::MAX;
+        for k in (0..simulated.len()).rev() {
+            if simulated[k] {
+                next_sim = k;
+            }
+            out[k] = simulated[k] || (next_sim != usize::MAX && next_sim - k <= reach);
+        }
+        out
+    }
+
     /// Open loop, sample `k` up to its step: the supply, re-starts and anchors, the readings.
     /// Returns whether the sample is integrated (else only the valve follows the command).
     fn open_sample(&self, run: &mut Run, k: usize, uk: f64, simulated: &[bool], every: usize) -> bool {
         run.m.plant.p.supply_pressure_pa = run.supply_at(k, self.dt);
-        let Run { m, sensors, probe, out, .. } = run;
+        let Run { m, sensors, probe, out, followed, .. } = run;
         if !simulated[k] {
-            // not simulated: the state follows the measurement, the valve the command
-            self.restart(m, sensors, k);
-            probe.push(&m.outputs());
+            // not simulated: the state follows the measurement, the valve the command — where
+            // a delayed reading can reach back to it; elsewhere its history is never read
+            if followed.get(k).is_none_or(|f| *f) {
+                self.restart(m, sensors, k);
+                probe.push(&m.outputs());
+            } else {
+                probe.push(&Outputs::default());
+            }
             push(out, &[f64::NAN; NC], uk);
             return false;
         }
@@ -422,6 +459,9 @@ struct Run {
     sensors: Sensors,
     probe: Probe,
     out: Replayed,
+    /// open loop on some samples: the samples not simulated that follow the measurement
+    /// (`Replay::followed`; empty = all)
+    followed: Vec<bool>,
 }
 
 impl Run {
@@ -506,6 +546,36 @@ mod tests {
             }
         }
         assert!(part.stats.accepted < whole.stats.accepted);
+    }
+
+    #[test]
+    fn a_reading_delayed_past_the_warm_up_reads_the_measured_state_before_it() {
+        let p = Params::base();
+        let r = ramp(1500);
+        let u0 = vec![0.0; r.len()];
+        let mut rp = Replay::new(2e-3, &u0);
+        rp.closed_loop = Some((PFF, &r));
+        let truth = rp.run(&p).unwrap();
+        let mut ol = Replay::new(2e-3, &truth.u);
+        for c in 0..4 {
+            ol.measured[c] = Some(&truth.readings[c]);
+        }
+        let mask: Vec<bool> = (0..r.len()).map(|k| (k / 200) % 3 == 2).collect();
+        ol.active = Some(&mask);
+        let mut late = p.clone();
+        late.sensor_delay_y_s = 0.13; // 65 samples, past the 50-sample warm-up
+        let out = ol.run(&late).unwrap();
+        let mut checked = 0;
+        for k in (0..r.len()).filter(|&k| mask[k] && !mask[k - 15]) {
+            // the sample 65 back is not simulated: the state there followed the measurement
+            // (restarted from the reading 65 later), so the reading is the measured one
+            assert!((out.readings[0][k] - truth.readings[0][k]).abs() < 1e-12, "sample {k}: {} vs {}", out.readings[0][k], truth.readings[0][k]);
+            checked += 1;
+        }
+        assert_eq!(checked, 2 * 15);
+        // a sample past the reach of any reading: never read, never restarted
+        let run_far = ol.followed(&ol.simulated(), &Sensors::from_params(&late));
+        assert!(!run_far[0] && !run_far[200] && run_far[400 - 50 - 67] && run_far[350] && run_far[700 - 1] == mask[699]);
     }
 
     #[test]
@@ -594,6 +664,53 @@ mod tests {
                     let err: Vec<f64> = got.iter().zip(&want).map(|(a, b)| a - b).collect();
                     assert!(norm(&err) <= 0.05 * norm(&want), "set {i} channel {c}: {} of {}", norm(&err), norm(&want));
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn the_spool_solved_apart_reads_as_the_coupled_form_with_every_valve_effect() {
+        // an open-loop record of a rig with a second-order spool, then each valve effect on it
+        let mut base = Params::base();
+        base.valve_natural_hz = 150.0;
+        base.valve_damping = 0.7;
+        let r: Vec<f64> = (0..2500).map(|k| {
+            let t = k as f64 * 2e-3;
+            0.1 + 0.02 * (3.0 * t).sin() + 0.004 * (23.0 * t).sin()
+        }).collect();
+        let u0 = vec![0.0; r.len()];
+        let mut rp = Replay::new(2e-3, &u0);
+        rp.closed_loop = Some((PFF, &r));
+        let truth = rp.run(&base).unwrap();
+        let mut ol = Replay::new(2e-3, &truth.u);
+        for c in 0..4 {
+            ol.measured[c] = Some(&truth.readings[c]);
+        }
+        type Effect = (&'static str, fn(&mut Params));
+        let effects: [Effect; 6] = [
+            ("spool only", |_| {}),
+            ("play (hysteresis)", |p| p.valve_hysteresis_half_width_v = 0.2),
+            ("dead band", |p| p.valve_deadband_half_width_v = 0.15),
+            ("lag", |p| p.valve_tau_s = 0.01),
+            ("fast spool", |p| p.valve_natural_hz = 2000.0),
+            ("slow spool", |p| { p.valve_natural_hz = 60.0; p.valve_damping = 1.3 }),
+        ];
+        for (name, set) in effects {
+            let mut p = base.clone();
+            set(&mut p);
+            ol.dense_stages = true;
+            let coupled = ol.run(&p).unwrap();
+            ol.dense_stages = false;
+            let apart = ol.run(&p).unwrap();
+            let worst = |c: usize| coupled.readings[c].iter().zip(&apart.readings[c]).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+            // far below the sensor noise (~1 um, ~10 kPa): the same steps, rounding apart
+            assert!(worst(0) < 1e-9 && worst(2) < 1.0 && worst(3) < 1.0, "{name}: y {:.2e} m, p_a {:.2e} Pa, p_b {:.2e} Pa", worst(0), worst(2), worst(3));
+            assert_eq!(coupled.stats.accepted, apart.stats.accepted, "{name}");
+            // and the effect is there to be carried: it moves the readings by far more
+            let plain = ol.run(&base).unwrap();
+            if name != "spool only" {
+                let moved = plain.readings[2].iter().zip(&apart.readings[2]).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+                assert!(moved > 1e4, "{name}: {moved}");
             }
         }
     }

@@ -27,6 +27,13 @@ pub trait OdeSystem<const N: usize> {
     fn jacobian(&self, x: &[f64; N], f0: &[f64; N], jac: &mut [[f64; N]; N]) -> u64 {
         fd_jacobian(self, x, f0, jac)
     }
+    /// Number of trailing components that form a decoupled block: their rates never depend on
+    /// the leading components (a servo-valve's spool and lag, driven by the held command alone;
+    /// the hydraulics do not act back on them). The iteration matrix is then block upper
+    /// triangular, and each stage solves the trailing block first and the leading block after
+    /// it, with the coupling moved to its right-hand side: the solution of one dense solve (to
+    /// rounding) for much less work. Default 0 (one dense block).
+    const DECOUPLED_TAIL: usize = 0;
 }
 
 /// Forward-difference Jacobian, step scaled per component.
@@ -85,11 +92,15 @@ pub struct Rodas4 {
     /// when set, take steps of exactly this size without error control (for order tests)
     pub fixed_step: Option<f64>,
     pub stats: Stats,
+    /// solve every stage as one dense system, ignoring a decoupled tail
+    /// (`OdeSystem::DECOUPLED_TAIL`): the coupled form, the block solve's peer in benchmarks
+    #[serde(skip)]
+    pub dense_stages: bool,
 }
 
 impl Rodas4 {
     pub fn new(rtol: f64) -> Self {
-        Rodas4 { rtol, h: 1e-5, h_min: 1e-14, h_max: 1e-2, fixed_step: None, stats: Stats::default() }
+        Rodas4 { rtol, h: 1e-5, h_min: 1e-14, h_max: 1e-2, fixed_step: None, stats: Stats::default(), dense_stages: false }
     }
 
     /// Integrate `x` forward by `dt` with the input held; ends exactly at dt.
@@ -119,8 +130,7 @@ impl Rodas4 {
                 self.stats.rhs_evals += 1 + sys.jacobian(x, &f0, &mut jac);
                 have_jac = true;
             }
-            let fac_g = Factored::new(&jac, h);
-            let (xn, err) = self.stages(sys, x, &f0, &fac_g);
+            let (xn, err) = self.attempt(sys, x, &f0, &jac, h);
             let err_norm = error_norm(self.rtol, (&rel, &scale, &checked, n_checked), x, &xn, &err);
             let finite = err_norm.is_finite() && xn.iter().all(|v| v.is_finite());
             if self.fixed_step.is_some() {
@@ -168,7 +178,7 @@ impl Rodas4 {
         sys.rhs(x, &mut f0);
         let mut jac = [[0.0; N]; N];
         self.stats.rhs_evals += 1 + sys.jacobian(x, &f0, &mut jac);
-        let (xn, err) = self.stages(sys, x, &f0, &Factored::new(&jac, h));
+        let (xn, err) = self.attempt(sys, x, &f0, &jac, h);
         let (rel, scale) = sys.error_weights();
         let norm = error_norm(self.rtol, (&rel, &scale, &sys.error_checked(), sys.error_count().max(1) as f64), x, &xn, &err);
         if norm <= 1.0 && xn.iter().all(|v| v.is_finite()) {
@@ -183,10 +193,26 @@ impl Rodas4 {
         }
     }
 
+    /// One step of size `h` from `x` (rate `f0`, Jacobian `jac`): the iteration matrix
+    /// factorised, by blocks where the system has a decoupled tail (unless `dense_stages`), and
+    /// the stages; the new state and the error estimate. The leading block's size is a constant
+    /// in each branch, so that the factorisation's and the solves' loops unroll for it.
+    #[inline(always)]
+    fn attempt<const N: usize, S: OdeSystem<N>>(&mut self, sys: &S, x: &[f64; N], f0: &[f64; N], jac: &[[f64; N]; N], h: f64) -> ([f64; N], [f64; N]) {
+        let tail = S::DECOUPLED_TAIL;
+        if self.dense_stages || tail == 0 || tail >= N {
+            self.stages(sys, x, f0, &Factored::new(jac, h, N), N)
+        } else {
+            self.stages(sys, x, f0, &Factored::new(jac, h, N - tail), N - tail)
+        }
+    }
+
     /// The six stages of one step of size `g.h` from `x` (where the rate is `f0`) with the
-    /// factorised iteration matrix `g`: the new state and the error estimate.
-    fn stages<const N: usize, S: OdeSystem<N>>(&mut self, sys: &S, x: &[f64; N], f0: &[f64; N], fac: &Factored<N>) -> ([f64; N], [f64; N]) {
-        let (h, g, piv) = (fac.h, &fac.lu, &fac.perm);
+    /// factorised iteration matrix `g` (its leading block `lead`): the new state and the error estimate.
+    #[inline(always)]
+    fn stages<const N: usize, S: OdeSystem<N>>(&mut self, sys: &S, x: &[f64; N], f0: &[f64; N], fac: &Factored<N>, lead: usize) -> ([f64; N], [f64; N]) {
+        let (g, piv) = (&fac.lu, &fac.perm);
+        let inv_h = 1.0 / fac.h;
         let mut k = [[0.0; N]; 6];
         let mut y = [0.0; N];
         let mut f = [0.0; N];
@@ -206,12 +232,12 @@ impl Rodas4 {
             }
             let mut b = f;
             for j in 0..s {
-                let c = C[s][j] / h;
+                let c = C[s][j] * inv_h;
                 for i in 0..N {
                     b[i] += c * k[j][i];
                 }
             }
-            lu_solve(g, piv, &b, &mut k[s]);
+            lu_solve(g, piv, lead, &b, &mut k[s]);
         }
         let mut xn = [0.0; N];
         for i in 0..N {
@@ -235,7 +261,9 @@ fn error_norm<const N: usize>(rtol: f64, w: (&[f64; N], &[f64; N], &[bool; N], f
     (s / n_checked).sqrt()
 }
 
-/// A step's size and its factorised iteration matrix I/(h*gamma) - J.
+/// A step's size and its factorised iteration matrix I/(h*gamma) - J: with `lead` < N, its
+/// leading and trailing diagonal blocks factorised apart (the trailing rows' leading columns are
+/// zero: `OdeSystem::DECOUPLED_TAIL`) and the coupling block kept as it is.
 #[derive(Debug, Clone)]
 struct Factored<const N: usize> {
     h: f64,
@@ -244,7 +272,8 @@ struct Factored<const N: usize> {
 }
 
 impl<const N: usize> Factored<N> {
-    fn new(jac: &[[f64; N]; N], h: f64) -> Self {
+    #[inline(always)]
+    fn new(jac: &[[f64; N]; N], h: f64, lead: usize) -> Self {
         let mut lu = [[0.0; N]; N];
         for i in 0..N {
             for j in 0..N {
@@ -252,7 +281,7 @@ impl<const N: usize> Factored<N> {
             }
             lu[i][i] += 1.0 / (h * GAMMA);
         }
-        let perm = lu_factor(&mut lu);
+        let perm = lu_factor(&mut lu, lead);
         Factored { h, lu, perm }
     }
 }
@@ -262,34 +291,41 @@ impl<const N: usize> Factored<N> {
 /// In-place LU with partial pivoting (U's diagonal stored as its reciprocals); singular pivots are replaced by a tiny value (the step
 /// is then rejected by the error test rather than panicking). Returns the row permutation: row i
 /// of the factors is row `perm[i]` of the matrix (the interchanges composed, applied by one gather).
+/// With `lead` < N the matrix is block upper triangular (rows `lead..` are zero in columns
+/// `..lead`): the blocks `..lead` and `lead..` are factorised apart, each pivoting within itself,
+/// and the coupling block (rows `..lead`, columns `lead..`) stays as it is, its rows permuted with
+/// the leading block's. `lead` = N is the one dense factorisation.
 #[allow(clippy::needless_range_loop)] // row i is updated from row k of the same matrix: indices, as in the textbook
-fn lu_factor<const N: usize>(a: &mut [[f64; N]; N]) -> [usize; N] {
+#[inline(always)]
+fn lu_factor<const N: usize>(a: &mut [[f64; N]; N], lead: usize) -> [usize; N] {
     let mut perm = [0usize; N];
     for (i, p) in perm.iter_mut().enumerate() {
         *p = i;
     }
-    for k in 0..N {
-        let mut p = k;
-        for i in k + 1..N {
-            if a[i][k].abs() > a[p][k].abs() {
-                p = i;
+    for (lo, hi) in [(0, lead), (lead, N)] {
+        for k in lo..hi {
+            let mut p = k;
+            for i in k + 1..hi {
+                if a[i][k].abs() > a[p][k].abs() {
+                    p = i;
+                }
             }
-        }
-        if p != k {
-            a.swap(p, k);
-            perm.swap(p, k);
-        }
-        if a[k][k] == 0.0 {
-            a[k][k] = 1e-300;
-        }
-        for i in k + 1..N {
-            if a[i][k] == 0.0 {
-                continue; // the plant's matrix is sparse (decoupled spool states, y' = v)
+            if p != k {
+                a.swap(p, k);
+                perm.swap(p, k);
             }
-            let m = a[i][k] / a[k][k];
-            a[i][k] = m;
-            for j in k + 1..N {
-                a[i][j] -= m * a[k][j];
+            if a[k][k] == 0.0 {
+                a[k][k] = 1e-300;
+            }
+            for i in k + 1..hi {
+                if a[i][k] == 0.0 {
+                    continue; // the plant's matrix is sparse (decoupled spool states, y' = v)
+                }
+                let m = a[i][k] / a[k][k];
+                a[i][k] = m;
+                for j in k + 1..hi {
+                    a[i][j] -= m * a[k][j];
+                }
             }
         }
     }
@@ -301,24 +337,37 @@ fn lu_factor<const N: usize>(a: &mut [[f64; N]; N]) -> [usize; N] {
     perm
 }
 
-/// Solve with the factors of [`lu_factor`]: the solution of `lu x = b` into `x` (written in
-/// place, element by element: no copy of a just-written vector, whose reload would stall).
+/// Solve with the factors of [`lu_factor`] (same `lead`): the solution of `lu x = b` into `x`
+/// (written in place, element by element: no copy of a just-written vector, whose reload would
+/// stall). A block triangular matrix: the trailing block first, then the leading block with the
+/// coupling times the trailing solution moved to its right-hand side.
 #[allow(clippy::needless_range_loop)] // substitution by rows and columns: indices, as in the textbook
-fn lu_solve<const N: usize>(lu: &[[f64; N]; N], perm: &[usize; N], b: &[f64; N], x: &mut [f64; N]) {
+#[inline(always)]
+fn lu_solve<const N: usize>(lu: &[[f64; N]; N], perm: &[usize; N], lead: usize, b: &[f64; N], x: &mut [f64; N]) {
     // the permuted right-hand side in one gather (not a chain of swaps through memory)
     for i in 0..N {
         x[i] = b[perm[i]];
     }
-    for k in 0..N {
-        for i in k + 1..N {
-            x[i] -= lu[i][k] * x[k];
+    for (lo, hi) in [(lead, N), (0, lead)] {
+        if lo < lead {
+            // the leading block's right-hand side less the coupling to the solved trailing block
+            for i in lo..hi {
+                for j in lead..N {
+                    x[i] -= lu[i][j] * x[j];
+                }
+            }
         }
-    }
-    for k in (0..N).rev() {
-        for j in k + 1..N {
-            x[k] -= lu[k][j] * x[j];
+        for k in lo..hi {
+            for i in k + 1..hi {
+                x[i] -= lu[i][k] * x[k];
+            }
         }
-        x[k] *= lu[k][k];
+        for k in (lo..hi).rev() {
+            for j in k + 1..hi {
+                x[k] -= lu[k][j] * x[j];
+            }
+            x[k] *= lu[k][k];
+        }
     }
 }
 
@@ -337,11 +386,37 @@ mod tests {
             }
         }
         let mut a = a0;
-        let piv = lu_factor(&mut a);
+        let piv = lu_factor(&mut a, 4);
         let mut x = [0.0; 4];
-        lu_solve(&a, &piv, &b, &mut x);
+        lu_solve(&a, &piv, 4, &b, &mut x);
         for i in 0..4 {
             assert!((x[i] - x_true[i]).abs() < 1e-9, "{x:?}");
+        }
+    }
+
+    #[test]
+    fn a_block_triangular_matrix_solved_by_blocks_matches_the_dense_solve() {
+        // 4 leading rows coupled to a 3-row trailing block whose leading columns are zero
+        let mut a0 = [[0.0; 7]; 7];
+        let mut r = 0.37f64;
+        for (i, row) in a0.iter_mut().enumerate() {
+            for (j, v) in row.iter_mut().enumerate() {
+                r = (r * 9301.0 + 0.49297).fract();
+                *v = if i >= 4 && j < 4 { 0.0 } else { (r - 0.5) * 10f64.powi((i + j) as i32 % 5 - 2) };
+            }
+            row[i] += if i == 1 { 1e-6 } else { 3.0 }; // row 1 needs a pivot from below
+        }
+        let b = [1.0, -2.0, 3.0, 0.5, -1.5, 2.5, 4.0];
+        let (mut dense, mut block) = (a0, a0);
+        let (pd, pb) = (lu_factor(&mut dense, 7), lu_factor(&mut block, 4));
+        assert_ne!(pb, [0, 1, 2, 3, 4, 5, 6], "the leading block pivots");
+        let (mut xd, mut xb) = ([0.0; 7], [0.0; 7]);
+        lu_solve(&dense, &pd, 7, &b, &mut xd);
+        lu_solve(&block, &pb, 4, &b, &mut xb);
+        for i in 0..7 {
+            let back: f64 = (0..7).map(|j| a0[i][j] * xb[j]).sum();
+            assert!((back - b[i]).abs() < 1e-9, "row {i}: {back} vs {}", b[i]);
+            assert!((xb[i] - xd[i]).abs() < 1e-9 * xd[i].abs().max(1.0), "{xb:?} vs {xd:?}");
         }
     }
 

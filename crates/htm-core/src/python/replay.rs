@@ -53,11 +53,13 @@ fn result_item<'py>(py: Python<'py>, r: Result<Replayed, crate::Error>) -> PyRes
 /// `supply_pressure_pa` over time (a power unit switched between pressure levels). Returns one item per parameter set: a dict of the readings per channel,
 /// `u`, `steps`, `rejected` and `rhs_evals` — or, for a set the solver could not carry, its `HtmError` as the item (every batch call's
 /// convention). `lockstep` (open loop): the sets after the first differ from it slightly (a fit's finite-difference neighbours)
-/// and take its integrator step sizes (`Replay::run_lockstep`). Bad arguments raise.
+/// and take its integrator step sizes (`Replay::run_lockstep`). `dense_stages`: the integrator solves each stage as one dense
+/// system (the coupled form before the spool's block was solved apart; the same readings to rounding, a benchmark's peer).
+/// Bad arguments raise.
 #[pyfunction]
 #[pyo3(signature = (params, dt, u, measured = None, controller = None, reference = None, horizon_s = DEFAULT_HORIZON_S,
                     preroll_s = DEFAULT_PREROLL_S, rtol = DEFAULT_RTOL, noise = None, quantum = None, supply = None, active = None,
-                    threads = 0, lockstep = false))]
+                    threads = 0, lockstep = false, dense_stages = false))]
 #[allow(clippy::too_many_arguments)]
 fn replay<'py>(
     py: Python<'py>,
@@ -76,6 +78,7 @@ fn replay<'py>(
     active: Option<PyReadonlyArray1<'py, bool>>,
     threads: usize,
     lockstep: bool,
+    dense_stages: bool,
 ) -> PyResult<Bound<'py, PyList>> {
     let meas = channel_arrays(measured)?;
     let noise = channel_arrays(noise)?;
@@ -85,6 +88,7 @@ fn replay<'py>(
     rp.horizon_s = horizon_s;
     rp.preroll_s = preroll_s;
     rp.rtol = rtol;
+    rp.dense_stages = dense_stages;
     for (i, a) in &meas {
         rp.measured[*i] = Some(a.as_slice()?);
     }
