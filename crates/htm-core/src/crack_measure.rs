@@ -787,6 +787,15 @@ pub struct OpenCurve {
     pub curves: usize,
 }
 
+impl OpenCurve {
+    /// The curve shows the crack open at Fmin: no closure of its own nor on the pooled curves,
+    /// and the offset noise low enough that a closure opening `OPENING_TOLERANCE` of Fmax above
+    /// Fmin would have shown (`compliance_interval` reports the opening force at Fmin, resolved).
+    pub fn shows_open(&self) -> bool {
+        !(self.closure.sol[2] > 0.0) && self.pooled.is_none() && self.offset_noise <= OFFSET_NOISE_MAX
+    }
+}
+
 /// The reduction of one compliance interval as a job done a bounded amount at a time (one unit:
 /// one sample visited by one pass, or one sample of one closure grid point): force extremes, the
 /// loading samples (force rising, a centred difference over ±k samples, k ~ 1/50 of a cycle),
@@ -863,6 +872,9 @@ pub struct OpeningPool {
     /// the last intervals' loading curves (`PoolCurve`)
     #[serde(default)]
     curves: Vec<PoolCurve>,
+    /// the last interval showed the crack open at Fmin (`OpenCurve::shows_open`)
+    #[serde(default)]
+    open: bool,
 }
 
 impl OpeningPool {
@@ -889,12 +901,22 @@ impl OpeningPool {
         if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) }
     }
 
+    /// Where the next interval's fully open fit starts at the lowest (share of the force range;
+    /// NaN: nowhere above Fmin): the median hint, unless the last interval showed the crack open
+    /// at Fmin (no closure on its own curve nor on the pooled curves, where one that matters would
+    /// have shown): then the hints are the noise's, and the fit takes the whole open range (a
+    /// coarse gauge's reading uses all its loading curve, not the upper part the noise hinted at).
+    pub fn open_from(&self) -> f64 {
+        if self.open { f64::NAN } else { self.median() }
+    }
+
     /// Loading curves pooled (an interval's with the last `CURVES − 1`).
     pub const CURVES: usize = 64;
 
     /// An interval reduced: its hint and its curve join the pool (the oldest leave).
     pub fn push_interval(&mut self, oc: &OpenCurve) {
         self.push(oc.hint_frac);
+        self.open = oc.shows_open();
         if oc.curve.bins.len() == POOL_BINS && oc.curve.var.is_finite() && oc.curve.n > 0.0 {
             self.curves.push(oc.curve.clone());
             if self.curves.len() >= Self::CURVES {
@@ -922,6 +944,7 @@ impl OpeningPool {
     pub fn clear(&mut self) {
         self.hints.clear();
         self.curves.clear();
+        self.open = false;
     }
 }
 
@@ -951,7 +974,7 @@ impl ComplianceJob {
         ComplianceJob {
             f, v, cyc, stage: 0, i: 0, ext: Extremes::default(), v0, vs: 0.0, fmin: f64::NAN, fmax: f64::NAN, k: 1, lx: Vec::new(), ly: Vec::new(),
             lsums: LineSums::default(), segs: vec![LineSums::default(); SEGMENTS], search: None, closure: None, lower: f64::NAN, open: LineSums::default(),
-            pooled_frac: pool.median(), hint_frac: f64::NAN, pool_sum: pool.sum(), curve: PoolCurve::default(), line: (0.0, 1.0), pooled: None,
+            pooled_frac: pool.open_from(), hint_frac: f64::NAN, pool_sum: pool.sum(), curve: PoolCurve::default(), line: (0.0, 1.0), pooled: None,
             offset_noise: f64::NAN, pool_var: f64::NAN,
         }
     }
@@ -1190,7 +1213,7 @@ pub fn compliance_interval(spec: &Specimen, method: &Method, oc: &OpenCurve) -> 
         (middle(&cn, &cn.fit(fmin, span, 1.0)), true, k)
     } else if own || oc.pooled.is_some() {
         ([f64::NAN; 3], false, oc.pooled.map_or(1, |p| p.1))
-    } else if oc.offset_noise <= OFFSET_NOISE_MAX {
+    } else if oc.shows_open() {
         ([fmin; 3], true, oc.curves)
     } else {
         ([f64::NAN; 3], false, oc.curves)

@@ -811,4 +811,48 @@ mod tests {
             }
         }
     }
+
+    #[test]
+    fn a_coarse_gauge_s_readings_use_the_whole_open_range_where_they_show_the_crack_open() {
+        // a small M(T) (W 100.6 mm, a 6 mm: E647's resolution 0.2 mm) read by a 0.5 µm gauge.
+        // Where the readings show the crack open at Fmin (no closure on their own curve nor the
+        // pooled ones, where one that matters would have shown), the next reading's compliance is
+        // fitted over the whole open range, not above the openings the noise hinted at: the
+        // readings scatter 1.31 times what a least-squares slope through all of each reading's
+        // samples would (1.52 above the hints); with a closure the hints still hold the fit
+        // above it (no bias)
+        let spec = Specimen::new(Geometry::MT, 0.1006, 0.00254).unwrap();
+        let mat = Material { youngs_modulus_pa: 73e9, ..Material::default() };
+        let (fmax, fmin): (f64, f64) = (10000.0, 1000.0);
+        let (a_true, noise, n) = (0.006, 0.5e-6, 50usize);
+        let m0 = Measurement { crack: CrackSource::Compliance, gauge_y_m: 0.01, noise, ..Measurement::model() };
+        let method = m0.method(&spec, &mat, a_true).unwrap();
+        let h = 1e-6;
+        let dc_da = (compliance(&spec, &method, a_true + h).unwrap() - compliance(&spec, &method, a_true - h).unwrap()) / (2.0 * h);
+        // Σ(F − F̄)² of a reading's samples: n per cycle of a sine of amplitude ΔF/2
+        let sxx = (m0.cycles_per_reading as usize * n) as f64 * (0.5 * (fmax - fmin)).powi(2) / 2.0;
+        let ideal = noise / sxx.sqrt() / dc_da;
+        let mut open_sd = Vec::new();
+        for (frac, seed) in [(0.0, 3u64), (0.0, 8), (0.3, 3)] {
+            let m = Measurement { closure_opening_fraction: frac, seed, ..m0.clone() };
+            let mut chain = GaugeChain::new(&m, &spec, &mat, a_true).unwrap();
+            let mut reader = CrackReader::new(&m, &spec, &mat, a_true).unwrap();
+            let (got, _) = feed(&mut reader, &mut chain, &spec, a_true, 1..=2000, n, fmin, fmax);
+            let r = &got[20..];
+            let e: Vec<f64> = r.iter().map(|r| r.a_m - a_true).collect();
+            let k = e.len() as f64;
+            let mean = e.iter().sum::<f64>() / k;
+            let sd = (e.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (k - 1.0)).sqrt();
+            assert!(mean.abs() < 3.0 * sd / k.sqrt(), "closure {frac}, seed {seed}: readings biased by {mean}");
+            let open = r.iter().filter(|r| r.opening_resolved && r.opening_force_n < fmin + 0.01 * fmax).count();
+            if frac == 0.0 {
+                assert!(4 * open > 3 * r.len(), "seed {seed}: {open} of {} readings show the crack open", r.len());
+                open_sd.push(sd);
+            } else {
+                assert_eq!(open, 0, "a closure at 30 % of Fmax is never taken for open");
+            }
+        }
+        let ratio = (open_sd.iter().map(|s| s * s).sum::<f64>() / open_sd.len() as f64).sqrt() / ideal;
+        assert!(ratio < 1.4, "the readings scatter {ratio:.2} times the whole range's least squares ({:.1} µm)", ideal * 1e6);
+    }
 }
