@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -32,10 +33,49 @@ SIGNIFICANT = DEFAULT.significant
 # lockstep, rejected steps halved. `benchmarks/diagnose.py --lockstep` compares both in one run.
 LOCKSTEP = False
 
+# Predictions a problem keeps for parameter sets simulated again (`Problem.predict`): each is
+# the record's channels over the working window or the whole record (a 60 s record at 500 Hz:
+# ~1 MB), the most recently used kept.
+CACHE_SIZE = 160
+
 Predictor = Callable[..., list[dict[str, np.ndarray]]]
+
+
+class Cache:
+    """The most recently used `size` predictions by key (not thread-safe: the caller locks)."""
+
+    def __init__(self, size: int) -> None:
+        self.size = size
+        self.items: OrderedDict[Any, dict[str, np.ndarray]] = OrderedDict()
+        self.hits = 0
+
+    def get(self, key: Any) -> dict[str, np.ndarray] | None:
+        got = self.items.get(key)
+        if got is not None:
+            self.items.move_to_end(key)
+            self.hits += 1
+        return got
+
+    def put(self, key: Any, value: dict[str, np.ndarray]) -> None:
+        self.items[key] = value
+        self.items.move_to_end(key)
+        while len(self.items) > self.size:
+            self.items.popitem(last=False)
+
+
+def _key(params: Any) -> Any:
+    """A parameter set as a hashable key (every field's exact value)."""
+    d = params.to_dict() if hasattr(params, "to_dict") else params
+    return tuple(sorted((k, repr(v)) for k, v in d.items())) if isinstance(d, dict) else repr(d)
 # Problems are simulated from several threads at once (independent fits run side by side).
 _COUNT = threading.Lock()
 _POOL: ThreadPoolExecutor | None = None
+# Simulations run by every problem of this process (per-stage counts: `trace.Stages`).
+SIMULATIONS = [0]
+
+
+def simulations_so_far() -> int:
+    return SIMULATIONS[0]
 
 
 def side_by_side(jobs: list[Callable[[], Any]]) -> list[Any]:
@@ -81,6 +121,7 @@ class Problem:
     # benchmarks/replay_speed.py). Default `LOCKSTEP`; turned off for good the first time the
     # simulator refuses the option (the displacement loop).
     lockstep: bool = field(default_factory=lambda: LOCKSTEP)
+    cache: "Cache" = field(default_factory=lambda: Cache(CACHE_SIZE), repr=False)
 
     def __post_init__(self) -> None:
         self.meas = {c: np.asarray(self.rec.columns[c], dtype=float) for c in self.channels}
@@ -98,17 +139,30 @@ class Problem:
         return self.work is not self.rec
 
     def predict(self, plist: list[Any], *, whole: bool = False, **extra: Any) -> list[dict[str, np.ndarray]]:
-        """Sensor readings predicted for each parameter set over the working window (or the whole record)."""
+        """Sensor readings predicted for each parameter set over the working window (or the whole
+        record). A parameter set this problem has already simulated the same way (the same
+        model re-predicted by a later stage, a stalled fit's point screened again) is taken from
+        `cache` (the simulations are deterministic: the same readings, not simulated again)."""
         n = len(self.rec.columns["t"])
         opts = {**self.opts, **extra}
         if not whole and self.truncated:
             opts = {k: v[: self.n_work] if isinstance(v, np.ndarray) and len(v) == n else v for k, v in opts.items()}
         if not whole and self.sparse:
             opts["active"] = self.fit_mask
-        out = self.simulate(plist, self.rec if whole else self.work, **opts)
+        keys = [(whole, _key(p)) for p in plist] if not extra else [None] * len(plist)
         with _COUNT:
-            self.simulations += len(plist)
-        return [{c: np.asarray(pr[c], dtype=float) for c in self.channels} for pr in out]
+            known = [self.cache.get(k) if k is not None else None for k in keys]
+        todo = [i for i, k in enumerate(known) if k is None]
+        out = self.simulate([plist[i] for i in todo], self.rec if whole else self.work, **opts) if todo else []
+        fresh = [{c: np.asarray(pr[c], dtype=float) for c in self.channels} for pr in out]
+        with _COUNT:
+            self.simulations += len(todo)
+            SIMULATIONS[0] += len(todo)
+            for i, pr in zip(todo, fresh):
+                if keys[i] is not None:
+                    self.cache.put(keys[i], pr)
+        got = dict(zip(todo, fresh))
+        return [dict(got[i]) if known[i] is None else dict(known[i]) for i in range(len(plist))]
 
     def neighbours(self, point: Any, plist: list[Any]) -> list[dict[str, np.ndarray]]:
         """Predictions of `plist`, parameter sets that each differ slightly from `point` (a
