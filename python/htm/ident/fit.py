@@ -313,13 +313,18 @@ def at_noise(r_data: np.ndarray, n_channels: int, noise_cost: float = NOISE_COST
 
 
 def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, ftol: float | None = None,
-        hold: frozenset[str] = frozenset(), log: Callable[..., None] | None = None) -> tuple[Model, dict, np.ndarray]:
+        hold: frozenset[str] = frozenset(), log: Callable[..., None] | None = None,
+        jac0: np.ndarray | None = None) -> tuple[Model, dict, np.ndarray]:
     """Bounded Levenberg-Marquardt on the weighted fit-block residual over the model's free
     parameters: forward-difference Jacobians (one batch of simulations), then three damping
-    levels tried at once (one more batch). At most `iters` Jacobians; stops when an iteration
-    gains less than `ftol` of the cost twice. `pred0`: the model's working-window prediction, if
-    known; `hold`: keys of free parameters kept where they are (columns of the Jacobian are zero).
-    Returns the fitted model, its working-window prediction and the Jacobian there."""
+    levels tried at once (one more batch). At most `iters` iterations; stops when an iteration
+    gains less than `ftol` of the cost twice, or once when the Gauss-Newton model of the next
+    step (on the Jacobian carried to the new point) promises less than `predicted_stop` x ftol
+    too (the settings'). `pred0`: the model's working-window prediction, if known; `jac0`: the
+    Jacobian at the model, if known (a previous fit's, carried: the first step is taken on it,
+    as on a Broyden-updated one, and it is differenced afresh at the next); `hold`: keys of free
+    parameters kept where they are (columns of the Jacobian are zero). Returns the fitted
+    model, its working-window prediction and the Jacobian there."""
     st = prob.settings
     ftol = st.ftol if ftol is None else ftol
     lo = np.array([f.lo for f in model.frees])
@@ -352,6 +357,8 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, f
     small = 0  # iterations in a row that gained less than ftol
     jac = np.zeros((n_data, len(x)))
     fresh = 0  # iterations since the Jacobian was last differenced
+    if jac0 is not None and pred0 is not None and not hold and jac0.shape == jac.shape and np.array_equal(x, model.x):
+        jac, fresh = np.array(jac0, dtype=float), 1
     for _ in range(iters):
         if fresh == 0 or fresh >= st.jacobian_every:
             hs = np.where(x + steps <= hi, steps, -steps)  # step inwards at an upper bound
@@ -373,7 +380,7 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, f
         jtj = jfull.T @ jfull
         # A linear parameter far from its origin may move in proportion to its size (air at 50
         # units would otherwise crawl one unit per iteration); a log parameter moves by `radius`.
-        reach = np.array([1.0 if f.log else max(1.0, 0.5 * abs(xi)) for f, xi in zip(model.frees, x)])
+        reach = _reach(model, x)
         d = np.maximum(np.diag(jtj), 1e-12 * max(1.0, float(np.max(np.diag(jtj)))))
         improved, gain, lam0 = False, 0.0, lam
         for _retry in range(3):
@@ -414,4 +421,41 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, f
         small = 0 if improved and gain >= ftol else small + 1
         if (not improved and fresh == 1) or small >= 2 or at_noise(r[:n_data], len(prob.channels), st.noise_cost):
             break  # stalled on a fresh Jacobian, or down to the noise on every channel
+        if improved and small == 1 and st.predicted_stop > 0 and \
+                predicted_gain(jac, r, n_data, nc, rows, wp, moving, x, lo, hi, _reach(model, x), lam * 0.1, radius) \
+                < st.predicted_stop * ftol:
+            break  # a small gain, and the next step promises as little
     return model.at(x), pred, jac
+
+
+def _reach(model: Model, x: np.ndarray) -> np.ndarray:
+    return np.array([1.0 if f.log else max(1.0, 0.5 * abs(xi)) for f, xi in zip(model.frees, x)])
+
+
+def predicted_gain(jac: np.ndarray, r: np.ndarray, n_data: int, nc: int, rows: np.ndarray, wp: np.ndarray,
+                   moving: np.ndarray, x: np.ndarray, lo: np.ndarray, hi: np.ndarray, reach: np.ndarray, lam: float,
+                   radius: float) -> float:
+    """The share of the cost the Gauss-Newton model of `fit`'s next step (reweighted as there,
+    damped by `lam`, bounded as there) promises to remove: the decrease of the weighted sum of
+    squares it predicts (to first order the likelihood cost's) over the cost itself."""
+    w = 1.0 / channel_scales(r[:n_data], nc)[rows]
+    rw = np.concatenate([w * r[:n_data], r[n_data:]])
+    jfull = np.vstack([w[:, None] * jac, np.diag(wp)])
+    g = jfull.T @ rw
+    free = moving & ~(((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0)))
+    if not free.any():
+        return 0.0
+    jtj = jfull.T @ jfull
+    d = np.maximum(np.diag(jtj), 1e-12 * max(1.0, float(np.max(np.diag(jtj)))))
+    step = np.zeros_like(x)
+    try:
+        step[free] = np.linalg.solve(jtj[np.ix_(free, free)] + lam * np.diag(d[free]), -g[free])
+    except np.linalg.LinAlgError:
+        return float("inf")
+    big = float(np.max(np.abs(step) / reach))
+    if big > radius:
+        step *= radius / big
+    step = np.clip(x + step, lo, hi) - x
+    decrease = -2.0 * float(g @ step) - float(step @ jtj @ step)
+    cost = likelihood_cost(r[:n_data], nc) + float(r[n_data:] @ r[n_data:])
+    return decrease / cost if cost > 0 else 0.0
