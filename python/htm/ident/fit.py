@@ -321,8 +321,9 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, f
     gains less than `ftol` of the cost twice, or once when the Gauss-Newton model of the next
     step (on the Jacobian carried to the new point) promises less than `predicted_stop` x ftol
     too (the settings'). `pred0`: the model's working-window prediction, if known; `jac0`: the
-    Jacobian at the model, if known (a previous fit's, carried: the first step is taken on it,
-    as on a Broyden-updated one, and it is differenced afresh at the next); `hold`: keys of free
+    Jacobian at the model, if known (a previous fit's): it stands for the schedule's first
+    differencing (one simulation per parameter saved), and a first step that fails on it has
+    the Jacobian differenced afresh; `hold`: keys of free
     parameters kept where they are (columns of the Jacobian are zero). Returns the fitted
     model, its working-window prediction and the Jacobian there."""
     st = prob.settings
@@ -357,10 +358,14 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, f
     small = 0  # iterations in a row that gained less than ftol
     jac = np.zeros((n_data, len(x)))
     fresh = 0  # iterations since the Jacobian was last differenced
-    if jac0 is not None and pred0 is not None and not hold and jac0.shape == jac.shape and np.array_equal(x, model.x):
-        jac, fresh = np.array(jac0, dtype=float), 1
+    # A Jacobian given at the start stands for the first differencing of the schedule.
+    warm = jac0 is not None and pred0 is not None and not hold and jac0.shape == jac.shape and bool(np.array_equal(x, model.x))
+    if warm:
+        jac = np.array(jac0, dtype=float)
     for _ in range(iters):
-        if fresh == 0 or fresh >= st.jacobian_every:
+        if warm:
+            fresh = 0
+        elif fresh == 0 or fresh >= st.jacobian_every:
             hs = np.where(x + steps <= hi, steps, -steps)  # step inwards at an upper bound
             idx = np.flatnonzero(moving)
             preds = prob.neighbours(model.at(x).params(), [model.at(x + hs[i] * np.eye(len(x))[i]).params() for i in idx])
@@ -414,8 +419,9 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, f
                 break
             lam *= 100.0
             radius *= 0.25
-        if not improved and fresh > 1:  # failed on a carried Jacobian: difference it afresh, same damping
+        if not improved and (fresh > 1 or warm):  # failed on a carried Jacobian: difference it afresh, same damping
             fresh, lam = st.jacobian_every, lam0
+        warm = False
         if log is not None:
             log(f"    LM cost {cost:.6g} lam {lam:.3g} radius {radius:.3g} free {int(free.sum())}/{len(x)}")
         small = 0 if improved and gain >= ftol else small + 1
