@@ -318,9 +318,9 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, f
     """Bounded Levenberg-Marquardt on the weighted fit-block residual over the model's free
     parameters: forward-difference Jacobians (one batch of simulations), then three damping
     levels tried at once (one more batch). At most `iters` iterations; stops when an iteration
-    gains less than `ftol` of the cost twice, or once when the Gauss-Newton model of the next
-    step (on the Jacobian carried to the new point) promises less than `predicted_stop` x ftol
-    too (the settings'). `pred0`: the model's working-window prediction, if known; `jac0`: the
+    gains less than `ftol` of the cost twice, or (the settings' `predicted_stop` > 0) once when
+    the Gauss-Newton model of the next step (on the Jacobian carried to the new point) promises
+    less than `predicted_stop` x ftol too. `pred0`: the model's working-window prediction, if known; `jac0`: the
     Jacobian at the model, if known (a previous fit's): it stands for the schedule's first
     differencing (one simulation per parameter saved), and a first step that fails on it has
     the Jacobian differenced afresh; `hold`: keys of free
