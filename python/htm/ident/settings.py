@@ -62,9 +62,12 @@ class SearchSettings:
                                                 "at 1 the refit without a new effect stops early, and a candidate takes "
                                                 "credit for the base's convergence (a foreign-rig record, seed 2 fr04, "
                                                 "gains a false leak; 20-45 % fewer simulations on benchmarks/diagnose.py)")
-    warm_jacobian: bool = knob(True, "switch", "a fit that starts where an earlier fit ended (the round's refit without a "
-                                               "new effect, a contender's polish) takes its first step on the Jacobian "
-                                               "that fit left there, not on a fresh one (one simulation per parameter)")
+    warm_jacobian: bool = knob(False, "switch", "a fit that starts where an earlier fit ended (the round's refit without a "
+                                                "new effect, a contender's polish) takes the Jacobian that fit left there "
+                                                "for its first differencing (one simulation per parameter saved; 7-10 % "
+                                                "fewer simulations on benchmarks/diagnose.py, same findings there). Off: "
+                                                "with it on, a foreign-rig record (seed 2 fr08, a supply ripple) gains a "
+                                                "false dead band — the fits' paths move, and a decision with them")
     prior_share: float = knob(0.003, "share of the noise-level cost", "weak prior on parameters that have one: curvature for "
                                                                       "flat valleys without moving what the data determine")
     # --- the search: screen, refit, judge, break ties, backward check -------------------------
