@@ -6,10 +6,11 @@ then the probes for structure outside the vocabulary run). The slowest of them i
 
 Goal (issue 31): slowest <= 15 s and median <= 8 s wall on a 2-core machine. Printed next to it:
 the number of simulations and the wall time of one whole-record simulation (the unit the search
-spends), from the same run, the effects found vs the true ones, and the wall time per stage of
-each path (from the progress lines `htm diagnose` prints on stderr as each stage begins: a stage
-lasts until the next line; the last until the command ends, so it includes writing the files
-and the interpreter's exit). Beside each wall time, the CPU seconds the command spent (user +
+spends), from the same run, the effects found vs the true ones, and the wall time, CPU
+seconds and simulations per stage of each path (from the progress lines `htm diagnose` prints on
+stderr as each stage begins, each with the CPU seconds and simulations so far: a stage lasts until
+the next line; the last until the command ends, so it includes writing the files and the
+interpreter's exit). Beside each wall time, the CPU seconds the command spent (user +
 system, all its threads): on a machine shared with other work the wall time measures the load
 as much as the diagnosis, the CPU time much less so; the load average is printed at the start
 and the end of the run.
@@ -49,6 +50,7 @@ from htm.ident.settings import DEFAULT
 BUDGET_S = 15.0
 MEDIAN_BUDGET_S = 8.0
 STAGE_LINE = re.compile(r"^\[\s*([0-9.]+) s\] ([^:]+?)(?::|$)")
+SO_FAR = re.compile(r"\(cpu ([0-9.]+) s, (\d+) simulations so far\)$")
 PATHS = {
     "one_effect": ({"valve_dynamics": {"tau_s": 0.015}}, {}),
     "two_effects_hunting": ({"valve_hysteresis": {"half_width_v": 0.25}, "sensor_offset": {"channel": "p_a", "offset_pa": 4e5}}, {}),
@@ -56,12 +58,22 @@ PATHS = {
 }
 
 
-def stage_seconds(stderr: str, wall: float) -> dict[str, float]:
-    """Seconds per stage from the progress lines (a stage lasts until the next line begins)."""
-    starts = [(float(m.group(1)), m.group(2).strip()) for m in map(STAGE_LINE.match, stderr.splitlines()) if m]
-    out: dict[str, float] = {}
-    for (t, stage), nxt in zip(starts, [t for t, _ in starts[1:]] + [wall]):
-        out[stage] = round(out.get(stage, 0.0) + nxt - t, 2)
+def stage_seconds(stderr: str, wall: float, cpu: float = 0.0, sims: int = 0) -> dict[str, dict[str, float]]:
+    """Per stage, from the progress lines (a stage lasts until the next line begins; the last
+    until the command ends): wall seconds, CPU seconds and simulations (each line carries the
+    command's CPU seconds and simulations so far; `cpu`, `sims`: its totals at the end)."""
+    lines = [ln for ln in stderr.splitlines() if STAGE_LINE.match(ln)]
+    starts = []
+    for ln in lines:
+        m, so = STAGE_LINE.match(ln), SO_FAR.search(ln)
+        assert m is not None
+        starts.append((float(m.group(1)), m.group(2).strip(), float(so.group(1)) if so else 0.0, int(so.group(2)) if so else 0))
+    out: dict[str, dict[str, float]] = {"wall": {}, "cpu": {}, "simulations": {}}
+    ends = [(t, c, n) for t, _, c, n in starts[1:]] + [(wall, cpu, sims)]
+    for (t, stage, c, n), (t1, c1, n1) in zip(starts, ends):
+        for key, d in (("wall", t1 - t), ("cpu", c1 - c), ("simulations", n1 - n)):
+            out[key][stage] = round(out[key].get(stage, 0.0) + d, 2)
+    out["simulations"] = {k: int(v) for k, v in out["simulations"].items()}
     return out
 
 
@@ -84,7 +96,7 @@ def run_cli(rec) -> tuple[float, float, int, dict, dict]:
             raise SystemExit(f"htm diagnose failed after {wall:.1f} s: {res.stderr.strip()}")
         report = json.loads((out / "report.json").read_text())
     sims = int(re.search(r"([\d,]+) simulations", res.stdout).group(1).replace(",", ""))
-    return wall, cpu, sims, report, stage_seconds(res.stderr, wall)
+    return wall, cpu, sims, report, stage_seconds(res.stderr, wall, cpu, sims)
 
 
 def in_process(rec, settings, lockstep: bool = fit.LOCKSTEP) -> dict:
@@ -139,7 +151,9 @@ def main() -> None:
             sim.predict([p], rec)
             out["one_60s_simulation_s"] = round(time.perf_counter() - t0, 4)
         wall, cpu, sims, report, stages = run_cli(rec)
-        out[name] = {"seconds": round(wall, 2), "cpu_seconds": round(cpu, 2), "simulations": sims, "stage_seconds": stages,
+        out[name] = {"seconds": round(wall, 2), "cpu_seconds": round(cpu, 2), "simulations": sims,
+                     "stage_seconds": stages["wall"], "stage_cpu_seconds": stages["cpu"],
+                     "stage_simulations": stages["simulations"],
                      **found_and_true(report, truth),
                      "rmse_y_before_after_m": [report["baseline"]["rmse"]["y"], report["final"]["rmse"]["y"]]}
         if a.peer:

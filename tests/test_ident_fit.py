@@ -113,3 +113,73 @@ def test_a_simulator_without_lockstep_has_its_jacobian_simulated_alone():
         fits.append((fitted.params(), prob.simulations))
     assert fits[0] == fits[1]
     assert abs(fits[0][0]["tau"] - TRUE["tau"]) <= 0.01 * TRUE["tau"]
+
+
+def _counting(calls: list[int]):
+    def simulate(plist, rec, **opts):
+        calls.append(len(plist))
+        return _simulate(plist, rec, **opts)
+    return simulate
+
+
+def _start_model() -> Model:
+    nominal = {"amp": 0.02, "tau": 0.25, "ripple": 0.0}
+    model = Model(nominal, [lin("amp", 0.01, -10, 10, step=0.01), logf("tau", 0.1, 10.0), lin("ripple", 0.001, -20, 20, step=0.01)],
+                  np.zeros(3))
+    return model.at(model.start())
+
+
+def test_a_parameter_set_predicted_again_is_not_simulated_again():
+    """The same model re-predicted by a later stage comes from the problem's cache: the same
+    readings, no simulation; another set, or the whole record instead of the working window, is
+    simulated."""
+    calls: list[int] = []
+    prob = dataclasses.replace(_problem(DEFAULT), simulate=_counting(calls))
+    a, b = dict(TRUE), {**TRUE, "tau": 0.5}
+    first = prob.predict([a])[0]
+    assert sum(calls) == 1 and prob.simulations == 1
+    again, other = prob.predict([dict(a), b])
+    assert sum(calls) == 2 and prob.simulations == 2, "only the new set is simulated"
+    assert np.array_equal(again["y"], first["y"]) and not np.array_equal(other["y"], first["y"])
+    prob.predict([a], whole=True)
+    assert sum(calls) == 3, "the whole record is another prediction"
+    prob.predict([a], noise={"y": np.zeros(2000)})
+    assert sum(calls) == 4, "a prediction with other options is not taken from the cache"
+
+
+def test_a_fit_stops_when_the_next_step_promises_less_than_ftol():
+    """After one iteration that gains less than ftol, a fit whose Gauss-Newton model promises
+    less than ftol for the next step stops (predicted_stop) instead of spending another
+    iteration (a Jacobian and three trials) to see it: the same fit within the noise, fewer
+    simulations; predicted_stop 0 restores two small iterations. (noise_cost below 1: the fit
+    does not stop at the noise first.)"""
+    out = {}
+    for stop in (0.0, 1.0):
+        prob = _problem(dataclasses.replace(DEFAULT, predicted_stop=stop, noise_cost=0.5))
+        fitted, _, _ = fit(prob, _start_model(), iters=30, ftol=1e-3)
+        out[stop] = (fitted.params(), prob.simulations)
+    (p0, sims0), (p1, sims1) = out[0.0], out[1.0]
+    for k, v in TRUE.items():
+        assert abs(p1[k] - v) <= 0.01 * abs(v), (k, p1[k])
+        assert abs(p1[k] - p0[k]) <= 0.005 * abs(v), (k, p1[k], p0[k])
+    assert sims1 < sims0, (sims1, sims0)
+
+
+def test_a_fit_started_with_the_jacobian_at_its_point_saves_one_differencing():
+    """A refit from where a fit ended, given that fit's Jacobian (`jac0`), takes it for the first
+    differencing of its schedule: over the same iterations one simulation per parameter fewer,
+    the same fit."""
+    prob = _problem(DEFAULT)
+    model, pred, jac = fit(prob, _start_model(), iters=3, ftol=1e-9)
+    model = model.at(model.x + np.array([0.2, 0.0, 0.0]))  # pushed off: the refit has work to do
+    pred = prob.predict([model.params()])[0]
+    jac = fit(prob, model, iters=1, pred0=pred, ftol=1e-9)[2]  # the Jacobian near there
+    model = model.at(model.x)
+    out = {}
+    for warm in (None, jac):
+        p = _problem(DEFAULT)
+        fitted, _, _ = fit(p, model, iters=4, pred0=pred, ftol=1e-9, jac0=warm)
+        out[warm is None] = (fitted.params(), p.simulations)
+    (p_cold, sims_cold), (p_warm, sims_warm) = out[True], out[False]
+    assert sims_warm <= sims_cold - 3, (sims_warm, sims_cold)
+    assert abs(p_warm["amp"] - p_cold["amp"]) <= 0.02 * TRUE["amp"]

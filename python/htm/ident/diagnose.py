@@ -13,7 +13,7 @@ import numpy as np
 from htm.errors import RecordError
 from htm.ident import features as ft
 from htm.ident.family import for_record
-from htm.ident.fit import Problem, blocks, spread_blocks
+from htm.ident.fit import Problem, blocks, simulations_so_far, spread_blocks
 from htm.ident.floor import form_ratios, own_floor, unexplained
 from htm.ident.model import Model, get_value
 from htm.ident.records import Record, clean_record, validate_record
@@ -59,8 +59,9 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
     on held-out segments. Returns the report.json content (DATA_FORMAT.md); with `out_dir` also
     writes report.json, predictions.csv, report.md and plots there. `stats`, if given, receives
     `simulations`, `seconds`, per-channel `noise_floor` and `systematic_ratio` and the whole-record
-    predictions `before`/`after` (SI arrays per channel) and the wall time per stage
-    (`stage_seconds`).
+    predictions `before`/`after` (SI arrays per channel) and per stage the wall time
+    (`stage_seconds`), the process's CPU time (`stage_cpu_seconds`) and the simulations run
+    (`stage_simulations`).
 
     `settings` holds every knob of the search (`settings.SearchSettings`; default `DEFAULT`);
     `max_findings`, `max_refits` and `work_s`, if given, override its fields. The report carries
@@ -79,7 +80,7 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
     if over:
         st = dataclasses.replace(st, **over)
     trace = Trace()
-    stages = Stages(progress, t_start)
+    stages = Stages(progress, t_start, simulations_so_far)
     rec, warnings = clean_record(displacement_record(rec))  # a clip gauge's `cod` drives a specimen like `y`
     try:
         warnings += validate_record(rec, min_samples=st.min_samples)
@@ -205,7 +206,8 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
             write_diagnosis(Path(out_dir), rec, report, res, info)
     if stats is not None:
         stats.update(info, before=res.base_pred, after=res.pred, seconds=time.perf_counter() - t_start,
-                     stage_seconds=stages.rounded())
+                     stage_seconds=stages.rounded(), stage_cpu_seconds=stages.cpu_rounded(),
+                     stage_simulations=dict(stages.simulations))
     return report
 
 

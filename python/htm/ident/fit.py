@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -32,10 +33,49 @@ SIGNIFICANT = DEFAULT.significant
 # lockstep, rejected steps halved. `benchmarks/diagnose.py --lockstep` compares both in one run.
 LOCKSTEP = False
 
+# Predictions a problem keeps for parameter sets simulated again (`Problem.predict`): each is
+# the record's channels over the working window or the whole record (a 60 s record at 500 Hz:
+# ~1 MB), the most recently used kept.
+CACHE_SIZE = 160
+
 Predictor = Callable[..., list[dict[str, np.ndarray]]]
+
+
+class Cache:
+    """The most recently used `size` predictions by key (not thread-safe: the caller locks)."""
+
+    def __init__(self, size: int) -> None:
+        self.size = size
+        self.items: OrderedDict[Any, dict[str, np.ndarray]] = OrderedDict()
+        self.hits = 0
+
+    def get(self, key: Any) -> dict[str, np.ndarray] | None:
+        got = self.items.get(key)
+        if got is not None:
+            self.items.move_to_end(key)
+            self.hits += 1
+        return got
+
+    def put(self, key: Any, value: dict[str, np.ndarray]) -> None:
+        self.items[key] = value
+        self.items.move_to_end(key)
+        while len(self.items) > self.size:
+            self.items.popitem(last=False)
+
+
+def _key(params: Any) -> Any:
+    """A parameter set as a hashable key (every field's exact value)."""
+    d = params.to_dict() if hasattr(params, "to_dict") else params
+    return tuple(sorted((k, repr(v)) for k, v in d.items())) if isinstance(d, dict) else repr(d)
 # Problems are simulated from several threads at once (independent fits run side by side).
 _COUNT = threading.Lock()
 _POOL: ThreadPoolExecutor | None = None
+# Simulations run by every problem of this process (per-stage counts: `trace.Stages`).
+SIMULATIONS = [0]
+
+
+def simulations_so_far() -> int:
+    return SIMULATIONS[0]
 
 
 def side_by_side(jobs: list[Callable[[], Any]]) -> list[Any]:
@@ -81,6 +121,7 @@ class Problem:
     # benchmarks/replay_speed.py). Default `LOCKSTEP`; turned off for good the first time the
     # simulator refuses the option (the displacement loop).
     lockstep: bool = field(default_factory=lambda: LOCKSTEP)
+    cache: "Cache" = field(default_factory=lambda: Cache(CACHE_SIZE), repr=False)
 
     def __post_init__(self) -> None:
         self.meas = {c: np.asarray(self.rec.columns[c], dtype=float) for c in self.channels}
@@ -98,17 +139,30 @@ class Problem:
         return self.work is not self.rec
 
     def predict(self, plist: list[Any], *, whole: bool = False, **extra: Any) -> list[dict[str, np.ndarray]]:
-        """Sensor readings predicted for each parameter set over the working window (or the whole record)."""
+        """Sensor readings predicted for each parameter set over the working window (or the whole
+        record). A parameter set this problem has already simulated the same way (the same
+        model re-predicted by a later stage, a stalled fit's point screened again) is taken from
+        `cache` (the simulations are deterministic: the same readings, not simulated again)."""
         n = len(self.rec.columns["t"])
         opts = {**self.opts, **extra}
         if not whole and self.truncated:
             opts = {k: v[: self.n_work] if isinstance(v, np.ndarray) and len(v) == n else v for k, v in opts.items()}
         if not whole and self.sparse:
             opts["active"] = self.fit_mask
-        out = self.simulate(plist, self.rec if whole else self.work, **opts)
+        keys = [(whole, _key(p)) for p in plist] if not extra else [None] * len(plist)
         with _COUNT:
-            self.simulations += len(plist)
-        return [{c: np.asarray(pr[c], dtype=float) for c in self.channels} for pr in out]
+            known = [self.cache.get(k) if k is not None else None for k in keys]
+        todo = [i for i, k in enumerate(known) if k is None]
+        out = self.simulate([plist[i] for i in todo], self.rec if whole else self.work, **opts) if todo else []
+        fresh = [{c: np.asarray(pr[c], dtype=float) for c in self.channels} for pr in out]
+        with _COUNT:
+            self.simulations += len(todo)
+            SIMULATIONS[0] += len(todo)
+            for i, pr in zip(todo, fresh):
+                if keys[i] is not None:
+                    self.cache.put(keys[i], pr)
+        got = dict(zip(todo, fresh))
+        return [dict(got[i]) if known[i] is None else dict(known[i]) for i in range(len(plist))]
 
     def neighbours(self, point: Any, plist: list[Any]) -> list[dict[str, np.ndarray]]:
         """Predictions of `plist`, parameter sets that each differ slightly from `point` (a
@@ -259,13 +313,19 @@ def at_noise(r_data: np.ndarray, n_channels: int, noise_cost: float = NOISE_COST
 
 
 def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, ftol: float | None = None,
-        hold: frozenset[str] = frozenset(), log: Callable[..., None] | None = None) -> tuple[Model, dict, np.ndarray]:
+        hold: frozenset[str] = frozenset(), log: Callable[..., None] | None = None,
+        jac0: np.ndarray | None = None) -> tuple[Model, dict, np.ndarray]:
     """Bounded Levenberg-Marquardt on the weighted fit-block residual over the model's free
     parameters: forward-difference Jacobians (one batch of simulations), then three damping
-    levels tried at once (one more batch). At most `iters` Jacobians; stops when an iteration
-    gains less than `ftol` of the cost twice. `pred0`: the model's working-window prediction, if
-    known; `hold`: keys of free parameters kept where they are (columns of the Jacobian are zero).
-    Returns the fitted model, its working-window prediction and the Jacobian there."""
+    levels tried at once (one more batch). At most `iters` iterations; stops when an iteration
+    gains less than `ftol` of the cost twice, or (the settings' `predicted_stop` > 0) once when
+    the Gauss-Newton model of the next step (on the Jacobian carried to the new point) promises
+    less than `predicted_stop` x ftol too. `pred0`: the model's working-window prediction, if known; `jac0`: the
+    Jacobian at the model, if known (a previous fit's): it stands for the schedule's first
+    differencing (one simulation per parameter saved), and a first step that fails on it has
+    the Jacobian differenced afresh; `hold`: keys of free
+    parameters kept where they are (columns of the Jacobian are zero). Returns the fitted
+    model, its working-window prediction and the Jacobian there."""
     st = prob.settings
     ftol = st.ftol if ftol is None else ftol
     lo = np.array([f.lo for f in model.frees])
@@ -298,8 +358,14 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, f
     small = 0  # iterations in a row that gained less than ftol
     jac = np.zeros((n_data, len(x)))
     fresh = 0  # iterations since the Jacobian was last differenced
+    # A Jacobian given at the start stands for the first differencing of the schedule.
+    warm = jac0 is not None and pred0 is not None and not hold and jac0.shape == jac.shape and bool(np.array_equal(x, model.x))
+    if warm:
+        jac = np.array(jac0, dtype=float)
     for _ in range(iters):
-        if fresh == 0 or fresh >= st.jacobian_every:
+        if warm:
+            fresh = 0
+        elif fresh == 0 or fresh >= st.jacobian_every:
             hs = np.where(x + steps <= hi, steps, -steps)  # step inwards at an upper bound
             idx = np.flatnonzero(moving)
             preds = prob.neighbours(model.at(x).params(), [model.at(x + hs[i] * np.eye(len(x))[i]).params() for i in idx])
@@ -319,7 +385,7 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, f
         jtj = jfull.T @ jfull
         # A linear parameter far from its origin may move in proportion to its size (air at 50
         # units would otherwise crawl one unit per iteration); a log parameter moves by `radius`.
-        reach = np.array([1.0 if f.log else max(1.0, 0.5 * abs(xi)) for f, xi in zip(model.frees, x)])
+        reach = _reach(model, x)
         d = np.maximum(np.diag(jtj), 1e-12 * max(1.0, float(np.max(np.diag(jtj)))))
         improved, gain, lam0 = False, 0.0, lam
         for _retry in range(3):
@@ -353,11 +419,49 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, f
                 break
             lam *= 100.0
             radius *= 0.25
-        if not improved and fresh > 1:  # failed on a carried Jacobian: difference it afresh, same damping
+        if not improved and (fresh > 1 or warm):  # failed on a carried Jacobian: difference it afresh, same damping
             fresh, lam = st.jacobian_every, lam0
+        warm = False
         if log is not None:
             log(f"    LM cost {cost:.6g} lam {lam:.3g} radius {radius:.3g} free {int(free.sum())}/{len(x)}")
         small = 0 if improved and gain >= ftol else small + 1
         if (not improved and fresh == 1) or small >= 2 or at_noise(r[:n_data], len(prob.channels), st.noise_cost):
             break  # stalled on a fresh Jacobian, or down to the noise on every channel
+        if improved and small == 1 and st.predicted_stop > 0 and \
+                predicted_gain(jac, r, n_data, nc, rows, wp, moving, x, lo, hi, _reach(model, x), lam * 0.1, radius) \
+                < st.predicted_stop * ftol:
+            break  # a small gain, and the next step promises as little
     return model.at(x), pred, jac
+
+
+def _reach(model: Model, x: np.ndarray) -> np.ndarray:
+    return np.array([1.0 if f.log else max(1.0, 0.5 * abs(xi)) for f, xi in zip(model.frees, x)])
+
+
+def predicted_gain(jac: np.ndarray, r: np.ndarray, n_data: int, nc: int, rows: np.ndarray, wp: np.ndarray,
+                   moving: np.ndarray, x: np.ndarray, lo: np.ndarray, hi: np.ndarray, reach: np.ndarray, lam: float,
+                   radius: float) -> float:
+    """The share of the cost the Gauss-Newton model of `fit`'s next step (reweighted as there,
+    damped by `lam`, bounded as there) promises to remove: the decrease of the weighted sum of
+    squares it predicts (to first order the likelihood cost's) over the cost itself."""
+    w = 1.0 / channel_scales(r[:n_data], nc)[rows]
+    rw = np.concatenate([w * r[:n_data], r[n_data:]])
+    jfull = np.vstack([w[:, None] * jac, np.diag(wp)])
+    g = jfull.T @ rw
+    free = moving & ~(((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0)))
+    if not free.any():
+        return 0.0
+    jtj = jfull.T @ jfull
+    d = np.maximum(np.diag(jtj), 1e-12 * max(1.0, float(np.max(np.diag(jtj)))))
+    step = np.zeros_like(x)
+    try:
+        step[free] = np.linalg.solve(jtj[np.ix_(free, free)] + lam * np.diag(d[free]), -g[free])
+    except np.linalg.LinAlgError:
+        return float("inf")
+    big = float(np.max(np.abs(step) / reach))
+    if big > radius:
+        step *= radius / big
+    step = np.clip(x + step, lo, hi) - x
+    decrease = -2.0 * float(g @ step) - float(step @ jtj @ step)
+    cost = likelihood_cost(r[:n_data], nc) + float(r[n_data:] @ r[n_data:])
+    return decrease / cost if cost > 0 else 0.0

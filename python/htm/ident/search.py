@@ -126,6 +126,15 @@ class Trial:
     pred: dict[str, np.ndarray]
     verdict: Verdict
     jac: np.ndarray | None = None
+    jac_at: np.ndarray | None = None  # the point `jac` belongs to (None: not known to be `model`'s)
+
+    def warm(self, st: SearchSettings) -> np.ndarray | None:
+        """The Jacobian at the trial's model, if known there and warm starts are on."""
+        return self.jac if st.warm_jacobian and _at(self.jac_at, self.model) else None
+
+
+def _at(x: np.ndarray | None, model: Model) -> bool:
+    return x is not None and x.shape == model.x.shape and bool(np.array_equal(x, model.x))
 
 
 @dataclass
@@ -220,6 +229,7 @@ class Selector:
                 log("first stage", {k: f"{v:.4g}" for k, v in base.values().items()})
             base, work_pred, jac = fit(prob, base, iters=st.base_iters)
             base_pred = prob.whole(base, work_pred)
+        self.jac_at: np.ndarray | None = base.x  # where self.jac belongs
         log("baseline", {k: f"{v:.4g}" for k, v in base.values().items()}, prob.rmse(base_pred))
         self.base, self.base_pred = base, base_pred
         self.model, self.pred, self.work_pred, self.jac = base, base_pred, work_pred, jac
@@ -233,8 +243,10 @@ class Selector:
                 break  # at the noise floor: nothing left to explain
             # The same budget without a new effect: a candidate must beat a model merely fitted longer.
             with self.stages("refit", f"round {rnd + 1}: the model without a new effect"):
-                self.model, self.work_pred, self.jac = fit(prob, self.model, iters=st.refit_iters, pred0=self.work_pred)
-                self.pred = prob.whole(self.model, self.work_pred)
+                warm = self.jac if st.warm_jacobian and _at(self.jac_at, self.model) else None
+                self.model, self.work_pred, self.jac = fit(prob, self.model, iters=st.refit_iters, pred0=self.work_pred,
+                                                           jac0=warm)
+                self.pred, self.jac_at = prob.whole(self.model, self.work_pred), self.model.x
             if self.at_floor("refit without effect"):
                 break
             with self.stages("screen", f"round {rnd + 1}: {len(self.pool)} candidates"):
@@ -295,6 +307,7 @@ class Selector:
                    params=chosen.cand.report(chosen.model.params()), **chosen.verdict.numbers())
             assert chosen.jac is not None
             self.model, self.pred, self.work_pred, self.jac = chosen.model, chosen.pred, chosen.work, chosen.jac
+            self.jac_at = chosen.jac_at
             kept_base = False
         with self.stages("backward check", f"{len(self.findings)} findings"):
             self.backward_check()
@@ -378,7 +391,7 @@ class Selector:
         starts = [start.with_candidate(sc.cand, sc.step) for start in _restarts(self.model, self.x0, self.xn)]
         trial, twork, tjac = fit(self.prob, _scan(self.prob, starts, sc.cand, q), iters=self.st.refit_iters)
         tpred, verdict = judge(self.prob, self.pred, trial, twork, self.model, sc.cand)
-        return Trial(sc.cand, trial, twork, tpred, verdict, tjac)
+        return Trial(sc.cand, trial, twork, tpred, verdict, tjac, trial.x)
 
     def sibling_check(self, chosen: Trial, screened: dict[tuple[str, str | None], Screened]) -> Trial | None:
         """A sensor fault chosen on a reading with a sibling (the other chamber's pressure, measured
@@ -442,7 +455,7 @@ class Selector:
         if tied:
             v.alternative = (f" {lost.cand.label} ({', '.join(f'{k} = {x:.4g}' for k, x in lost.cand.report(lost.model.params()).items())})"
                              " explains the record about as well; this record barely tells the two chambers apart.")
-        won = Trial(won.cand, won.model, won.work, won.pred, v, won.jac)
+        won = Trial(won.cand, won.model, won.work, won.pred, v, won.jac, won.jac_at)
         tr.add("sibling check", won.cand.label, "not alike: the chambers compared on a common base, smaller dBIC "
                "(the own-reading share waived between them)", "chosen" if v.ok else "chosen, but no longer pays off",
                other=lost.cand.label, close=tied, size=mine, sibling_size=theirs, dbic=v.dbic, other_dbic=lost.verdict.dbic,
@@ -468,7 +481,7 @@ class Selector:
 
     def polish(self, g: Trial) -> Trial:
         prob, st = self.prob, self.st
-        trial, twork, tjac = fit(prob, g.model, iters=st.polish_iters, pred0=g.work)
+        trial, twork, tjac = fit(prob, g.model, iters=st.polish_iters, pred0=g.work, jac0=g.warm(st))
         again = trial.unpinned(self.x0, self.xn)
         if not np.array_equal(again.x, trial.x):
             # Stuck with base parameters at a bound: polish once more from their nominal values.
@@ -476,7 +489,7 @@ class Selector:
             if prob.fit_cost(retry[1]) < prob.fit_cost(twork):
                 trial, twork, tjac = retry
         tpred, verdict = judge(prob, self.pred, trial, twork, self.model, g.cand)
-        return Trial(g.cand, trial, twork, tpred, verdict, tjac)
+        return Trial(g.cand, trial, twork, tpred, verdict, tjac, trial.x)
 
     def break_ties(self, good: list[Trial]) -> Trial:
         """Of the trials that pay off, the one to add: close contenders (the second within
@@ -562,12 +575,14 @@ class Selector:
             if not keep:
                 self.findings.remove(f)
                 self.model, self.pred, self.work_pred, self.jac = wmodel, wpred, wwork, wjac
+                self.jac_at = wmodel.x
         # A drop refits the model, which moves the findings checked before it: one it left below a
         # claimable size (a leak gone to zero once the dead band beside it went) goes too.
         while small_ones := [f for f in self.findings if too_small(f)]:
             self.log("below a claimable size after a drop", small_ones[-1].cand.label)
             tr.add("backward check", small_ones[-1].cand.label, "below a claimable size after a drop", "dropped")
             self.model, self.pred, self.work_pred, self.jac = refit_without(small_ones[-1])
+            self.jac_at = self.model.x
             self.findings.remove(small_ones[-1])
 
     def result(self) -> Result:
@@ -692,7 +707,7 @@ def on_common_base(prob: Problem, pred0: dict, model: Model, polished: list[Tria
 
     def on_other(i: int) -> tuple[Trial, list[tuple]]:
         g = polished[i]
-        cand, verdict, trial, twork, tjac, tpred = g.cand, g.verdict, g.model, g.work, g.jac, g.pred
+        cand, verdict, trial, twork, tjac, tpred, tat = g.cand, g.verdict, g.model, g.work, g.jac, g.pred, g.jac_at
         other = polished[1 - i].model
         x = trial.x.copy()
         x[:n] = other.x[:n]
@@ -708,7 +723,8 @@ def on_common_base(prob: Problem, pred0: dict, model: Model, polished: list[Tria
             logs.append(("one step on", cand.label, cand.report(strial.params()), sverdict))
             trial, twork, tpred, verdict = ((strial, swork, spred, sverdict) if sverdict.dbic <= mverdict.dbic
                                             else (moved, mwork, mpred, mverdict))
-        return Trial(cand, trial, twork, tpred, verdict, tjac), logs
+            tat = strial.x
+        return Trial(cand, trial, twork, tpred, verdict, tjac, tat), logs
 
     out = []
     for trial, logs in side_by_side([lambda i=i: on_other(i) for i in range(len(polished))]):

@@ -56,6 +56,18 @@ class SearchSettings:
     radius_max: float = knob(1.0, "normalised coordinate", "largest LM step (a factor e for a log parameter): far jumps land "
                                                            "in wrong basins (friction trading against compressibility)")
     jacobian_every: int = knob(2, "iterations", "the Jacobian is differenced afresh every this many iterations (Broyden between)")
+    predicted_stop: float = knob(0.0, "x ftol", "a fit may also stop after one iteration that gains less than ftol when "
+                                                "the Gauss-Newton model of its next step promises less than this many "
+                                                "ftol (a Jacobian and three trials saved). Off (0: two small iterations): "
+                                                "at 1 the refit without a new effect stops early, and a candidate takes "
+                                                "credit for the base's convergence (a foreign-rig record, seed 2 fr04, "
+                                                "gains a false leak; 20-45 % fewer simulations on benchmarks/diagnose.py)")
+    warm_jacobian: bool = knob(False, "switch", "a fit that starts where an earlier fit ended (the round's refit without a "
+                                                "new effect, a contender's polish) takes the Jacobian that fit left there "
+                                                "for its first differencing (one simulation per parameter saved; 7-10 % "
+                                                "fewer simulations on benchmarks/diagnose.py, same findings there). Off: "
+                                                "with it on, a foreign-rig record (seed 2 fr08, a supply ripple) gains a "
+                                                "false dead band — the fits' paths move, and a decision with them")
     prior_share: float = knob(0.003, "share of the noise-level cost", "weak prior on parameters that have one: curvature for "
                                                                       "flat valleys without moving what the data determine")
     # --- the search: screen, refit, judge, break ties, backward check -------------------------

@@ -88,22 +88,34 @@ class Trace:
 
 
 class Stages:
-    """Wall time per stage, and a progress line as each begins."""
+    """Wall time, CPU time (the process's, all its threads) and simulations per stage, and a
+    progress line as each begins (with the CPU seconds and simulations spent so far).
+    `count`, if given, returns the simulations run so far."""
 
-    def __init__(self, progress: Progress | None = None, t0: float | None = None) -> None:
+    def __init__(self, progress: Progress | None = None, t0: float | None = None,
+                 count: Callable[[], int] | None = None) -> None:
         self.seconds: dict[str, float] = {}
+        self.cpu: dict[str, float] = {}
+        self.simulations: dict[str, int] = {}
         self.progress = progress
+        self.count = count if count is not None else (lambda: 0)
         self.t0 = time.perf_counter() if t0 is None else t0
 
     @contextmanager
     def __call__(self, stage: str, detail: str = "") -> Iterator[None]:
+        t, c, n = time.perf_counter(), time.process_time(), self.count()
         if self.progress is not None:
-            self.progress(f"[{time.perf_counter() - self.t0:6.1f} s] {stage}{': ' + detail if detail else ''}")
-        t = time.perf_counter()
+            self.progress(f"[{t - self.t0:6.1f} s] {stage}{': ' + detail if detail else ''}"
+                          f"  (cpu {c:.1f} s, {n} simulations so far)")
         try:
             yield
         finally:
             self.seconds[stage] = self.seconds.get(stage, 0.0) + time.perf_counter() - t
+            self.cpu[stage] = self.cpu.get(stage, 0.0) + time.process_time() - c
+            self.simulations[stage] = self.simulations.get(stage, 0) + self.count() - n
 
     def rounded(self) -> dict[str, float]:
         return {k: round(v, 3) for k, v in self.seconds.items()}
+
+    def cpu_rounded(self) -> dict[str, float]:
+        return {k: round(v, 3) for k, v in self.cpu.items()}
