@@ -126,7 +126,9 @@ def cmd_params(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The `htm` parser (every subcommand); with `argv`, only the group of the subcommand it names
+    where one does (the others' packages are not imported)."""
     ap = argparse.ArgumentParser(prog="htm", description="Simulate, run, identify and review servo-hydraulic fatigue testing machines.",
                                  epilog="Results print in engineering units (mm, kN, MPa·√m, bar); every command that prints "
                                         "results takes --json for scripts (SI values under their SI names). Long jobs draw "
@@ -163,42 +165,85 @@ def build_parser() -> argparse.ArgumentParser:
     add_json_flag(p)
     p.set_defaults(func=cmd_params)
 
-    for register in _extensions():
+    for register in _extensions(_command_of(argv)):
         register(sub)
     return ap
 
 
-def _extensions() -> list[Callable[[argparse._SubParsersAction], None]]:
-    """Subcommand groups that live with their packages (each adds its own parsers)."""
-    from htm import correct as correct_cli  # `htm db correct`, an action of record_cli's group
-    from htm import rigcampaign
-    from htm import run as run_cli
+# Which subcommands each group registers: `htm diagnose` imports the identification package only,
+# not the campaign, fleet and fatigue packages with their scipy (about a second on every call).
+# tests/test_cli.py checks this table against what each group's `register` adds.
+BUILT_IN = ("simulate", "params")  # defined in this module
+GROUPS: dict[str, tuple[str, ...]] = {
+    "run": ("run", "resume"),
+    "fatigue": ("e647", "crack"),
+    "ident": ("identify", "diagnose", "predict"),
+    "rig": ("rig",),
+    "db": ("db",),
+    "campaign": ("campaign",),
+    "life-band": ("life-band",),
+    "fleet": ("fleet",),
+    "sn": ("sn", "en"),
+    "tune": ("tune",),
+}
+
+
+def _command_of(argv: Sequence[str] | None) -> str | None:
+    """The subcommand `argv` names (its first word), or None (help, an option, nothing)."""
+    words = list(argv or [])
+    return words[0] if words and not words[0].startswith("-") else None
+
+
+def _extensions(command: str | None = None) -> list[Callable[[argparse._SubParsersAction], None]]:
+    """Subcommand groups that live with their packages (each adds its own parsers): only the group
+    that registers `command` when one does, every group otherwise (help, a typo's suggestions)."""
+    if command in BUILT_IN:
+        return []
+    wanted = [g for g, names in GROUPS.items() if command in names] or list(GROUPS)
+    return [_group(g) for g in wanted]
+
+
+def _group(name: str) -> Callable[[argparse._SubParsersAction], None]:
+    """The `register` function of one group (importing its package)."""
+    if name == "run":
+        from htm import run as run_cli
+        return run_cli.register
+    if name == "fatigue":
+        from htm.fatigue import cli as fatigue_cli
+        return fatigue_cli.register
+    if name == "ident":
+        from htm.ident import cli as ident_cli
+        return ident_cli.register
+    if name == "rig":
+        from htm import rigcampaign
+        from htm.control import cli as rig_cli
+        return lambda sub: rig_cli.register(sub, more=[rigcampaign.add_rig_action])
+    if name == "db":
+        from htm import correct as correct_cli  # `htm db correct`, an action of record_cli's group
+        from htm.record import cli as record_cli
+        return lambda sub: record_cli.register(sub, more=[correct_cli.add_db_action])
+    if name == "campaign":
+        from htm.campaign import cli as campaign_cli
+        return campaign_cli.register
+    if name == "life-band":
+        from htm.campaign import lifeband_cli
+        return lifeband_cli.register
+    if name == "fleet":
+        from htm.fleet import cli as fleet_cli
+        return fleet_cli.register
+    if name == "sn":
+        from htm.fatigue import sn_cli
+        return sn_cli.register
     from htm import tune as tune_cli
-    from htm.campaign import cli as campaign_cli
-    from htm.campaign import lifeband_cli
-    from htm.control import cli as rig_cli
-    from htm.fatigue import cli as fatigue_cli
-    from htm.fatigue import sn_cli
-    from htm.fleet import cli as fleet_cli
-    from htm.ident import cli as ident_cli
-    from htm.record import cli as record_cli
-
-    def db(sub: argparse._SubParsersAction) -> None:
-        record_cli.register(sub, more=[correct_cli.add_db_action])
-
-    def rig(sub: argparse._SubParsersAction) -> None:
-        rig_cli.register(sub, more=[rigcampaign.add_rig_action])
-
-    return [run_cli.register, fatigue_cli.register, ident_cli.register, rig, db,
-            campaign_cli.register, lifeband_cli.register, fleet_cli.register, sn_cli.register,
-            tune_cli.register]
+    return tune_cli.register
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the `htm` command line with `argv` (default: sys.argv[1:]); returns the exit status:
     0 done, 1 a negative verdict (e.g. `run --check` of a test the rig cannot run), 2 bad input
     (one line on stderr naming the file, row and field; never a traceback)."""
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else argv
+    args = build_parser(argv).parse_args(argv)
     func: Callable[[argparse.Namespace], int] = args.func
     try:
         return func(args)

@@ -104,6 +104,13 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     from htm.ident.diagnose import diagnose
 
     rec = read_record(args.record, args.meta)
+    # The plotting library loads while the fit runs (its simulations release the GIL): a second
+    # of imports off the end of every diagnosis.
+    import threading
+
+    from htm.report import pyplot
+
+    threading.Thread(target=pyplot, name="htm-import-matplotlib", daemon=True).start()
     run: dict[str, Any] = {}
     report = diagnose(rec, out_dir=args.out, verbose=args.verbose, stats=run, progress=None if args.quiet else stage_line())
     if sys.stderr.isatty() and not args.quiet:

@@ -10,7 +10,7 @@ import html
 from pathlib import Path
 from typing import Any
 
-__all__ = ["pyplot", "save", "md_table", "markdown_to_html", "write"]
+__all__ = ["pyplot", "save", "envelope", "md_table", "markdown_to_html", "write"]
 
 
 def pyplot() -> Any:
@@ -30,6 +30,25 @@ def save(fig: Any, path: str | Path, dpi: int = 110) -> Path:
     fig.savefig(path, dpi=dpi)
     pyplot().close(fig)
     return path
+
+
+def envelope(x: Any, y: Any, columns: int = 1500) -> tuple[Any, Any]:
+    """A long line reduced to what a plot of `columns` pixel columns shows: per column of samples,
+    its lowest and highest point in their order (the drawn line looks the same, every spike kept;
+    a 60 s record at 500 Hz draws in a third of the time). Short lines are returned as they are."""
+    import numpy as np
+
+    x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+    n = len(y)
+    if n <= 4 * columns:
+        return x, y
+    edges = np.linspace(0, n, columns + 1).astype(int)
+    idx: list[int] = []
+    for a, b in zip(edges[:-1], edges[1:]):
+        i, j = a + int(np.argmin(y[a:b])), a + int(np.argmax(y[a:b]))
+        idx += [min(i, j), max(i, j)]
+    keep = np.asarray(idx)
+    return x[keep], y[keep]
 
 
 def md_table(header: list[str], rows: list[list]) -> str:
