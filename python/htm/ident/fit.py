@@ -314,7 +314,8 @@ def at_noise(r_data: np.ndarray, n_channels: int, noise_cost: float = NOISE_COST
 
 def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, ftol: float | None = None,
         hold: frozenset[str] = frozenset(), log: Callable[..., None] | None = None,
-        jac0: np.ndarray | None = None) -> tuple[Model, dict, np.ndarray]:
+        jac0: np.ndarray | None = None, stop: Callable[[list[float], int], bool] | None = None,
+        info: dict[str, Any] | None = None) -> tuple[Model, dict, np.ndarray]:
     """Bounded Levenberg-Marquardt on the weighted fit-block residual over the model's free
     parameters: forward-difference Jacobians (one batch of simulations), then three damping
     levels tried at once (one more batch). At most `iters` iterations; stops when an iteration
@@ -324,8 +325,13 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, f
     Jacobian at the model, if known (a previous fit's): it stands for the schedule's first
     differencing (one simulation per parameter saved), and a first step that fails on it has
     the Jacobian differenced afresh; `hold`: keys of free
-    parameters kept where they are (columns of the Jacobian are zero). Returns the fitted
-    model, its working-window prediction and the Jacobian there."""
+    parameters kept where they are (columns of the Jacobian are zero). `stop(costs, left)`, if
+    given, is asked after every iteration with the likelihood costs so far (the start's first)
+    and the iterations left: True ends the fit there (a caller whose decision the fit can no
+    longer change). `info`, if given, receives `iterations` and `ended`: "converged" (two small
+    gains, a stall on a fresh Jacobian, at the noise, or the predicted stop), "budget" (all
+    `iters` spent) or "stopped" (by `stop`). Returns the fitted model, its working-window
+    prediction and the Jacobian there."""
     st = prob.settings
     ftol = st.ftol if ftol is None else ftol
     lo = np.array([f.lo for f in model.frees])
@@ -362,7 +368,9 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, f
     warm = jac0 is not None and pred0 is not None and not hold and jac0.shape == jac.shape and bool(np.array_equal(x, model.x))
     if warm:
         jac = np.array(jac0, dtype=float)
-    for _ in range(iters):
+    costs = [likelihood_cost(r_data, nc)]
+    ended, done = "budget", 0
+    for it in range(iters):
         if warm:
             fresh = 0
         elif fresh == 0 or fresh >= st.jacobian_every:
@@ -425,12 +433,21 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, f
         if log is not None:
             log(f"    LM cost {cost:.6g} lam {lam:.3g} radius {radius:.3g} free {int(free.sum())}/{len(x)}")
         small = 0 if improved and gain >= ftol else small + 1
+        done = it + 1
+        costs.append(likelihood_cost(r[:n_data], nc))
         if (not improved and fresh == 1) or small >= 2 or at_noise(r[:n_data], len(prob.channels), st.noise_cost):
+            ended = "converged"
             break  # stalled on a fresh Jacobian, or down to the noise on every channel
         if improved and small == 1 and st.predicted_stop > 0 and \
                 predicted_gain(jac, r, n_data, nc, rows, wp, moving, x, lo, hi, _reach(model, x), lam * 0.1, radius) \
                 < st.predicted_stop * ftol:
+            ended = "converged"
             break  # a small gain, and the next step promises as little
+        if stop is not None and done < iters and stop(costs, iters - done):
+            ended = "stopped"
+            break  # the caller's decision no longer depends on the rest of the fit
+    if info is not None:
+        info.update(iterations=done, ended=ended)
     return model.at(x), pred, jac
 
 

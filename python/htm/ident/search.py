@@ -18,6 +18,7 @@ goes into a `trace.Trace` with the rule it applied and the numbers it compared.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Any, Callable, NamedTuple
 
@@ -233,6 +234,7 @@ class Selector:
         log("baseline", {k: f"{v:.4g}" for k, v in base.values().items()}, prob.rmse(base_pred))
         self.base, self.base_pred = base, base_pred
         self.model, self.pred, self.work_pred, self.jac = base, base_pred, work_pred, jac
+        self.settled_at: np.ndarray | None = None  # where a refit without a new effect last ended converged
         kept_base = False
         for rnd in range(2 * max_findings + 2):  # a round per finding, and one per better base
             tr.round = rnd + 1
@@ -242,13 +244,22 @@ class Selector:
             if self.at_floor("before refit"):
                 break  # at the noise floor: nothing left to explain
             # The same budget without a new effect: a candidate must beat a model merely fitted longer.
-            with self.stages("refit", f"round {rnd + 1}: the model without a new effect"):
-                warm = self.jac if st.warm_jacobian and _at(self.jac_at, self.model) else None
-                self.model, self.work_pred, self.jac = fit(prob, self.model, iters=st.refit_iters, pred0=self.work_pred,
-                                                           jac0=warm)
-                self.pred, self.jac_at = prob.whole(self.model, self.work_pred), self.model.x
-            if self.at_floor("refit without effect"):
-                break
+            if st.resettle and _at(self.settled_at, self.model):
+                # Nothing changed since the last round's refit without a new effect ended converged
+                # here: refitted again it would gain less than ftol an iteration; the round screens
+                # the same point again (its simulations taken from the cache).
+                tr.add("refit", None, "the model is where the last round's refit without a new effect converged (resettle)",
+                       "not refitted again", ftol=st.ftol)
+            else:
+                with self.stages("refit", f"round {rnd + 1}: the model without a new effect"):
+                    warm = self.jac if st.warm_jacobian and _at(self.jac_at, self.model) else None
+                    info: dict[str, Any] = {}
+                    self.model, self.work_pred, self.jac = fit(prob, self.model, iters=st.refit_iters, pred0=self.work_pred,
+                                                               jac0=warm, info=info)
+                    self.pred, self.jac_at = prob.whole(self.model, self.work_pred), self.model.x
+                    self.settled_at = self.model.x if info["ended"] == "converged" else None
+                if self.at_floor("refit without effect"):
+                    break
             with self.stages("screen", f"round {rnd + 1}: {len(self.pool)} candidates"):
                 ranked = screen(prob, self.model, self.work_pred, self.jac, [c for c in self.pool if not c.parts])
             log("screen", [(c.effect, c.channel, round(g, 3)) for c, g, _ in ranked[:6]])
@@ -549,9 +560,23 @@ class Selector:
             # so does one whose sibling reading wanted the same fault since (sibling_check).
             return f in self.common or (f.cand.claimable is not None and not f.cand.claimable(f.cand.report(self.model.params())))
 
-        def refit_without(f: Finding) -> tuple[Model, dict, dict, np.ndarray]:
+        def refit_without(f: Finding, early: list[int] | None = None) -> tuple[Model, dict, dict, np.ndarray]:
+            """The model without `f` refitted from both restarts, the better kept. With `early`
+            (a list: the iterations of each start stopped by backward_stop are appended), a
+            start stops once it can no longer come near the model with `f` (`_far_above`)."""
             starts = _restarts(self.model.without(f.cand, self.nominal), self.x0, self.xn)
-            fits = side_by_side([lambda s=s: fit(prob, s, iters=st.refit_iters) for s in starts])
+            with_cost, n_data = prob.fit_cost(self.work_pred), int(prob.fit_mask.sum()) * len(prob.channels)
+
+            def one(s: Model) -> tuple[Model, dict, np.ndarray]:
+                info: dict[str, Any] = {}
+                stop = (lambda costs, left: _far_above(costs, left, with_cost, n_data, st.backward_stop, st.backward_rate)) \
+                    if early is not None and st.backward_stop > 0 and self.work_pred is not None else None
+                out = fit(prob, s, iters=st.refit_iters, stop=stop, info=info)
+                if early is not None and info["ended"] == "stopped":
+                    early.append(info["iterations"])
+                return out
+
+            fits = side_by_side([lambda s=s: one(s) for s in starts])
             wmodel, wwork, wjac = min(fits, key=lambda g: prob.fit_cost(g[1]))
             return wmodel, prob.whole(wmodel, wwork), wwork, wjac
 
@@ -559,8 +584,17 @@ class Selector:
             small = too_small(f)
             if len(self.findings) < 2 and not small:
                 break  # a single finding was weighed against the model without it when it was made
-            wmodel, wpred, wwork, wjac = refit_without(f)
+            early: list[int] = []
+            wmodel, wpred, wwork, wjac = refit_without(f, None if small else early)
             dbic, dcost = prob.bic_delta(wpred, self.pred, max(1, len(f.cand.frees)))
+            if early and not (dbic < 0 and dcost < -st.min_gain * (1.0 + st.close_margin)):
+                # The early stop's projection failed (the finding would go): the refits without it
+                # run to their end, and the decision is made on those.
+                tr.add("backward check", f.cand.label, "backward_stop: projection not borne out", "refitted without it in full",
+                       dbic=dbic, dcost=dcost)
+                early = []
+                wmodel, wpred, wwork, wjac = refit_without(f)
+                dbic, dcost = prob.bic_delta(wpred, self.pred, max(1, len(f.cand.frees)))
             self.log("backward check", f.cand.label, f"dBIC {dbic:.0f} dcost {dcost:+.3f}")
             # As in `pays_off`: a finding kept only by a margin within close_margin of min_gain is
             # a close decision, and the simpler model (without it) stands.
@@ -569,9 +603,13 @@ class Selector:
             rule = ("common to both sibling readings (sibling_ratio)" if f in self.common else "below a claimable size"
                     if small else "dBIC < 0 and dcost < -min_gain (by more than close_margin) "
                     "against the model refitted without it")
+            if early:
+                rule += (f"; its refit stopped early at {', '.join(map(str, early))} iteration(s) of {st.refit_iters} "
+                         "(backward_stop: it could no longer come near the model with it)")
             tr.add("backward check", f.cand.label, rule, "kept" if keep else "dropped", close=close,
                    other="the model refitted without it" if close else None, dbic=dbic, dcost=dcost, min_gain=st.min_gain,
-                   **({"close_margin": st.close_margin} if close else {}))
+                   **({"close_margin": st.close_margin} if close else {}),
+                   **({"backward_stop": st.backward_stop, "stopped_at": early} if early else {}))
             if not keep:
                 self.findings.remove(f)
                 self.model, self.pred, self.work_pred, self.jac = wmodel, wpred, wwork, wjac
@@ -671,6 +709,19 @@ def _tone(prob: Problem, model: Model, cand: Candidate) -> tuple[Model, dict]:
     start = zero.at(np.concatenate([model.x, np.clip(amp, lo, hi)]))
     trial, twork, _ = fit(prob, start, iters=prob.settings.tone_iters, hold=frozenset(f.key for f in model.frees))
     return trial, twork
+
+
+def _far_above(costs: list[float], left: int, with_cost: float, n_data: int, backward_stop: float,
+               rate: float = DEFAULT.backward_rate) -> bool:
+    """Can a refit without a finding no longer come near the model with it? Its fit-block cost
+    (`costs` so far, the start's first), even gaining on each of the `left` iterations twice the
+    best share of its cost that any iteration so far gained (no less than `rate`, at most half),
+    would stay above the
+    model with it (`with_cost`) by more than `backward_stop` as a held-out dcost reads it (the
+    geometric mean of the channels' mean squares: exp(-difference / samples) - 1)."""
+    best = max((a - b) / a for a, b in zip(costs, costs[1:]) if a > 0) if len(costs) > 1 else 0.0
+    reach = costs[-1] * (1.0 - min(0.5, max(2.0 * best, rate))) ** left
+    return math.exp(-(reach - with_cost) / max(n_data, 1)) - 1.0 < -backward_stop
 
 
 def _size(model: Model, cand: Candidate) -> float:

@@ -98,6 +98,21 @@ class SearchSettings:
                                                        "chamber's, measured alike) pays off with the same fault, same sign "
                                                        "and within this factor in size, is common to both: the plant's form "
                                                        "(lines, the valve), not two faults (0: no sibling check)")
+    resettle: bool = knob(True, "switch", "a round whose model is the very point where the last round's refit without a "
+                                          "new effect ended converged (two gains below ftol: a candidate left the pool "
+                                          "as too small, nothing else changed) does not refit it again (it would gain "
+                                          "less than ftol an iteration; a Jacobian and its trials saved) and screens "
+                                          "the same point again (from the cache)")
+    backward_stop: float = knob(0.5, "relative fit-block cost (as dcost reads it)",
+                                "the backward check's refit without a finding stops once, even gaining on each iteration "
+                                "left twice the best share any iteration so far gained (no less than backward_rate, at most "
+                                "half), its fit-block cost "
+                                "would stay this far above the model with the finding (ten times min_gain): the finding "
+                                "is kept whatever the rest of that refit does. A finding that goes after all is decided "
+                                "on refits run to their end (0: off)")
+    backward_rate: float = knob(0.25, "share of the fit cost per iteration", "the least gain per iteration backward_stop "
+                                                                           "assumes (the fits seen gain 1-30 % an "
+                                                                           "iteration, fastest on a start far off)")
     close_margin: float = knob(0.2, "share of a threshold", "a decision whose deciding number lies within this share of "
                                                             "its threshold is marked close in the trace")
     # --- structure outside the vocabulary (probes) -----------------------------------------
