@@ -238,3 +238,25 @@ def test_a_phase_fault_dropped_for_the_other_readings_leaves_no_better_base():
     small = Verdict(False, -1e4, -0.42, -0.67, 0.97, claimable=False, failed=("claimable size",))
     good, better, too_small = refit_with("valve_dynamics", small)
     assert not good and better is not None and better.cand == "valve_dynamics" and too_small
+
+
+def test_a_refit_without_a_finding_stops_only_once_it_cannot_come_near_the_model_with_it():
+    """backward_stop: a refit without a finding whose fit cost, even gaining twice its best
+    share per iteration (no less than backward_rate, at most half) on every iteration left,
+    stays far above the model with it stops (the finding is kept whatever the rest does); one
+    that gains fast, or that starts near, runs on; 0 switches the rule off."""
+    from htm.ident.search import _far_above
+    from htm.ident.settings import DEFAULT
+
+    n = 25_000  # fit samples x channels
+    with_cost = 63_000.0
+    # without the valve's play: 5.7x the cost, gaining a few percent an iteration
+    assert _far_above([362_000.0, 352_000.0], 5, with_cost, n, DEFAULT.backward_stop, DEFAULT.backward_rate)
+    # a start far off but gaining a third an iteration might still arrive
+    assert not _far_above([450_000.0, 300_000.0], 5, with_cost, n, DEFAULT.backward_stop, DEFAULT.backward_rate)
+    # a refit that starts within reach (a few percent above) is never stopped
+    assert not _far_above([66_000.0, 65_900.0], 1, with_cost, n, DEFAULT.backward_stop, DEFAULT.backward_rate)
+    # the threshold is a held-out dcost's: a gap that reads -0.3 is not far enough for 0.5
+    gap = -n * np.log(1 - 0.3)
+    assert not _far_above([with_cost + gap, with_cost + gap], 0, with_cost, n, 0.5, 0.25)
+    assert _far_above([with_cost + gap, with_cost + gap], 0, with_cost, n, 0.2, 0.25)

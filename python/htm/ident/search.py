@@ -560,32 +560,46 @@ class Selector:
             # so does one whose sibling reading wanted the same fault since (sibling_check).
             return f in self.common or (f.cand.claimable is not None and not f.cand.claimable(f.cand.report(self.model.params())))
 
-        def refit_without(f: Finding, early: list[int] | None = None) -> tuple[Model, dict, dict, np.ndarray]:
-            """The model without `f` refitted from both restarts, the better kept. With `early`
-            (a list: the iterations of each start stopped by backward_stop are appended), a
-            start stops once it can no longer come near the model with `f` (`_far_above`)."""
-            starts = _restarts(self.model.without(f.cand, self.nominal), self.x0, self.xn)
+        def refit_all(fs: list[Finding], early: list[bool]) -> list[tuple[Model, dict, dict, np.ndarray, list[int]]]:
+            """The model without each of `fs` refitted from both restarts, the better kept, every
+            fit side by side; with `early`, a start stops once it can no longer come near the
+            model with the finding (`_far_above`, backward_stop). Per finding: the model, its
+            whole-record and working-window predictions, its Jacobian and the iterations at which
+            starts were stopped early."""
             with_cost, n_data = prob.fit_cost(self.work_pred), int(prob.fit_mask.sum()) * len(prob.channels)
 
-            def one(s: Model) -> tuple[Model, dict, np.ndarray]:
+            def one(s: Model, stopping: bool) -> tuple[tuple[Model, dict, np.ndarray], int | None]:
                 info: dict[str, Any] = {}
                 stop = (lambda costs, left: _far_above(costs, left, with_cost, n_data, st.backward_stop, st.backward_rate)) \
-                    if early is not None and st.backward_stop > 0 and self.work_pred is not None else None
+                    if stopping and st.backward_stop > 0 else None
                 out = fit(prob, s, iters=st.refit_iters, stop=stop, info=info)
-                if early is not None and info["ended"] == "stopped":
-                    early.append(info["iterations"])
-                return out
+                return out, (info["iterations"] if info["ended"] == "stopped" else None)
 
-            fits = side_by_side([lambda s=s: one(s) for s in starts])
-            wmodel, wwork, wjac = min(fits, key=lambda g: prob.fit_cost(g[1]))
-            return wmodel, prob.whole(wmodel, wwork), wwork, wjac
+            starts = [_restarts(self.model.without(f.cand, self.nominal), self.x0, self.xn) for f in fs]
+            flat = side_by_side([lambda s=s, e=e: one(s, e) for ss, e in zip(starts, early) for s in ss])
+            best, stopped, k = [], [], 0
+            for ss in starts:
+                got = flat[k:k + len(ss)]
+                k += len(ss)
+                best.append(min((g[0] for g in got), key=lambda g: prob.fit_cost(g[1])))
+                stopped.append([n for _, n in got if n is not None])
+            wholes = prob.predict([m.params() for m, _, _ in best], whole=True) if prob.truncated or prob.sparse \
+                else [w for _, w, _ in best]
+            return [(m, wp, ww, wj, st_) for (m, ww, wj), wp, st_ in zip(best, wholes, stopped)]
 
-        for f in list(reversed(self.findings)):
+        def refit_without(f: Finding) -> tuple[Model, dict, dict, np.ndarray]:
+            return refit_all([f], [False])[0][:4]
+
+        # With two findings or more, every one's refit without it runs side by side at once (each
+        # from the model as it stands): used while no drop has moved the model.
+        order = list(reversed(self.findings))
+        ahead = dict(zip(map(id, order), refit_all(order, [not too_small(f) for f in order]))) if len(order) >= 2 else {}
+        for f in order:
             small = too_small(f)
             if len(self.findings) < 2 and not small:
                 break  # a single finding was weighed against the model without it when it was made
-            early: list[int] = []
-            wmodel, wpred, wwork, wjac = refit_without(f, None if small else early)
+            got = ahead.pop(id(f), None)
+            wmodel, wpred, wwork, wjac, early = got if got is not None else refit_all([f], [not small])[0]
             dbic, dcost = prob.bic_delta(wpred, self.pred, max(1, len(f.cand.frees)))
             if early and not (dbic < 0 and dcost < -st.min_gain * (1.0 + st.close_margin)):
                 # The early stop's projection failed (the finding would go): the refits without it
@@ -614,6 +628,7 @@ class Selector:
                 self.findings.remove(f)
                 self.model, self.pred, self.work_pred, self.jac = wmodel, wpred, wwork, wjac
                 self.jac_at = wmodel.x
+                ahead.clear()  # the model moved: the refits run ahead of the drop no longer apply
         # A drop refits the model, which moves the findings checked before it: one it left below a
         # claimable size (a leak gone to zero once the dead band beside it went) goes too.
         while small_ones := [f for f in self.findings if too_small(f)]:
