@@ -339,7 +339,18 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, f
     steps = np.array([f.step for f in model.frees])
     x = np.clip(model.x, lo, hi)
     moving = np.array([f.key not in hold for f in model.frees])
-    pred = pred0 if pred0 is not None and np.array_equal(x, model.x) else prob.predict([model.at(x).params()])[0]
+    hs = np.where(x + steps <= hi, steps, -steps)  # the Jacobian's steps (inwards at an upper bound)
+    idx = np.flatnonzero(moving)
+    ahead: list[dict[str, np.ndarray]] | None = None  # the first Jacobian's neighbours, simulated with the point
+    warm = jac0 is not None and pred0 is not None and not hold and bool(np.array_equal(x, model.x))
+    if pred0 is not None and np.array_equal(x, model.x):
+        pred = pred0
+    elif iters > 0 and not warm and not prob.lockstep and len(idx):
+        # The point and its first Jacobian's neighbours in one batch (the cores not left idle
+        # while the point is simulated alone): the same simulations, in parallel.
+        pred, *ahead = prob.predict([model.at(x).params()] + [model.at(x + hs[i] * np.eye(len(x))[i]).params() for i in idx])
+    else:
+        pred = prob.predict([model.at(x).params()])[0]
     r_data = prob.residual(pred, prob.fit_mask)
     n_data = len(r_data)
     # Prior rows: sqrt(W) (x - x_nominal) / width, W a small share of the noise-level cost.
@@ -365,7 +376,7 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, f
     jac = np.zeros((n_data, len(x)))
     fresh = 0  # iterations since the Jacobian was last differenced
     # A Jacobian given at the start stands for the first differencing of the schedule.
-    warm = jac0 is not None and pred0 is not None and not hold and jac0.shape == jac.shape and bool(np.array_equal(x, model.x))
+    warm = warm and jac0 is not None and jac0.shape == jac.shape
     if warm:
         jac = np.array(jac0, dtype=float)
     costs = [likelihood_cost(r_data, nc)]
@@ -375,8 +386,10 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, f
             fresh = 0
         elif fresh == 0 or fresh >= st.jacobian_every:
             hs = np.where(x + steps <= hi, steps, -steps)  # step inwards at an upper bound
-            idx = np.flatnonzero(moving)
-            preds = prob.neighbours(model.at(x).params(), [model.at(x + hs[i] * np.eye(len(x))[i]).params() for i in idx])
+            if ahead is not None:
+                preds, ahead = ahead, None
+            else:
+                preds = prob.neighbours(model.at(x).params(), [model.at(x + hs[i] * np.eye(len(x))[i]).params() for i in idx])
             jac = np.zeros((n_data, len(x)))
             for i, pr in zip(idx, preds):
                 jac[:, i] = (prob.residual(pr, prob.fit_mask) - r[:n_data]) / hs[i]
