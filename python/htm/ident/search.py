@@ -694,9 +694,19 @@ def probe(prob: Problem, res: Result, pool: list[Candidate], rate: float, log: L
         trial, twork, _ = fit(prob, _scan(prob, [model.with_candidate(cand, step)], cand, q), iters=st.refit_iters)
         return trial, *judge(prob, pred, trial, twork, model, cand)
 
-    # The probes are refitted side by side (each from the same state), then judged in order.
+    # The probes are refitted side by side (each from the same state), then judged in order; or
+    # (probe_one_first) one at a time, best screened first, until one pays off.
     top = ranked[: st.probe_refits]
-    for (cand, _, _), (trial, tpred, verdict) in zip(top, side_by_side([lambda c=c, s=s: refit_probe(c, s) for c, _, s in top])):
+    jobs = [lambda c=c, s=s: refit_probe(c, s) for c, _, s in top]
+    fitted = side_by_side(jobs) if not st.probe_one_first else []
+    for i, (cand, _, _) in enumerate(top):
+        if st.probe_one_first:
+            if best is not None:
+                tr.add("probes", cand.label, "a probe before it in the screen pays off (probe_one_first)", "not refitted",
+                       other=best[1].cand.label)
+                continue
+            fitted.append(jobs[i]())
+        trial, tpred, verdict = fitted[i]
         log("probe", cand.label, cand.report(trial.params()), verdict)
         ok = verdict.ok and verdict.dcost < -st.probe_gain and verdict.explained >= st.probe_share
         tr.add("probes", cand.label, "pays off, dcost < -probe_gain and explained >= probe_share",

@@ -121,6 +121,11 @@ class SearchSettings:
     probe_share: float = knob(0.5, "share of a channel's systematic residual (or of a band's power)",
                               "...and account for this share: structure outside the vocabulary dominates what is left")
     probe_refits: int = knob(2, "probes", "screened probes refitted")
+    probe_one_first: bool = knob(True, "switch", "the screened probes are refitted one at a time, best screened first, "
+                                                 "and the first that pays off is the evidence of structure outside the "
+                                                 "vocabulary (the verdict needs one): the next one's refit (~100 "
+                                                 "simulations of a 60 s record) is saved. Off: the top probe_refits are "
+                                                 "refitted side by side and the best by dBIC is reported")
     # --- the verdict on structure left (floor) ---------------------------------------------
     unexplained: float = knob(1.5, "systematic ratio", "structure is reported unexplained above this (a clear margin over "
                                                        "`systematic`)...")
