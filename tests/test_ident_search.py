@@ -260,3 +260,64 @@ def test_a_refit_without_a_finding_stops_only_once_it_cannot_come_near_the_model
     gap = -n * np.log(1 - 0.3)
     assert not _far_above([with_cost + gap, with_cost + gap], 0, with_cost, n, 0.5, 0.25)
     assert _far_above([with_cost + gap, with_cost + gap], 0, with_cost, n, 0.2, 0.25)
+
+
+def test_a_model_where_the_last_refit_without_an_effect_converged_is_not_refitted_again():
+    """resettle: a round that only lost a candidate too small to claim leaves the model where the
+    refit without a new effect ended converged; the next round does not refit it again (the trace
+    names the rule) — switched off, it does; a refit that ended on its budget is refitted again."""
+    import dataclasses
+
+    from htm.ident import search as S
+    from htm.ident.model import Candidate, lin
+    from htm.ident.settings import DEFAULT
+
+    base = Model({"a": 1.0}, [logf("a", 0.5, 2.0)], np.zeros(1))
+    cands = [Candidate(e, None, (lin("k", 1e-3, 0.0, 1.0),), "du/dt") for e in ("valve_deadband", "internal_leakage")]
+
+    def run(settings, ended: str) -> tuple[int, list]:
+        calls: list = []
+
+        class Prob:
+            def __init__(self):
+                self.settings = settings
+
+            def whole(self, model, work):
+                return work
+
+            def ratios(self, pred, rate):
+                return {"y": 5.0}
+
+            def rmse(self, pred):
+                return {"y": 1.0}
+
+        def fake_fit(prob, model, *, iters, info=None, **kw):
+            calls.append(iters)
+            if info is not None:
+                info.update(iterations=2, ended=ended)
+            return model, {"y": np.zeros(3)}, np.eye(3, len(model.x))
+
+        def fake_refit(self, ranked, max_refits):
+            if not ranked:
+                return [], None, False
+            self.pool = [c for c in self.pool if c.key != ranked[0].cand.key]
+            return [], None, True  # too small to claim: left the pool
+
+        saved = S.fit, S.screen, S.Selector.refit
+        S.fit = fake_fit
+        S.screen = lambda prob, model, work, jac, pool: [S.Screened(c, 0.5, 1e-3) for c in pool]
+        S.Selector.refit = fake_refit
+        try:
+            sel = S.Selector(Prob(), {"a": 1.0}, cands, 500.0, log=lambda *a: None, trace=S.Trace(), stages=S.Stages())
+            sel.run(base, frozenset(), 3, 2)
+        finally:
+            S.fit, S.screen, S.Selector.refit = saved
+        refits = [i for i in calls if i == settings.refit_iters]
+        return len(refits), [d for d in sel.trace.to_json() if "resettle" in d["rule"]]
+
+    n, named = run(DEFAULT, "converged")
+    assert n == 1 and len(named) == 2 and named[0]["outcome"] == "not refitted again"
+    n, named = run(dataclasses.replace(DEFAULT, resettle=False), "converged")
+    assert n == 3 and not named
+    n, named = run(DEFAULT, "budget")
+    assert n == 3 and not named
