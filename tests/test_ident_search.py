@@ -321,3 +321,54 @@ def test_a_model_where_the_last_refit_without_an_effect_converged_is_not_refitte
     assert n == 3 and not named
     n, named = run(DEFAULT, "budget")
     assert n == 3 and not named
+
+
+def test_probes_are_refitted_one_at_a_time_until_one_pays_off_and_the_trace_says_so():
+    """probe_one_first: the best screened probe that pays off is the evidence; the next is not
+    refitted (the trace names the rule). A first that does not pay off lets the next be tried;
+    off, both are refitted and the better by dBIC is taken."""
+    import dataclasses
+    from types import SimpleNamespace
+
+    from htm.ident import search as S
+    from htm.ident.model import Candidate, lin
+    from htm.ident.settings import DEFAULT
+
+    model = Model({"a": 1.0}, [logf("a", 0.5, 2.0)], np.zeros(1))
+    probes = [Candidate(e, None, (lin("k", 1e-3, 0.0, 1.0),), "x") for e in ("position_friction", "position_damping")]
+
+    def run(settings, pays: dict[str, float]) -> tuple[list[str], str | None, list]:
+        fitted: list[str] = []
+        prob = SimpleNamespace(settings=settings)
+        res = SimpleNamespace(model=model, pred={}, work_pred={}, jac=np.eye(4, 1))
+
+        def fake_fit(prob, start, **kw):
+            fitted.append(start.cand)
+            return start, {}, None
+
+        def fake_judge(prob, pred, trial, twork, before, cand):
+            dbic = pays.get(cand.effect)
+            ok = dbic is not None
+            return {}, S.Verdict(ok, dbic if ok else 10.0, -0.5 if ok else 0.0, -0.5, 0.9 if ok else 0.0)
+
+        saved = S.fit, S.screen, S._scan, S.judge, S.finding
+        S.screen = lambda prob, m, w, j, pool: [S.Screened(c, 0.5 - 0.1 * i, 1e-3) for i, c in enumerate(pool)]
+        S._scan = lambda prob, starts, cand, q: SimpleNamespace(cand=cand.effect, params=lambda: {})
+        S.fit, S.judge = fake_fit, fake_judge
+        S.finding = lambda prob, cand, *a: SimpleNamespace(cand=cand)
+        trace = S.Trace()
+        try:
+            out = S.probe(prob, res, probes, 500.0, trace=trace)
+        finally:
+            S.fit, S.screen, S._scan, S.judge, S.finding = saved
+        named = [d for d in trace.to_json() if "probe_one_first" in d["rule"]]
+        return fitted, out.cand.effect if out is not None else None, named
+
+    fitted, best, named = run(DEFAULT, {"position_friction": -100.0, "position_damping": -300.0})
+    assert fitted == ["position_friction"] and best == "position_friction"
+    assert [d["candidate"] for d in named] == ["position_damping"] and named[0]["outcome"] == "not refitted"
+    fitted, best, named = run(DEFAULT, {"position_damping": -300.0})
+    assert fitted == ["position_friction", "position_damping"] and best == "position_damping" and not named
+    off = dataclasses.replace(DEFAULT, probe_one_first=False)
+    fitted, best, named = run(off, {"position_friction": -100.0, "position_damping": -300.0})
+    assert sorted(fitted) == ["position_damping", "position_friction"] and best == "position_damping" and not named
