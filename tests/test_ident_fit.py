@@ -183,3 +183,26 @@ def test_a_fit_started_with_the_jacobian_at_its_point_saves_one_differencing():
     (p_cold, sims_cold), (p_warm, sims_warm) = out[True], out[False]
     assert sims_warm <= sims_cold - 3, (sims_warm, sims_cold)
     assert abs(p_warm["amp"] - p_cold["amp"]) <= 0.02 * TRUE["amp"]
+
+
+def test_a_fit_reports_why_it_ended_and_stops_where_its_caller_says():
+    """`info` says how a fit ended (converged on its ftol, or its budget spent); `stop`, asked
+    after every iteration with the costs so far and the iterations left, ends it there (fewer
+    simulations, the costs it saw falling)."""
+    prob = _problem(DEFAULT)
+    info: dict = {}
+    fit(prob, _start_model(), iters=2, ftol=1e-9, info=info)
+    assert info == {"iterations": 2, "ended": "budget"}
+    info = {}
+    fit(prob, _start_model(), iters=60, ftol=1e-2, info=info)
+    assert info["ended"] == "converged" and info["iterations"] < 60
+    full = _problem(DEFAULT)
+    fit(full, _start_model(), iters=8, ftol=1e-9)
+    seen: list = []
+    stopped = _problem(DEFAULT)
+    info = {}
+    fit(stopped, _start_model(), iters=8, ftol=1e-9, info=info,
+        stop=lambda costs, left: seen.append((list(costs), left)) or len(costs) > 2)
+    assert info == {"iterations": 2, "ended": "stopped"}
+    assert [left for _, left in seen] == [7, 6] and seen[-1][0][0] > seen[-1][0][-1]
+    assert stopped.simulations < full.simulations

@@ -238,3 +238,137 @@ def test_a_phase_fault_dropped_for_the_other_readings_leaves_no_better_base():
     small = Verdict(False, -1e4, -0.42, -0.67, 0.97, claimable=False, failed=("claimable size",))
     good, better, too_small = refit_with("valve_dynamics", small)
     assert not good and better is not None and better.cand == "valve_dynamics" and too_small
+
+
+def test_a_refit_without_a_finding_stops_only_once_it_cannot_come_near_the_model_with_it():
+    """backward_stop: a refit without a finding whose fit cost, even gaining twice its best
+    share per iteration (no less than backward_rate, at most half) on every iteration left,
+    stays far above the model with it stops (the finding is kept whatever the rest does); one
+    that gains fast, or that starts near, runs on; 0 switches the rule off."""
+    from htm.ident.search import _far_above
+    from htm.ident.settings import DEFAULT
+
+    n = 25_000  # fit samples x channels
+    with_cost = 63_000.0
+    # without the valve's play: 5.7x the cost, gaining a few percent an iteration
+    assert _far_above([362_000.0, 352_000.0], 5, with_cost, n, DEFAULT.backward_stop, DEFAULT.backward_rate)
+    # a start far off but gaining a third an iteration might still arrive
+    assert not _far_above([450_000.0, 300_000.0], 5, with_cost, n, DEFAULT.backward_stop, DEFAULT.backward_rate)
+    # a refit that starts within reach (a few percent above) is never stopped
+    assert not _far_above([66_000.0, 65_900.0], 1, with_cost, n, DEFAULT.backward_stop, DEFAULT.backward_rate)
+    # the threshold is a held-out dcost's: a gap that reads -0.3 is not far enough for 0.5
+    gap = -n * np.log(1 - 0.3)
+    assert not _far_above([with_cost + gap, with_cost + gap], 0, with_cost, n, 0.5, 0.25)
+    assert _far_above([with_cost + gap, with_cost + gap], 0, with_cost, n, 0.2, 0.25)
+
+
+def test_a_model_where_the_last_refit_without_an_effect_converged_is_not_refitted_again():
+    """resettle: a round that only lost a candidate too small to claim leaves the model where the
+    refit without a new effect ended converged; the next round does not refit it again (the trace
+    names the rule) — switched off, it does; a refit that ended on its budget is refitted again."""
+    import dataclasses
+
+    from htm.ident import search as S
+    from htm.ident.model import Candidate, lin
+    from htm.ident.settings import DEFAULT
+
+    base = Model({"a": 1.0}, [logf("a", 0.5, 2.0)], np.zeros(1))
+    cands = [Candidate(e, None, (lin("k", 1e-3, 0.0, 1.0),), "du/dt") for e in ("valve_deadband", "internal_leakage")]
+
+    def run(settings, ended: str) -> tuple[int, list]:
+        calls: list = []
+
+        class Prob:
+            def __init__(self):
+                self.settings = settings
+
+            def whole(self, model, work):
+                return work
+
+            def ratios(self, pred, rate):
+                return {"y": 5.0}
+
+            def rmse(self, pred):
+                return {"y": 1.0}
+
+        def fake_fit(prob, model, *, iters, info=None, **kw):
+            calls.append(iters)
+            if info is not None:
+                info.update(iterations=2, ended=ended)
+            return model, {"y": np.zeros(3)}, np.eye(3, len(model.x))
+
+        def fake_refit(self, ranked, max_refits):
+            if not ranked:
+                return [], None, False
+            self.pool = [c for c in self.pool if c.key != ranked[0].cand.key]
+            return [], None, True  # too small to claim: left the pool
+
+        saved = S.fit, S.screen, S.Selector.refit
+        S.fit = fake_fit
+        S.screen = lambda prob, model, work, jac, pool: [S.Screened(c, 0.5, 1e-3) for c in pool]
+        S.Selector.refit = fake_refit
+        try:
+            sel = S.Selector(Prob(), {"a": 1.0}, cands, 500.0, log=lambda *a: None, trace=S.Trace(), stages=S.Stages())
+            sel.run(base, frozenset(), 3, 2)
+        finally:
+            S.fit, S.screen, S.Selector.refit = saved
+        refits = [i for i in calls if i == settings.refit_iters]
+        return len(refits), [d for d in sel.trace.to_json() if "resettle" in d["rule"]]
+
+    n, named = run(DEFAULT, "converged")
+    assert n == 1 and len(named) == 2 and named[0]["outcome"] == "not refitted again"
+    n, named = run(dataclasses.replace(DEFAULT, resettle=False), "converged")
+    assert n == 3 and not named
+    n, named = run(DEFAULT, "budget")
+    assert n == 3 and not named
+
+
+def test_probes_are_refitted_one_at_a_time_until_one_pays_off_and_the_trace_says_so():
+    """probe_one_first: the best screened probe that pays off is the evidence; the next is not
+    refitted (the trace names the rule). A first that does not pay off lets the next be tried;
+    off, both are refitted and the better by dBIC is taken."""
+    import dataclasses
+    from types import SimpleNamespace
+
+    from htm.ident import search as S
+    from htm.ident.model import Candidate, lin
+    from htm.ident.settings import DEFAULT
+
+    model = Model({"a": 1.0}, [logf("a", 0.5, 2.0)], np.zeros(1))
+    probes = [Candidate(e, None, (lin("k", 1e-3, 0.0, 1.0),), "x") for e in ("position_friction", "position_damping")]
+
+    def run(settings, pays: dict[str, float]) -> tuple[list[str], str | None, list]:
+        fitted: list[str] = []
+        prob = SimpleNamespace(settings=settings)
+        res = SimpleNamespace(model=model, pred={}, work_pred={}, jac=np.eye(4, 1))
+
+        def fake_fit(prob, start, **kw):
+            fitted.append(start.cand)
+            return start, {}, None
+
+        def fake_judge(prob, pred, trial, twork, before, cand):
+            dbic = pays.get(cand.effect)
+            ok = dbic is not None
+            return {}, S.Verdict(ok, dbic if ok else 10.0, -0.5 if ok else 0.0, -0.5, 0.9 if ok else 0.0)
+
+        saved = S.fit, S.screen, S._scan, S.judge, S.finding
+        S.screen = lambda prob, m, w, j, pool: [S.Screened(c, 0.5 - 0.1 * i, 1e-3) for i, c in enumerate(pool)]
+        S._scan = lambda prob, starts, cand, q: SimpleNamespace(cand=cand.effect, params=lambda: {})
+        S.fit, S.judge = fake_fit, fake_judge
+        S.finding = lambda prob, cand, *a: SimpleNamespace(cand=cand)
+        trace = S.Trace()
+        try:
+            out = S.probe(prob, res, probes, 500.0, trace=trace)
+        finally:
+            S.fit, S.screen, S._scan, S.judge, S.finding = saved
+        named = [d for d in trace.to_json() if "probe_one_first" in d["rule"]]
+        return fitted, out.cand.effect if out is not None else None, named
+
+    fitted, best, named = run(DEFAULT, {"position_friction": -100.0, "position_damping": -300.0})
+    assert fitted == ["position_friction"] and best == "position_friction"
+    assert [d["candidate"] for d in named] == ["position_damping"] and named[0]["outcome"] == "not refitted"
+    fitted, best, named = run(DEFAULT, {"position_damping": -300.0})
+    assert fitted == ["position_friction", "position_damping"] and best == "position_damping" and not named
+    off = dataclasses.replace(DEFAULT, probe_one_first=False)
+    fitted, best, named = run(off, {"position_friction": -100.0, "position_damping": -300.0})
+    assert sorted(fitted) == ["position_damping", "position_friction"] and best == "position_damping" and not named

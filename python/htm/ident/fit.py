@@ -314,7 +314,8 @@ def at_noise(r_data: np.ndarray, n_channels: int, noise_cost: float = NOISE_COST
 
 def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, ftol: float | None = None,
         hold: frozenset[str] = frozenset(), log: Callable[..., None] | None = None,
-        jac0: np.ndarray | None = None) -> tuple[Model, dict, np.ndarray]:
+        jac0: np.ndarray | None = None, stop: Callable[[list[float], int], bool] | None = None,
+        info: dict[str, Any] | None = None) -> tuple[Model, dict, np.ndarray]:
     """Bounded Levenberg-Marquardt on the weighted fit-block residual over the model's free
     parameters: forward-difference Jacobians (one batch of simulations), then three damping
     levels tried at once (one more batch). At most `iters` iterations; stops when an iteration
@@ -324,8 +325,13 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, f
     Jacobian at the model, if known (a previous fit's): it stands for the schedule's first
     differencing (one simulation per parameter saved), and a first step that fails on it has
     the Jacobian differenced afresh; `hold`: keys of free
-    parameters kept where they are (columns of the Jacobian are zero). Returns the fitted
-    model, its working-window prediction and the Jacobian there."""
+    parameters kept where they are (columns of the Jacobian are zero). `stop(costs, left)`, if
+    given, is asked after every iteration with the likelihood costs so far (the start's first)
+    and the iterations left: True ends the fit there (a caller whose decision the fit can no
+    longer change). `info`, if given, receives `iterations` and `ended`: "converged" (two small
+    gains, a stall on a fresh Jacobian, at the noise, or the predicted stop), "budget" (all
+    `iters` spent) or "stopped" (by `stop`). Returns the fitted model, its working-window
+    prediction and the Jacobian there."""
     st = prob.settings
     ftol = st.ftol if ftol is None else ftol
     lo = np.array([f.lo for f in model.frees])
@@ -333,7 +339,18 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, f
     steps = np.array([f.step for f in model.frees])
     x = np.clip(model.x, lo, hi)
     moving = np.array([f.key not in hold for f in model.frees])
-    pred = pred0 if pred0 is not None and np.array_equal(x, model.x) else prob.predict([model.at(x).params()])[0]
+    hs = np.where(x + steps <= hi, steps, -steps)  # the Jacobian's steps (inwards at an upper bound)
+    idx = np.flatnonzero(moving)
+    ahead: list[dict[str, np.ndarray]] | None = None  # the first Jacobian's neighbours, simulated with the point
+    warm = jac0 is not None and pred0 is not None and not hold and bool(np.array_equal(x, model.x))
+    if pred0 is not None and np.array_equal(x, model.x):
+        pred = pred0
+    elif iters > 0 and not warm and not prob.lockstep and len(idx):
+        # The point and its first Jacobian's neighbours in one batch (the cores not left idle
+        # while the point is simulated alone): the same simulations, in parallel.
+        pred, *ahead = prob.predict([model.at(x).params()] + [model.at(x + hs[i] * np.eye(len(x))[i]).params() for i in idx])
+    else:
+        pred = prob.predict([model.at(x).params()])[0]
     r_data = prob.residual(pred, prob.fit_mask)
     n_data = len(r_data)
     # Prior rows: sqrt(W) (x - x_nominal) / width, W a small share of the noise-level cost.
@@ -359,16 +376,20 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, f
     jac = np.zeros((n_data, len(x)))
     fresh = 0  # iterations since the Jacobian was last differenced
     # A Jacobian given at the start stands for the first differencing of the schedule.
-    warm = jac0 is not None and pred0 is not None and not hold and jac0.shape == jac.shape and bool(np.array_equal(x, model.x))
+    warm = warm and jac0 is not None and jac0.shape == jac.shape
     if warm:
         jac = np.array(jac0, dtype=float)
-    for _ in range(iters):
+    costs = [likelihood_cost(r_data, nc)]
+    ended, done = "budget", 0
+    for it in range(iters):
         if warm:
             fresh = 0
         elif fresh == 0 or fresh >= st.jacobian_every:
             hs = np.where(x + steps <= hi, steps, -steps)  # step inwards at an upper bound
-            idx = np.flatnonzero(moving)
-            preds = prob.neighbours(model.at(x).params(), [model.at(x + hs[i] * np.eye(len(x))[i]).params() for i in idx])
+            if ahead is not None:
+                preds, ahead = ahead, None
+            else:
+                preds = prob.neighbours(model.at(x).params(), [model.at(x + hs[i] * np.eye(len(x))[i]).params() for i in idx])
             jac = np.zeros((n_data, len(x)))
             for i, pr in zip(idx, preds):
                 jac[:, i] = (prob.residual(pr, prob.fit_mask) - r[:n_data]) / hs[i]
@@ -425,12 +446,21 @@ def fit(prob: Problem, model: Model, *, iters: int, pred0: dict | None = None, f
         if log is not None:
             log(f"    LM cost {cost:.6g} lam {lam:.3g} radius {radius:.3g} free {int(free.sum())}/{len(x)}")
         small = 0 if improved and gain >= ftol else small + 1
+        done = it + 1
+        costs.append(likelihood_cost(r[:n_data], nc))
         if (not improved and fresh == 1) or small >= 2 or at_noise(r[:n_data], len(prob.channels), st.noise_cost):
+            ended = "converged"
             break  # stalled on a fresh Jacobian, or down to the noise on every channel
         if improved and small == 1 and st.predicted_stop > 0 and \
                 predicted_gain(jac, r, n_data, nc, rows, wp, moving, x, lo, hi, _reach(model, x), lam * 0.1, radius) \
                 < st.predicted_stop * ftol:
+            ended = "converged"
             break  # a small gain, and the next step promises as little
+        if stop is not None and done < iters and stop(costs, iters - done):
+            ended = "stopped"
+            break  # the caller's decision no longer depends on the rest of the fit
+    if info is not None:
+        info.update(iterations=done, ended=ended)
     return model.at(x), pred, jac
 
 

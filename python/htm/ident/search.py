@@ -18,6 +18,7 @@ goes into a `trace.Trace` with the rule it applied and the numbers it compared.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Any, Callable, NamedTuple
 
@@ -233,6 +234,7 @@ class Selector:
         log("baseline", {k: f"{v:.4g}" for k, v in base.values().items()}, prob.rmse(base_pred))
         self.base, self.base_pred = base, base_pred
         self.model, self.pred, self.work_pred, self.jac = base, base_pred, work_pred, jac
+        self.settled_at: np.ndarray | None = None  # where a refit without a new effect last ended converged
         kept_base = False
         for rnd in range(2 * max_findings + 2):  # a round per finding, and one per better base
             tr.round = rnd + 1
@@ -242,13 +244,22 @@ class Selector:
             if self.at_floor("before refit"):
                 break  # at the noise floor: nothing left to explain
             # The same budget without a new effect: a candidate must beat a model merely fitted longer.
-            with self.stages("refit", f"round {rnd + 1}: the model without a new effect"):
-                warm = self.jac if st.warm_jacobian and _at(self.jac_at, self.model) else None
-                self.model, self.work_pred, self.jac = fit(prob, self.model, iters=st.refit_iters, pred0=self.work_pred,
-                                                           jac0=warm)
-                self.pred, self.jac_at = prob.whole(self.model, self.work_pred), self.model.x
-            if self.at_floor("refit without effect"):
-                break
+            if st.resettle and _at(self.settled_at, self.model):
+                # Nothing changed since the last round's refit without a new effect ended converged
+                # here: refitted again it would gain less than ftol an iteration; the round screens
+                # the same point again (its simulations taken from the cache).
+                tr.add("refit", None, "the model is where the last round's refit without a new effect converged (resettle)",
+                       "not refitted again", ftol=st.ftol)
+            else:
+                with self.stages("refit", f"round {rnd + 1}: the model without a new effect"):
+                    warm = self.jac if st.warm_jacobian and _at(self.jac_at, self.model) else None
+                    info: dict[str, Any] = {}
+                    self.model, self.work_pred, self.jac = fit(prob, self.model, iters=st.refit_iters, pred0=self.work_pred,
+                                                               jac0=warm, info=info)
+                    self.pred, self.jac_at = prob.whole(self.model, self.work_pred), self.model.x
+                    self.settled_at = self.model.x if info["ended"] == "converged" else None
+                if self.at_floor("refit without effect"):
+                    break
             with self.stages("screen", f"round {rnd + 1}: {len(self.pool)} candidates"):
                 ranked = screen(prob, self.model, self.work_pred, self.jac, [c for c in self.pool if not c.parts])
             log("screen", [(c.effect, c.channel, round(g, 3)) for c, g, _ in ranked[:6]])
@@ -549,18 +560,55 @@ class Selector:
             # so does one whose sibling reading wanted the same fault since (sibling_check).
             return f in self.common or (f.cand.claimable is not None and not f.cand.claimable(f.cand.report(self.model.params())))
 
-        def refit_without(f: Finding) -> tuple[Model, dict, dict, np.ndarray]:
-            starts = _restarts(self.model.without(f.cand, self.nominal), self.x0, self.xn)
-            fits = side_by_side([lambda s=s: fit(prob, s, iters=st.refit_iters) for s in starts])
-            wmodel, wwork, wjac = min(fits, key=lambda g: prob.fit_cost(g[1]))
-            return wmodel, prob.whole(wmodel, wwork), wwork, wjac
+        def refit_all(fs: list[Finding], early: list[bool]) -> list[tuple[Model, dict, dict, np.ndarray, list[int]]]:
+            """The model without each of `fs` refitted from both restarts, the better kept, every
+            fit side by side; with `early`, a start stops once it can no longer come near the
+            model with the finding (`_far_above`, backward_stop). Per finding: the model, its
+            whole-record and working-window predictions, its Jacobian and the iterations at which
+            starts were stopped early."""
+            with_cost, n_data = prob.fit_cost(self.work_pred), int(prob.fit_mask.sum()) * len(prob.channels)
 
-        for f in list(reversed(self.findings)):
+            def one(s: Model, stopping: bool) -> tuple[tuple[Model, dict, np.ndarray], int | None]:
+                info: dict[str, Any] = {}
+                stop = (lambda costs, left: _far_above(costs, left, with_cost, n_data, st.backward_stop, st.backward_rate)) \
+                    if stopping and st.backward_stop > 0 else None
+                out = fit(prob, s, iters=st.refit_iters, stop=stop, info=info)
+                return out, (info["iterations"] if info["ended"] == "stopped" else None)
+
+            starts = [_restarts(self.model.without(f.cand, self.nominal), self.x0, self.xn) for f in fs]
+            flat = side_by_side([lambda s=s, e=e: one(s, e) for ss, e in zip(starts, early) for s in ss])
+            best, stopped, k = [], [], 0
+            for ss in starts:
+                got = flat[k:k + len(ss)]
+                k += len(ss)
+                best.append(min((g[0] for g in got), key=lambda g: prob.fit_cost(g[1])))
+                stopped.append([n for _, n in got if n is not None])
+            wholes = prob.predict([m.params() for m, _, _ in best], whole=True) if prob.truncated or prob.sparse \
+                else [w for _, w, _ in best]
+            return [(m, wp, ww, wj, st_) for (m, ww, wj), wp, st_ in zip(best, wholes, stopped)]
+
+        def refit_without(f: Finding) -> tuple[Model, dict, dict, np.ndarray]:
+            return refit_all([f], [False])[0][:4]
+
+        # With two findings or more, every one's refit without it runs side by side at once (each
+        # from the model as it stands): used while no drop has moved the model.
+        order = list(reversed(self.findings))
+        ahead = dict(zip(map(id, order), refit_all(order, [not too_small(f) for f in order]))) if len(order) >= 2 else {}
+        for f in order:
             small = too_small(f)
             if len(self.findings) < 2 and not small:
                 break  # a single finding was weighed against the model without it when it was made
-            wmodel, wpred, wwork, wjac = refit_without(f)
+            got = ahead.pop(id(f), None)
+            wmodel, wpred, wwork, wjac, early = got if got is not None else refit_all([f], [not small])[0]
             dbic, dcost = prob.bic_delta(wpred, self.pred, max(1, len(f.cand.frees)))
+            if early and not (dbic < 0 and dcost < -st.min_gain * (1.0 + st.close_margin)):
+                # The early stop's projection failed (the finding would go): the refits without it
+                # run to their end, and the decision is made on those.
+                tr.add("backward check", f.cand.label, "backward_stop: projection not borne out", "refitted without it in full",
+                       dbic=dbic, dcost=dcost)
+                early = []
+                wmodel, wpred, wwork, wjac = refit_without(f)
+                dbic, dcost = prob.bic_delta(wpred, self.pred, max(1, len(f.cand.frees)))
             self.log("backward check", f.cand.label, f"dBIC {dbic:.0f} dcost {dcost:+.3f}")
             # As in `pays_off`: a finding kept only by a margin within close_margin of min_gain is
             # a close decision, and the simpler model (without it) stands.
@@ -569,13 +617,18 @@ class Selector:
             rule = ("common to both sibling readings (sibling_ratio)" if f in self.common else "below a claimable size"
                     if small else "dBIC < 0 and dcost < -min_gain (by more than close_margin) "
                     "against the model refitted without it")
+            if early:
+                rule += (f"; its refit stopped early at {', '.join(map(str, early))} iteration(s) of {st.refit_iters} "
+                         "(backward_stop: it could no longer come near the model with it)")
             tr.add("backward check", f.cand.label, rule, "kept" if keep else "dropped", close=close,
                    other="the model refitted without it" if close else None, dbic=dbic, dcost=dcost, min_gain=st.min_gain,
-                   **({"close_margin": st.close_margin} if close else {}))
+                   **({"close_margin": st.close_margin} if close else {}),
+                   **({"backward_stop": st.backward_stop, "stopped_at": early} if early else {}))
             if not keep:
                 self.findings.remove(f)
                 self.model, self.pred, self.work_pred, self.jac = wmodel, wpred, wwork, wjac
                 self.jac_at = wmodel.x
+                ahead.clear()  # the model moved: the refits run ahead of the drop no longer apply
         # A drop refits the model, which moves the findings checked before it: one it left below a
         # claimable size (a leak gone to zero once the dead band beside it went) goes too.
         while small_ones := [f for f in self.findings if too_small(f)]:
@@ -641,9 +694,19 @@ def probe(prob: Problem, res: Result, pool: list[Candidate], rate: float, log: L
         trial, twork, _ = fit(prob, _scan(prob, [model.with_candidate(cand, step)], cand, q), iters=st.refit_iters)
         return trial, *judge(prob, pred, trial, twork, model, cand)
 
-    # The probes are refitted side by side (each from the same state), then judged in order.
+    # The probes are refitted side by side (each from the same state), then judged in order; or
+    # (probe_one_first) one at a time, best screened first, until one pays off.
     top = ranked[: st.probe_refits]
-    for (cand, _, _), (trial, tpred, verdict) in zip(top, side_by_side([lambda c=c, s=s: refit_probe(c, s) for c, _, s in top])):
+    jobs = [lambda c=c, s=s: refit_probe(c, s) for c, _, s in top]
+    fitted = side_by_side(jobs) if not st.probe_one_first else []
+    for i, (cand, _, _) in enumerate(top):
+        if st.probe_one_first:
+            if best is not None:
+                tr.add("probes", cand.label, "a probe before it in the screen pays off (probe_one_first)", "not refitted",
+                       other=best[1].cand.label)
+                continue
+            fitted.append(jobs[i]())
+        trial, tpred, verdict = fitted[i]
         log("probe", cand.label, cand.report(trial.params()), verdict)
         ok = verdict.ok and verdict.dcost < -st.probe_gain and verdict.explained >= st.probe_share
         tr.add("probes", cand.label, "pays off, dcost < -probe_gain and explained >= probe_share",
@@ -671,6 +734,19 @@ def _tone(prob: Problem, model: Model, cand: Candidate) -> tuple[Model, dict]:
     start = zero.at(np.concatenate([model.x, np.clip(amp, lo, hi)]))
     trial, twork, _ = fit(prob, start, iters=prob.settings.tone_iters, hold=frozenset(f.key for f in model.frees))
     return trial, twork
+
+
+def _far_above(costs: list[float], left: int, with_cost: float, n_data: int, backward_stop: float,
+               rate: float = DEFAULT.backward_rate) -> bool:
+    """Can a refit without a finding no longer come near the model with it? Its fit-block cost
+    (`costs` so far, the start's first), even gaining on each of the `left` iterations twice the
+    best share of its cost that any iteration so far gained (no less than `rate`, at most half),
+    would stay above the
+    model with it (`with_cost`) by more than `backward_stop` as a held-out dcost reads it (the
+    geometric mean of the channels' mean squares: exp(-difference / samples) - 1)."""
+    best = max((a - b) / a for a, b in zip(costs, costs[1:]) if a > 0) if len(costs) > 1 else 0.0
+    reach = costs[-1] * (1.0 - min(0.5, max(2.0 * best, rate))) ** left
+    return math.exp(-(reach - with_cost) / max(n_data, 1)) - 1.0 < -backward_stop
 
 
 def _size(model: Model, cand: Candidate) -> float:

@@ -98,6 +98,23 @@ class SearchSettings:
                                                        "chamber's, measured alike) pays off with the same fault, same sign "
                                                        "and within this factor in size, is common to both: the plant's form "
                                                        "(lines, the valve), not two faults (0: no sibling check)")
+    resettle: bool = knob(True, "switch", "a round whose model is the very point where the last round's refit without a "
+                                          "new effect ended converged (two gains below ftol: a candidate left the pool "
+                                          "as too small, nothing else changed) does not refit it again (it would gain "
+                                          "less than ftol an iteration; a Jacobian and its trials saved) and screens "
+                                          "the same point again (from the cache); benchmarks/diagnose.py's outside-the-table "
+                                          "path 844 -> 528 simulations, the same verdict")
+    backward_stop: float = knob(0.5, "relative fit-block cost (as dcost reads it)",
+                                "the backward check's refit without a finding stops once, even gaining on each iteration "
+                                "left twice the best share any iteration so far gained (no less than backward_rate, at most "
+                                "half), its fit-block cost "
+                                "would stay this far above the model with the finding (ten times min_gain): the finding "
+                                "is kept whatever the rest of that refit does. A finding that goes after all is decided "
+                                "on refits run to their end (0: off). The two-effects path of benchmarks/diagnose.py: "
+                                "backward check 252 -> 150 simulations, both findings kept as before")
+    backward_rate: float = knob(0.25, "share of the fit cost per iteration", "the least gain per iteration backward_stop "
+                                                                           "assumes (the fits seen gain 1-30 % an "
+                                                                           "iteration, fastest on a start far off)")
     close_margin: float = knob(0.2, "share of a threshold", "a decision whose deciding number lies within this share of "
                                                             "its threshold is marked close in the trace")
     # --- structure outside the vocabulary (probes) -----------------------------------------
@@ -106,6 +123,12 @@ class SearchSettings:
     probe_share: float = knob(0.5, "share of a channel's systematic residual (or of a band's power)",
                               "...and account for this share: structure outside the vocabulary dominates what is left")
     probe_refits: int = knob(2, "probes", "screened probes refitted")
+    probe_one_first: bool = knob(True, "switch", "the screened probes are refitted one at a time, best screened first, "
+                                                 "and the first that pays off is the evidence of structure outside the "
+                                                 "vocabulary (the verdict needs one): the next one's refit (~100 "
+                                                 "simulations of a 60 s record) is saved. Off: the top probe_refits are "
+                                                 "refitted side by side and the best by dBIC is reported (the outside-the-table "
+                                                 "path: probes 218 -> 127 simulations, the same verdict)")
     # --- the verdict on structure left (floor) ---------------------------------------------
     unexplained: float = knob(1.5, "systematic ratio", "structure is reported unexplained above this (a clear margin over "
                                                        "`systematic`)...")
