@@ -98,19 +98,26 @@ def register(sub: argparse._SubParsersAction) -> None:
     _register_predict(sub)
 
 
+def _load_later_libraries() -> None:
+    import scipy.signal  # noqa: F401 - imported here to be loaded; used by htm.ident.floor and .valve
+
+    from htm.report import pyplot
+
+    pyplot()
+
+
 def cmd_diagnose(args: argparse.Namespace) -> int:
     import sys
 
     from htm.ident.diagnose import diagnose
 
     rec = read_record(args.record, args.meta)
-    # The plotting library loads while the fit runs (its simulations release the GIL): a second
-    # of imports off the end of every diagnosis.
+    # The libraries the last stages use (scipy.signal's filters for the model's own floor and the
+    # probes, the plotting library for report.md) load while the fit runs — its simulations
+    # release the GIL: about two seconds of imports off the end of every diagnosis.
     import threading
 
-    from htm.report import pyplot
-
-    threading.Thread(target=pyplot, name="htm-import-matplotlib", daemon=True).start()
+    threading.Thread(target=_load_later_libraries, name="htm-import", daemon=True).start()
     run: dict[str, Any] = {}
     report = diagnose(rec, out_dir=args.out, verbose=args.verbose, stats=run, progress=None if args.quiet else stage_line())
     if sys.stderr.isatty() and not args.quiet:
