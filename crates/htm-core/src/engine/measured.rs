@@ -9,7 +9,9 @@
 //! the last readings evaluated at the current cycle (no lag from the averaging): at least
 //! `readings_fitted` of them, more while the line is not yet a tenth of E647's resolution precise,
 //! within 5 resolutions of extension and a length whose bias from the curve's bend stays under
-//! that (`CrackReader::a_at`).
+//! that (`CrackReader::a_at`). The spec's growth law is the line's prior slope, times the
+//! specimen's factor on the law learned from the readings (`CrackReader::law_factor`): a coarse
+//! gauge's first readings cannot give the slope, the law can to a factor.
 //! One copy: the simulator (`htm run`), the real-time loop and the virtual rig's specimen use it.
 use crate::crack_measure::{self as meas, Method};
 use crate::error::{Error, Result};
@@ -475,8 +477,8 @@ impl CrackReader {
 
     /// `a_at` with the line's standard uncertainty at `cycle` [m] and the readings it took.
     pub fn line_at(&self, cycle: u64) -> (f64, f64, usize) {
-        let plain = self.line_with(cycle, None);
-        if !self.a0_visual || self.readings.is_empty() {
+        let plain = self.line_with(cycle, None, false);
+        if self.readings.is_empty() || !(self.a0_visual || self.law_rate > 0.0) {
             return plain;
         }
         // the visually measured initial crack: a reading at cycle 0 of standard uncertainty half
@@ -487,7 +489,11 @@ impl CrackReader {
         // the readings' own
         let visual = 0.5 * self.resolution;
         let se = if plain.1.is_finite() { plain.1 } else { self.typical_sd().unwrap_or(f64::NAN) };
-        if se > visual { self.line_with(cycle, Some((0.0, self.a0, visual))) } else { plain }
+        // the law's rate is the line's prior slope where the readings alone do not make the line as
+        // precise as asked (a tenth of the resolution): a coarse gauge, the first readings
+        let law = self.law_rate > 0.0 && !(se <= LINE_PRECISION_RESOLUTIONS * self.resolution);
+        let a0 = self.a0_visual && se > visual;
+        if law || a0 { self.line_with(cycle, a0.then_some((0.0, self.a0, visual)), law) } else { plain }
     }
 
     /// The median uncertainty of the last readings that state one.
@@ -498,7 +504,7 @@ impl CrackReader {
     }
 
     /// The line of `line_at` through the readings and `prior` (cycle, crack, standard uncertainty).
-    fn line_with(&self, cycle: u64, prior: Option<(f64, f64, f64)>) -> (f64, f64, usize) {
+    fn line_with(&self, cycle: u64, prior: Option<(f64, f64, f64)>, law: bool) -> (f64, f64, usize) {
         let r = &self.readings;
         let n = r.len();
         // each reading's uncertainty, never below the median of the last ones (a reading whose own
@@ -506,7 +512,7 @@ impl CrackReader {
         let typical = self.typical_sd().unwrap_or(1.0);
         // the law's rate times the specimen's factor on it as a prior on the slope: weight 1/σ_s²
         // on the slope's normal equation
-        let (prior_rate, lam) = if self.law_rate > 0.0 {
+        let (prior_rate, lam) = if law && self.law_rate > 0.0 {
             let (b, sd_b) = self.law_factor();
             (b * self.law_rate, 1.0 / (sd_b * self.law_rate).powi(2))
         } else {
