@@ -519,8 +519,12 @@ impl CycleMachine {
         if ymin < margin || ymax > cfg.params.stroke_m - margin {
             stop = stop.or(Some(EndReason::StrokeLimit));
         }
-        let a_next = match &self.reader {
-            Some(reader) => reader.a_at(self.cycle),
+        let a_next = match &mut self.reader {
+            Some(reader) => {
+                // the law is the measured line's prior growth rate (the readings dominate once they can)
+                reader.set_law_rate(dadn, self.cycle);
+                reader.a_at(self.cycle)
+            }
             None => self.a + dadn,
         };
         if dadn_law.is_finite() {
