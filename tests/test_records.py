@@ -83,3 +83,24 @@ def test_unreadable_inputs_give_record_errors(tmp_path):
     with pytest.raises(RecordError, match="no metadata"):
         (tmp_path / "d.csv").write_text("t,u,y\n0,0,0\n")
         read_record(tmp_path / "d.csv")
+
+
+def test_a_table_reads_the_same_whether_parsed_at_once_or_row_by_row(tmp_path):
+    """A clean table is parsed at once; one with a dropped sample (an empty field) row by row: the
+    numbers are the same either way, the dropped sample NaN, and a bad value still names its line."""
+    import numpy as np
+
+    from htm.recordfile import read_table
+
+    rows = [f"{i * 0.002:.3f},{np.sin(i) * 1e-3:.9g},{2e6 + i:.6g}" for i in range(200)]
+    clean, holed, bad = (tmp_path / n for n in ("clean.csv", "holed.csv", "bad.csv"))
+    clean.write_text("t,y,p_a\n" + "\n".join(rows) + "\n")
+    holed.write_text("t,y,p_a\n" + "\n".join(rows[:50] + [rows[50].rsplit(",", 1)[0] + ","] + rows[51:]) + "\n")
+    bad.write_text("t,y,p_a\n" + "\n".join(rows[:7] + ["0.014,inf,2e6"] + rows[8:]) + "\n")
+    a, b = read_table(clean), read_table(holed)
+    assert np.isnan(b["p_a"][50]) and not np.isnan(a["p_a"]).any()
+    for c in ("t", "y", "p_a"):
+        keep = ~np.isnan(b[c])
+        assert np.array_equal(a[c][keep], b[c][keep])
+    with pytest.raises(Exception, match="line 9: column `y`"):
+        read_table(bad)
