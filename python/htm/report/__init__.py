@@ -42,12 +42,12 @@ def envelope(x: Any, y: Any, columns: int = 1500) -> tuple[Any, Any]:
     n = len(y)
     if n <= 4 * columns:
         return x, y
-    edges = np.linspace(0, n, columns + 1).astype(int)
-    idx: list[int] = []
-    for a, b in zip(edges[:-1], edges[1:]):
-        i, j = a + int(np.argmin(y[a:b])), a + int(np.argmax(y[a:b]))
-        idx += [min(i, j), max(i, j)]
-    keep = np.asarray(idx)
+    width = n // columns  # whole columns of `width` samples, the last one taking the rest
+    body = y[: width * (columns - 1)].reshape(columns - 1, width)
+    start = np.arange(columns - 1) * width
+    lo = np.r_[start + np.argmin(body, axis=1), width * (columns - 1) + int(np.argmin(y[width * (columns - 1):]))]
+    hi = np.r_[start + np.argmax(body, axis=1), width * (columns - 1) + int(np.argmax(y[width * (columns - 1):]))]
+    keep = np.column_stack([np.minimum(lo, hi), np.maximum(lo, hi)]).ravel()
     return x[keep], y[keep]
 
 
