@@ -414,10 +414,10 @@ pub struct ClosureNorm {
     pub op_range: (f64, f64),
 }
 
-/// The Δχ² from the best closure curve within which a curve is as good (the 95 % point of χ² with
+/// The Δχ² from the best closure curve within which a curve is as good (the 99 % point of χ² with
 /// three degrees of freedom: transition, width and depth): the opening forces of those curves are
 /// the range the data allow.
-pub const OPENING_CI_CHI2: f64 = 7.8;
+pub const OPENING_CI_CHI2: f64 = 11.34;
 
 /// The 2 % offset opening force (share of the range) of a curve `s` = (c0, c1, c1·d) at (t, w).
 fn op_frac(s: [f64; 3], t: f64, w: f64) -> f64 {

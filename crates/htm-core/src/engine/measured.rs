@@ -872,13 +872,15 @@ mod tests {
             }
             if frac > 0.0 {
                 // what is reported is within ±5 % of Fmax; at 0.3 µm the pooled readings find it
-                // (most readings from the 40th on), at 0.5 µm they may still not resolve it
+                // (at least 40 % of the readings from the 40th on: the range the data allow is the
+                // 99 % one, `OPENING_CI_CHI2`, so a borderline reading says "not resolved" rather
+                // than report a force off by more than E647's 5 %), at 0.5 µm they may still not
                 for r in &resolved {
                     assert!((r.opening_force_n - frac * fmax).abs() < 0.05 * fmax, "{tag}: F_op {} ({} pooled)", r.opening_force_n, r.closure_pooled);
                 }
                 if noise < 0.4e-6 {
                     let found = got[40..].iter().filter(|r| r.opening_resolved && r.closure_pooled > 1).count();
-                    assert!(2 * found > got.len() - 40, "{tag}: the pooled curves give it on {found} of {}", got.len() - 40);
+                    assert!(5 * found >= 2 * (got.len() - 40), "{tag}: the pooled curves give it on {found} of {}", got.len() - 40);
                 }
             } else {
                 for r in &resolved {
