@@ -11,12 +11,14 @@ from typing import Any, Callable
 
 import numpy as np
 
-from htm.ident.classic import identify, stribeck_basis, SMOOTHING_M_S
 from htm.ident.records import read_record
 from htm.terminal import add_json_flag, emit_json, label, path, si, table
 
 
 def cmd_identify(args: argparse.Namespace) -> int:
+    # the classic identification (scipy.optimize, scipy.ndimage) is imported by its own command only
+    from htm.ident.classic import identify
+
     rec = read_record(args.record, args.meta)
     result = identify(rec)
     out = Path(args.out)
@@ -67,6 +69,7 @@ def warn(command: str, notes: list[str]) -> None:
 
 
 def _plot(result: dict, path: Path) -> None:
+    from htm.ident.classic import SMOOTHING_M_S, stribeck_basis
     from htm.report import pyplot, save
 
     v = np.array(result["points"]["v_m_s"])
