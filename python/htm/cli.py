@@ -172,7 +172,7 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
 
 # Which subcommands each group registers: `htm diagnose` imports the identification package only,
 # not the campaign, fleet and fatigue packages with their scipy (about a second on every call).
-# tests/test_cli.py checks this table against what each group's `register` adds.
+# tests/test_cli_output.py checks this table against what each group's `register` adds.
 BUILT_IN = ("simulate", "params")  # defined in this module
 GROUPS: dict[str, tuple[str, ...]] = {
     "run": ("run", "resume"),
