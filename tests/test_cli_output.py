@@ -108,13 +108,13 @@ def test_each_command_loads_only_its_own_group():
     """`htm diagnose` builds a parser with the identification group only (the campaign, fleet and
     fatigue packages and their scipy are not imported: about a second on every call), and the table
     that says which group registers which subcommand is what each group's `register` adds."""
-    for group, names in cli.GROUPS.items():
+    for group, (_, names, _) in cli.GROUPS.items():
         ap = argparse.ArgumentParser()
         sub = ap.add_subparsers()
         cli._group(group)(sub)
         assert tuple(sub.choices) == names, group
     every = set(leaves(cli.build_parser()))
-    assert {name.split()[0] for name in every} == set(cli.BUILT_IN) | {n for ns in cli.GROUPS.values() for n in ns}
+    assert {name.split()[0] for name in every} == set(cli.BUILT_IN) | {n for _, ns, _ in cli.GROUPS.values() for n in ns}
     probe = ("import sys, htm.cli as c; p = c.build_parser(['diagnose', 'r.csv']); "
              "print(sorted(leaves for leaves in p._subparsers._group_actions[0].choices)); "
              "print(any(m.startswith(('htm.campaign', 'htm.fleet', 'htm.fatigue', 'htm.control')) for m in sys.modules))")

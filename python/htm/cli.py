@@ -170,21 +170,23 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     return ap
 
 
-# Which subcommands each group registers: `htm diagnose` imports the identification package only,
-# not the campaign, fleet and fatigue packages with their scipy (about a second on every call).
-# tests/test_cli_output.py checks this table against what each group's `register` adds.
+# Each group of subcommands that lives with its package: the module whose `register` adds its
+# parsers, the subcommands it adds, and actions of other packages it takes (`more=`). `htm
+# diagnose` imports the identification package only, not the campaign, fleet and fatigue packages
+# with their scipy (about a second on every call). tests/test_cli_output.py checks the subcommands
+# against what each group's `register` adds.
 BUILT_IN = ("simulate", "params")  # defined in this module
-GROUPS: dict[str, tuple[str, ...]] = {
-    "run": ("run", "resume"),
-    "fatigue": ("e647", "crack"),
-    "ident": ("identify", "diagnose", "predict"),
-    "rig": ("rig",),
-    "db": ("db",),
-    "campaign": ("campaign",),
-    "life-band": ("life-band",),
-    "fleet": ("fleet",),
-    "sn": ("sn", "en"),
-    "tune": ("tune",),
+GROUPS: dict[str, tuple[str, tuple[str, ...], tuple[str, ...]]] = {
+    "run": ("htm.run", ("run", "resume"), ()),
+    "fatigue": ("htm.fatigue.cli", ("e647", "crack"), ()),
+    "ident": ("htm.ident.cli", ("identify", "diagnose", "predict"), ()),
+    "rig": ("htm.control.cli", ("rig",), ("htm.rigcampaign:add_rig_action",)),
+    "db": ("htm.record.cli", ("db",), ("htm.correct:add_db_action",)),  # `htm db correct`
+    "campaign": ("htm.campaign.cli", ("campaign",), ()),
+    "life-band": ("htm.campaign.lifeband_cli", ("life-band",), ()),
+    "fleet": ("htm.fleet.cli", ("fleet",), ()),
+    "sn": ("htm.fatigue.sn_cli", ("sn", "en"), ()),
+    "tune": ("htm.tune", ("tune",), ()),
 }
 
 
@@ -199,43 +201,20 @@ def _extensions(command: str | None = None) -> list[Callable[[argparse._SubParse
     that registers `command` when one does, every group otherwise (help, a typo's suggestions)."""
     if command in BUILT_IN:
         return []
-    wanted = [g for g, names in GROUPS.items() if command in names] or list(GROUPS)
+    wanted = [g for g, (_, names, _) in GROUPS.items() if command in names] or list(GROUPS)
     return [_group(g) for g in wanted]
 
 
 def _group(name: str) -> Callable[[argparse._SubParsersAction], None]:
-    """The `register` function of one group (importing its package)."""
-    if name == "run":
-        from htm import run as run_cli
-        return run_cli.register
-    if name == "fatigue":
-        from htm.fatigue import cli as fatigue_cli
-        return fatigue_cli.register
-    if name == "ident":
-        from htm.ident import cli as ident_cli
-        return ident_cli.register
-    if name == "rig":
-        from htm import rigcampaign
-        from htm.control import cli as rig_cli
-        return lambda sub: rig_cli.register(sub, more=[rigcampaign.add_rig_action])
-    if name == "db":
-        from htm import correct as correct_cli  # `htm db correct`, an action of record_cli's group
-        from htm.record import cli as record_cli
-        return lambda sub: record_cli.register(sub, more=[correct_cli.add_db_action])
-    if name == "campaign":
-        from htm.campaign import cli as campaign_cli
-        return campaign_cli.register
-    if name == "life-band":
-        from htm.campaign import lifeband_cli
-        return lifeband_cli.register
-    if name == "fleet":
-        from htm.fleet import cli as fleet_cli
-        return fleet_cli.register
-    if name == "sn":
-        from htm.fatigue import sn_cli
-        return sn_cli.register
-    from htm import tune as tune_cli
-    return tune_cli.register
+    """The `register` function of one group (importing its package and those of its actions)."""
+    from importlib import import_module
+
+    module, _, actions = GROUPS[name]
+    register = import_module(module).register
+    if not actions:
+        return register
+    more = [getattr(import_module(m), f) for m, f in (a.split(":") for a in actions)]
+    return lambda sub: register(sub, more=more)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
