@@ -42,11 +42,12 @@ def envelope(x: Any, y: Any, columns: int = 1500) -> tuple[Any, Any]:
     n = len(y)
     if n <= 4 * columns:
         return x, y
-    width = n // columns  # whole columns of `width` samples, the last one taking the rest
-    body = y[: width * (columns - 1)].reshape(columns - 1, width)
+    width = n // columns  # columns of `width` samples, the last one taking the rest
+    cut = width * (columns - 1)
+    body = y[:cut].reshape(columns - 1, width)
     start = np.arange(columns - 1) * width
-    lo = np.r_[start + np.argmin(body, axis=1), width * (columns - 1) + int(np.argmin(y[width * (columns - 1):]))]
-    hi = np.r_[start + np.argmax(body, axis=1), width * (columns - 1) + int(np.argmax(y[width * (columns - 1):]))]
+    lo = np.r_[start + np.argmin(body, axis=1), cut + np.argmin(y[cut:])]
+    hi = np.r_[start + np.argmax(body, axis=1), cut + np.argmax(y[cut:])]
     keep = np.column_stack([np.minimum(lo, hi), np.maximum(lo, hi)]).ravel()
     return x[keep], y[keep]
 
