@@ -102,8 +102,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _load_later_libraries() -> None:
-    import scipy.signal  # noqa: F401 - imported here to be loaded; used by htm.ident.floor and .valve
-
     from htm.report import pyplot
 
     pyplot()
@@ -115,9 +113,9 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     from htm.ident.diagnose import diagnose
 
     rec = read_record(args.record, args.meta)
-    # The libraries the last stages use (scipy.signal's filters for the model's own floor and the
-    # probes, the plotting library for report.md) load while the fit runs — its simulations
-    # release the GIL: about two seconds of imports off the end of every diagnosis.
+    # The plotting library report.md needs loads while the fit runs (its simulations release the
+    # GIL): about half a second of imports off the end of every diagnosis. (The diagnosis itself
+    # needs no scipy: htm.ident.dsp.)
     import threading
 
     threading.Thread(target=_load_later_libraries, name="htm-import", daemon=True).start()

@@ -41,7 +41,6 @@ def _one_blas_thread(f: Callable[..., Any]) -> Callable[..., Any]:
     runs each one whole on one thread, a batch over all cores)."""
     @functools.wraps(f)
     def pinned(*args: Any, **kw: Any) -> Any:
-        import scipy.linalg  # noqa: F401 - loads scipy's own BLAS now, so that the limit reaches it too
         from threadpoolctl import threadpool_limits
 
         with threadpool_limits(limits=1, user_api="blas"):

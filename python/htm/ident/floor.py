@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from htm.ident import features as ft
+from htm.ident.dsp import first_order_lag
 from htm.ident.fit import Problem, side_by_side
 from htm.ident.model import Model
 from htm.ident.settings import DEFAULT, SearchSettings
@@ -106,10 +107,7 @@ def form_regressors(prob: Problem, pred: dict[str, np.ndarray], rate: float) -> 
         z = (x - float(np.mean(x))) / s
         feats.append(z)
         for tau in prob.settings.form_lags_s:
-            a = np.exp(-dt / tau)
-            from scipy.signal import lfilter
-
-            feats.append(lfilter([1.0 - a], [1.0, -a], z))
+            feats.append(first_order_lag(z, float(np.exp(-dt / tau))))
     return np.column_stack(feats)
 
 

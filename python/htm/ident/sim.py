@@ -24,6 +24,7 @@ import numpy as np
 
 from htm.core import CHANNELS, Params, replay
 from htm.errors import HtmError, InputError, RecordError, SolverError
+from htm.ident.dsp import running_max, running_median, running_min
 from htm.ident.records import Record
 from htm.ident.family import SENSOR_EFFECTS
 
@@ -187,8 +188,6 @@ def supply_schedule(rec: Record) -> np.ndarray | None:
     closing (rolling max, then rolling min over `SUPPLY_WINDOW_S`) that removes the sag dips of
     motions and keeps level switches where they happen. None when there is no `p_s` or its level stays within
     `SUPPLY_SWITCH` (a constant supply: the model's own)."""
-    from scipy.ndimage import maximum_filter1d, median_filter, minimum_filter1d
-
     if "p_s" not in rec.columns:
         return None
     ps = np.asarray(rec.columns["p_s"], dtype=float)
@@ -200,13 +199,13 @@ def supply_schedule(rec: Record) -> np.ndarray | None:
     rate = 1.0 / float(np.median(np.diff(t)))
     # The max of raw noise is biased high: a median first (it keeps a switch's edges where they
     # are, though it shaves the narrow un-sagged tops of fast motions by a fraction of a percent).
-    ps = median_filter(ps, size=max(1, int(round(0.1 * rate)) | 1), mode="nearest")
+    ps = running_median(ps, max(1, int(round(0.1 * rate)) | 1))
     w = max(3, int(round(SUPPLY_WINDOW_S * rate)) | 1)
     # Padded a window long with the top of each end's last half window: a sag dip at an end is
     # not taken for a new level (a switch within half a window of an end is not followed).
     q = max(1, w // 2)
     padded = np.concatenate([np.full(w, ps[:q].max()), ps, np.full(w, ps[-q:].max())])
-    env = minimum_filter1d(maximum_filter1d(padded, w), w)[w:-w]
+    env = running_min(running_max(padded, w), w)[w:-w]
     mid = float(np.median(env))
     if mid <= 0 or (np.max(env) - np.min(env)) < SUPPLY_SWITCH * mid:
         return None

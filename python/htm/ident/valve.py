@@ -10,6 +10,7 @@ import numpy as np
 from htm.core import Params
 from htm.ident import features as ft
 from htm.ident import sim
+from htm.ident.dsp import welch
 from htm.ident.family import Family
 from htm.ident.model import Candidate, Derived, Free, Model, derive, get_value, has_key, lin, logf
 from htm.ident.records import Record
@@ -310,8 +311,6 @@ def _asymmetric(least: float) -> Callable[[dict[str, float]], bool]:
 def _ripple_frequencies(rec: Record, residual: dict[str, np.ndarray], rate_hz: float, top: int = 2) -> list[float]:
     """Frequencies [Hz] at which the pressure residuals' spectrum peaks far above its
     neighbourhood while the command's does not (a disturbance the experiment did not make)."""
-    from scipy.signal import welch
-
     chans = [c for c in ("p_s", "p_a", "p_b") if c in residual]
     if not chans:
         return []
@@ -320,10 +319,10 @@ def _ripple_frequencies(rec: Record, residual: dict[str, np.ndarray], rate_hz: f
     power = 0.0
     for c in chans:
         r = np.nan_to_num(np.asarray(residual[c], dtype=float))
-        f, pxx = welch(r - r.mean(), fs=rate_hz, nperseg=nper)
+        f, pxx = welch(r - r.mean(), rate_hz, nper)
         power = power + pxx / max(float(np.median(pxx)), 1e-300)
     cmd = np.nan_to_num(np.asarray(rec.columns.get("u", rec.columns["y"]), dtype=float))
-    _, pcmd = welch(cmd - cmd.mean(), fs=rate_hz, nperseg=nper)
+    _, pcmd = welch(cmd - cmd.mean(), rate_hz, nper)
     pcmd = pcmd / max(float(np.median(pcmd)), 1e-300)
     out: list[float] = []
     order = np.argsort(power)[::-1]
