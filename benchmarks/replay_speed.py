@@ -25,7 +25,10 @@ $HTM_PEER_CORE, default /work/main/python/htm/_core*.so; left out when there is 
 interleaved in the same run, best of 5: one 60 s simulation on one thread (CPU), the fit's
 point and two neighbours on its fit samples on 2 threads (a step of the fit: wall and CPU), and
 the point with 18 neighbours (a Jacobian) on 2 threads; the integrator's steps and the largest
-difference of the readings between the two builds.
+difference of the readings between the two builds. Beside the wall time, which on a shared
+machine measures the load as much as the batch, `busiest_thread_cpu_seconds`: the CPU time of
+the batch's busiest worker thread (read from /proc while the call runs, best of 5) — what the
+batch's wall time is on idle cores, and how evenly it spreads its work, whatever the load.
 
 Run: .venv/bin/python benchmarks/replay_speed.py [--peer PATH]   (prints one JSON object)
 """
@@ -37,6 +40,7 @@ import importlib.machinery
 import importlib.util
 import json
 import os
+import threading
 import time
 
 import numpy as np
@@ -112,6 +116,37 @@ def load_peer(path: str):
     return mod
 
 
+def busiest_thread_cpu(fn) -> float:
+    """CPU seconds of the busiest thread that `fn` starts (its worker threads, polled from
+    /proc/self/task every half millisecond while it runs; a thread's last reading is taken at
+    most that long before it ends)."""
+    before = set(os.listdir("/proc/self/task"))
+    seen: dict[str, int] = {}
+    stop = threading.Event()
+
+    def poll() -> None:
+        me = str(threading.get_native_id())
+        while not stop.is_set():
+            for tid in os.listdir("/proc/self/task"):
+                if tid in before or tid == me:
+                    continue
+                try:
+                    with open(f"/proc/self/task/{tid}/schedstat") as f:
+                        seen[tid] = int(f.read().split()[0])
+                except (OSError, ValueError, IndexError):
+                    pass
+            time.sleep(5e-4)
+
+    th = threading.Thread(target=poll)
+    th.start()
+    try:
+        fn()
+    finally:
+        stop.set()
+        th.join()
+    return max(seen.values()) * 1e-9 if seen else float("nan")
+
+
 def main_peer(rec, p, path: str) -> dict:
     """The fit's batches with this build and main's, interleaved: wall and CPU seconds (best of
     5), steps, and the largest reading difference between the two builds."""
@@ -152,11 +187,18 @@ def main_peer(rec, p, path: str) -> dict:
                 res[who] = mod.replay(ps, **kw)
                 wall, cpu = time.perf_counter() - t0, time.process_time() - c0
                 best[who] = [min(best[who][0], wall), min(best[who][1], cpu)]
+        busiest = {"this": np.inf, "main": np.inf}
+        if threads > 1:
+            for _ in range(5):
+                for who, mod, ps in (("main", peer, qs_peer), ("this", this, qs)):
+                    busiest[who] = min(busiest[who], busiest_thread_cpu(lambda mod=mod, ps=ps, kw=kw: mod.replay(ps, **kw)))
         diff = max(float(np.nanmax(np.abs(a[c] - b[c]))) if np.isfinite(a[c]).any() else 0.0
                    for a, b in zip(res["this"], res["main"]) for c in ("y", "p_a", "p_b"))
         out[name] = {"sets": len(qs), "threads": threads,
                      "seconds": {w: round(best[w][0], 4) for w in best}, "cpu_seconds": {w: round(best[w][1], 4) for w in best},
                      "wall_ratio_this_over_main": round(best["this"][0] / best["main"][0], 3),
+                     **({"busiest_thread_cpu_seconds": {w: round(v, 4) for w, v in busiest.items()},
+                         "busiest_thread_ratio_this_over_main": round(busiest["this"] / busiest["main"], 3)} if threads > 1 else {}),
                      "steps": {w: [sum(r["steps"] for r in res[w]), sum(r["rejected"] for r in res[w])] for w in res},
                      "max_abs_difference_y_p": diff}
     return out

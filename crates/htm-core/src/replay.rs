@@ -229,8 +229,9 @@ impl<'a> Replay<'a> {
     }
 
     /// Open loop, every set of `ps` on `threads` threads (>= 2), each run carried forward a
-    /// slice of the record at a time (`BATCH_SLICES` per record) by whichever thread is free,
-    /// the set with the most of the record left first: the sets finish together, and a batch of
+    /// slice of the record at a time (`BATCH_SLICES` per record) by whichever thread is free:
+    /// one run per thread while more sets wait to begin than there are threads, then the set with
+    /// the most of the record left first: the last sets finish together, and a batch of
     /// a few sets (three on two threads: a fit's point and two neighbours) takes the time of
     /// its work spread over the threads, not that of whole runs handed out one at a time (two
     /// runs' time for three). A run is one thread's at a time and takes its samples in order,
@@ -242,42 +243,53 @@ impl<'a> Replay<'a> {
         let sched = Mutex::new((vec![0usize; ps.len()], vec![false; ps.len()]));
         let freed = Condvar::new();
         let runs: Vec<Mutex<Option<Result<Run>>>> = ps.iter().map(|_| Mutex::new(None)).collect();
-        let work = || loop {
-            let (i, k0) = {
-                let mut sc = sched.lock().expect("no thread panics holding the schedule");
-                loop {
-                    let (done, busy) = &*sc;
-                    if let Some(i) = (0..ps.len()).filter(|&i| !busy[i] && done[i] < n).min_by_key(|&i| (done[i], i)) {
-                        sc.1[i] = true;
-                        break (i, sc.0[i]);
+        let work = || {
+            // the set this thread ran last (its state is in this core's cache)
+            let mut mine: Option<usize> = None;
+            loop {
+                let (i, k0) = {
+                    let mut sc = sched.lock().expect("no thread panics holding the schedule");
+                    loop {
+                        let (done, busy) = &*sc;
+                        let free = |i: &usize| !busy[*i] && done[*i] < n;
+                        // while as many sets wait to begin as there are threads, a thread carries on
+                        // with a run begun (its own): one run per thread, as in a plain batch; then
+                        // the most left first, so that the last runs end together
+                        let waiting = (0..ps.len()).filter(|&i| done[i] == 0 && !busy[i]).count();
+                        let carry_on = if waiting >= threads { mine.filter(free).or_else(|| (0..ps.len()).filter(free).find(|&i| done[i] > 0)) } else { None };
+                        if let Some(i) = carry_on.or_else(|| (0..ps.len()).filter(free).min_by_key(|&i| (done[i], i))) {
+                            sc.1[i] = true;
+                            break (i, sc.0[i]);
+                        }
+                        if done.iter().all(|&k| k >= n) {
+                            return;
+                        }
+                        sc = freed.wait(sc).expect("no thread panics holding the schedule");
                     }
-                    if done.iter().all(|&k| k >= n) {
-                        return;
-                    }
-                    sc = freed.wait(sc).expect("no thread panics holding the schedule");
-                }
-            };
-            let k1 = (k0 + slice).min(n);
-            let mut slot = runs[i].lock().expect("one thread holds a run at a time");
-            let start = slot.take().unwrap_or_else(|| {
-                self.start(&ps[i]).map(|mut r| {
-                    r.followed = self.followed(&plan.simulated, &r.sensors);
-                    r
-                })
-            });
-            let (run, end) = match start {
-                Ok(mut r) => match self.open_steps(&mut r, &plan, k0..k1) {
-                    Ok(()) => (Ok(r), k1),
+                };
+                let k1 = (k0 + slice).min(n);
+                let mut slot = runs[i].lock().expect("one thread holds a run at a time");
+                let start = slot.take().unwrap_or_else(|| {
+                    self.start(&ps[i]).map(|mut r| {
+                        r.followed = self.followed(&plan.simulated, &r.sensors);
+                        r
+                    })
+                });
+                let (run, end) = match start {
+                    Ok(mut r) => match self.open_steps(&mut r, &plan, k0..k1) {
+                        Ok(()) => (Ok(r), k1),
+                        Err(e) => (Err(e), n),
+                    },
                     Err(e) => (Err(e), n),
-                },
-                Err(e) => (Err(e), n),
-            };
-            *slot = Some(run);
-            drop(slot);
-            let mut sc = sched.lock().expect("no thread panics holding the schedule");
-            (sc.0[i], sc.1[i]) = (end, false);
-            drop(sc);
-            freed.notify_all();
+                };
+                *slot = Some(run);
+                drop(slot);
+                let mut sc = sched.lock().expect("no thread panics holding the schedule");
+                (sc.0[i], sc.1[i]) = (end, false);
+                drop(sc);
+                freed.notify_all();
+                mine = Some(i);
+            }
         };
         std::thread::scope(|s| {
             for _ in 0..threads {
