@@ -19,12 +19,28 @@ spool's decoupled block apart (`OdeSystem::DECOUPLED_TAIL`, the default) against
 of the coupled 7-state system (`dense_stages=True`, the form before): CPU and wall seconds (best of
 5, interleaved), steps, and the largest difference of the readings between the two.
 
-Run: .venv/bin/python benchmarks/replay_speed.py   (prints one JSON object)
+`main_peer`: the fit's batches on the recorded command with this build and with main's (the
+extension module built from branch main, loaded beside this one from `--peer` or
+$HTM_PEER_CORE, default /work/main/python/htm/_core*.so; left out when there is none),
+interleaved in the same run, best of 5: one 60 s simulation on one thread (CPU), the fit's
+point and two neighbours on its fit samples on 2 threads (a step of the fit: wall and CPU), and
+the point with 18 neighbours (a Jacobian) on 2 threads; the integrator's steps and the largest
+difference of the readings between the two builds. Beside the wall time, which on a shared
+machine measures the load as much as the batch, `busiest_thread_cpu_seconds`: the CPU time of
+the batch's busiest worker thread (read from /proc while the call runs, best of 5) — what the
+batch's wall time is on idle cores, and how evenly it spreads its work, whatever the load.
+
+Run: .venv/bin/python benchmarks/replay_speed.py [--peer PATH]   (prints one JSON object)
 """
 from __future__ import annotations
 
+import argparse
+import glob
+import importlib.machinery
+import importlib.util
 import json
 import os
+import threading
 import time
 
 import numpy as np
@@ -45,6 +61,10 @@ def best_of(fn, n=3):
 
 
 def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--peer", help="main's build of htm._core (a .so file) for `main_peer`")
+    a = ap.parse_args()
+    peer_path = a.peer or os.environ.get("HTM_PEER_CORE") or next(iter(glob.glob("/work/main/python/htm/_core*.so")), None)
     rec, truth = proving.make_record({}, seed=1, duration_s=60, rate_hz=500)
     p = sim.params_from_meta(rec.meta)
     for k, v in truth["params"].items():
@@ -64,6 +84,7 @@ def main() -> None:
     t_all, cpu_all, _ = best_of(lambda: sim.predict(batch, rec), n=1)
     jac = jacobian_peer(rec, p)
     block = spool_block(rec, p)
+    peer = main_peer(rec, p, peer_path) if peer_path and os.path.exists(peer_path) else None
     print(json.dumps({
         "record_s": 60.0, "rate_hz": 500, "rtol": sim.RTOL,
         "seconds_per_simulation": round(t_fit, 4),
@@ -81,7 +102,106 @@ def main() -> None:
         "peer": {"target_seconds_per_simulation": 0.1},
         "jacobian": jac,
         "spool_block": block,
+        "main_peer": peer,
     }, indent=2))
+
+
+def load_peer(path: str):
+    """main's build of the extension module, loaded beside this one (its own module object)."""
+    loader = importlib.machinery.ExtensionFileLoader("_core", path)
+    spec = importlib.util.spec_from_file_location("_core", path, loader=loader)
+    assert spec is not None
+    mod = importlib.util.module_from_spec(spec)
+    loader.exec_module(mod)
+    return mod
+
+
+def busiest_thread_cpu(fn) -> float:
+    """CPU seconds of the busiest thread that `fn` starts (its worker threads, polled from
+    /proc/self/task every half millisecond while it runs; a thread's last reading is taken at
+    most that long before it ends)."""
+    before = set(os.listdir("/proc/self/task"))
+    seen: dict[str, int] = {}
+    stop = threading.Event()
+
+    def poll() -> None:
+        me = str(threading.get_native_id())
+        while not stop.is_set():
+            for tid in os.listdir("/proc/self/task"):
+                if tid in before or tid == me:
+                    continue
+                try:
+                    with open(f"/proc/self/task/{tid}/schedstat") as f:
+                        seen[tid] = int(f.read().split()[0])
+                except (OSError, ValueError, IndexError):
+                    pass
+            time.sleep(5e-4)
+
+    th = threading.Thread(target=poll)
+    th.start()
+    try:
+        fn()
+    finally:
+        stop.set()
+        th.join()
+    return max(seen.values()) * 1e-9 if seen else float("nan")
+
+
+def main_peer(rec, p, path: str) -> dict:
+    """The fit's batches with this build and main's, interleaved: wall and CPU seconds (best of
+    5), steps, and the largest reading difference between the two builds."""
+    from htm import _core as this
+    from htm.ident.fit import spread_blocks
+
+    peer = load_peer(path)
+    n = len(rec.columns["t"])
+    fit_mask, _ = spread_blocks(n, 500.0, sim.DEFAULT_HORIZON_S, 20.0)
+    args = sim._setup(rec, True) | {"supply": np.ascontiguousarray(sim.supply_schedule(rec), dtype=float),
+                                    "horizon_s": sim.DEFAULT_HORIZON_S, "preroll_s": sim.PREROLL_S, "rtol": sim.RTOL}
+    rng = np.random.default_rng(1)
+    sets = [p.copy()]
+    for _ in range(18):
+        q = p.copy()
+        for f in ("moving_mass_kg", "bulk_modulus_pa", "valve_rated_flow_m3_s", "friction_coulomb_pos_n"):
+            q[f] = q[f] * (1.0 + 1e-3 * rng.standard_normal())
+        sets.append(q)
+
+    def as_peer(q):
+        r = peer.Params("base")
+        for k, v in q.to_dict().items():
+            r[k] = v
+        r.valve_map = q.valve_map
+        return r
+
+    cases = {"one_simulation_1_thread": (sets[:1], None, 1), "fit_step_3_sets_2_threads": (sets[:3], fit_mask, 2),
+             "jacobian_19_sets_2_threads": (sets, fit_mask, 2)}
+    out: dict = {"peer": path}
+    for name, (qs, active, threads) in cases.items():
+        kw = args | {"threads": threads} | ({"active": np.ascontiguousarray(active)} if active is not None else {})
+        qs_peer = [as_peer(q) for q in qs]
+        best = {"this": [np.inf, np.inf], "main": [np.inf, np.inf]}
+        res = {}
+        for _ in range(5):
+            for who, mod, ps in (("main", peer, qs_peer), ("this", this, qs)):
+                t0, c0 = time.perf_counter(), time.process_time()
+                res[who] = mod.replay(ps, **kw)
+                wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+                best[who] = [min(best[who][0], wall), min(best[who][1], cpu)]
+        busiest = {"this": np.inf, "main": np.inf}
+        if threads > 1:
+            for _ in range(5):
+                for who, mod, ps in (("main", peer, qs_peer), ("this", this, qs)):
+                    busiest[who] = min(busiest[who], busiest_thread_cpu(lambda mod=mod, ps=ps, kw=kw: mod.replay(ps, **kw)))
+        diff = max(float(np.nanmax(np.abs(a[c] - b[c]))) if np.isfinite(a[c]).any() else 0.0
+                   for a, b in zip(res["this"], res["main"]) for c in ("y", "p_a", "p_b"))
+        out[name] = {"sets": len(qs), "threads": threads,
+                     "seconds": {w: round(best[w][0], 4) for w in best}, "cpu_seconds": {w: round(best[w][1], 4) for w in best},
+                     "wall_ratio_this_over_main": round(best["this"][0] / best["main"][0], 3),
+                     **({"busiest_thread_cpu_seconds": {w: round(v, 4) for w, v in busiest.items()},
+                         "busiest_thread_ratio_this_over_main": round(busiest["this"] / busiest["main"], 3)} if threads > 1 else {}),
+                     "steps": {w: [sum(r["steps"] for r in res[w]), sum(r["rejected"] for r in res[w])] for w in res},
+                     "max_abs_difference_y_p": diff}
+    return out
 
 
 def spool_block(rec, p) -> dict:

@@ -9,6 +9,7 @@ use crate::machine::{Machine, Outputs, PA, PB, V, Y};
 use crate::measure::{as_outputs, corrupt, held, Corruption, Probe, Sensors, NC};
 use crate::params::Params;
 use crate::solver::Stats;
+use std::sync::{Condvar, Mutex};
 
 /// What to re-simulate: the record's signals and how to drive the model with them.
 #[derive(Debug, Clone)]
@@ -198,21 +199,109 @@ impl<'a> Replay<'a> {
                 }
             }
             None => {
-                let u = held(self.u);
-                let simulated = self.simulated();
-                run.followed = self.followed(&simulated, &run.sensors);
-                let every = self.every();
-                for (k, &uk) in u.iter().enumerate() {
-                    if self.open_sample(&mut run, k, uk, &simulated, every) {
-                        run.m.step(uk, self.dt)?;
-                    } else {
-                        run.m.step_valve(uk, self.dt);
-                    }
-                }
+                let plan = self.open_plan();
+                run.followed = self.followed(&plan.simulated, &run.sensors);
+                self.open_steps(&mut run, &plan, 0..n)?;
             }
         }
         run.out.stats = run.m.stats();
         Ok(run.out)
+    }
+
+    /// Open loop: what every parameter set's run shares (the held command, the samples
+    /// simulated, the restart period).
+    fn open_plan(&self) -> OpenPlan {
+        OpenPlan { u: held(self.u), simulated: self.simulated(), every: self.every() }
+    }
+
+    /// Open loop: samples `ks` of a run, in order (a whole run is one call over every sample,
+    /// or consecutive calls over consecutive ranges: the same operations either way).
+    fn open_steps(&self, run: &mut Run, plan: &OpenPlan, ks: std::ops::Range<usize>) -> Result<()> {
+        for k in ks {
+            let uk = plan.u[k];
+            if self.open_sample(run, k, uk, &plan.simulated, plan.every) {
+                run.m.step(uk, self.dt)?;
+            } else {
+                run.m.step_valve(uk, self.dt);
+            }
+        }
+        Ok(())
+    }
+
+    /// Open loop, every set of `ps` on `threads` threads (>= 2), each run carried forward a
+    /// slice of the record at a time (`BATCH_SLICES` per record) by whichever thread is free:
+    /// one run per thread while more sets wait to begin than there are threads, then the set with
+    /// the most of the record left first: the last sets finish together, and a batch of
+    /// a few sets (three on two threads: a fit's point and two neighbours) takes the time of
+    /// its work spread over the threads, not that of whole runs handed out one at a time (two
+    /// runs' time for three). A run is one thread's at a time and takes its samples in order,
+    /// so each set's readings are those of [`run`](Self::run), bit for bit.
+    fn open_batch(&self, ps: &[Params], threads: usize) -> Vec<Result<Replayed>> {
+        let (n, plan) = (self.n(), self.open_plan());
+        let slice = n.div_ceil(BATCH_SLICES).max(1);
+        // per set: the samples done (n: finished or failed) and whether a thread holds its run
+        let sched = Mutex::new((vec![0usize; ps.len()], vec![false; ps.len()]));
+        let freed = Condvar::new();
+        let runs: Vec<Mutex<Option<Result<Run>>>> = ps.iter().map(|_| Mutex::new(None)).collect();
+        let work = || {
+            // the set this thread ran last (its state is in this core's cache)
+            let mut mine: Option<usize> = None;
+            loop {
+                let (i, k0) = {
+                    let mut sc = sched.lock().expect("no thread panics holding the schedule");
+                    loop {
+                        let (done, busy) = &*sc;
+                        let free = |i: &usize| !busy[*i] && done[*i] < n;
+                        // while as many sets wait to begin as there are threads, a thread carries on
+                        // with a run begun (its own): one run per thread, as in a plain batch; then
+                        // the most left first, so that the last runs end together
+                        let waiting = (0..ps.len()).filter(|&i| done[i] == 0 && !busy[i]).count();
+                        let carry_on = if waiting >= threads { mine.filter(free).or_else(|| (0..ps.len()).filter(free).find(|&i| done[i] > 0)) } else { None };
+                        if let Some(i) = carry_on.or_else(|| (0..ps.len()).filter(free).min_by_key(|&i| (done[i], i))) {
+                            sc.1[i] = true;
+                            break (i, sc.0[i]);
+                        }
+                        if done.iter().all(|&k| k >= n) {
+                            return;
+                        }
+                        sc = freed.wait(sc).expect("no thread panics holding the schedule");
+                    }
+                };
+                let k1 = (k0 + slice).min(n);
+                let mut slot = runs[i].lock().expect("one thread holds a run at a time");
+                let start = slot.take().unwrap_or_else(|| {
+                    self.start(&ps[i]).map(|mut r| {
+                        r.followed = self.followed(&plan.simulated, &r.sensors);
+                        r
+                    })
+                });
+                let (run, end) = match start {
+                    Ok(mut r) => match self.open_steps(&mut r, &plan, k0..k1) {
+                        Ok(()) => (Ok(r), k1),
+                        Err(e) => (Err(e), n),
+                    },
+                    Err(e) => (Err(e), n),
+                };
+                *slot = Some(run);
+                drop(slot);
+                let mut sc = sched.lock().expect("no thread panics holding the schedule");
+                (sc.0[i], sc.1[i]) = (end, false);
+                drop(sc);
+                freed.notify_all();
+                mine = Some(i);
+            }
+        };
+        std::thread::scope(|s| {
+            for _ in 0..threads {
+                s.spawn(work);
+            }
+        });
+        runs.into_iter().map(|r| {
+            r.into_inner().expect("the threads are done").expect("every set was run").map(|mut r| {
+                r.out.stats = r.m.stats();
+                r.out
+            })
+        }).collect()
     }
 
     /// Re-simulate with `ps[0]` and, in lockstep with it, every other set of `ps` (sets that
@@ -352,8 +441,17 @@ impl<'a> Replay<'a> {
     }
 
     /// Re-simulate with every parameter set, spread over `threads` threads (0 = all cores).
+    /// Open loop, the runs advance a slice of the record at a time on whichever thread is free
+    /// (`open_batch`): the same readings as [`run`](Self::run) for each set.
     pub fn run_batch(&self, ps: &[Params], threads: usize) -> Vec<Result<Replayed>> {
-        crate::batch::par_map(ps, threads, |p| self.run(p))
+        let threads = if threads == 0 { std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1) } else { threads };
+        if self.closed_loop.is_some() || ps.len() < 2 || threads < 2 {
+            return crate::batch::par_map(ps, threads, |p| self.run(p));
+        }
+        if let Err(e) = self.validate() {
+            return ps.iter().map(|_| Err(e.clone())).collect();
+        }
+        self.open_batch(ps, threads.min(ps.len()))
     }
 
     /// [`run_lockstep`](Self::run_lockstep) spread over `threads` threads (0 = all cores): the
@@ -445,6 +543,21 @@ impl<'a> Replay<'a> {
             }
         }
     }
+}
+
+/// Open loop: a record's slices per run in a batch (`Replay::open_batch`): fine enough that the
+/// runs' ends meet within a slice, coarse enough that handing a run between threads (a lock and
+/// its state's cache lines) costs nothing next to the slice's integration.
+pub const BATCH_SLICES: usize = 32;
+
+/// Open loop: what every parameter set's run shares.
+struct OpenPlan {
+    /// the recorded command, dropped samples held
+    u: Vec<f64>,
+    /// the samples integrated (`Replay::simulated`)
+    simulated: Vec<bool>,
+    /// the position put back on the measurement every this many samples
+    every: usize,
 }
 
 /// One parameter set's run over the record: its machine, sensors, readings so far and supply.
@@ -713,6 +826,55 @@ mod tests {
                 assert!(moved > 1e4, "{name}: {moved}");
             }
         }
+    }
+
+    #[test]
+    fn a_batch_carried_in_slices_across_threads_reads_as_each_set_run_alone() {
+        // a fit's point and its neighbours on part of an open-loop record, a delayed sensor and
+        // a spool form among them, and one set the plant rejects
+        let mut p = Params::base();
+        p.valve_natural_hz = 300.0;
+        let r = ramp(2000);
+        let u0 = vec![0.0; r.len()];
+        let mut rp = Replay::new(2e-3, &u0);
+        rp.closed_loop = Some((PFF, &r));
+        let truth = rp.run(&p).unwrap();
+        let mut ol = Replay::new(2e-3, &truth.u);
+        for c in 0..4 {
+            ol.measured[c] = Some(&truth.readings[c]);
+        }
+        let mask: Vec<bool> = (0..r.len()).map(|k| (k / 150) % 3 == 1).collect();
+        let mut sets = vec![p.clone()];
+        for f in ["moving_mass_kg", "bulk_modulus_pa", "valve_rated_flow_m3_s", "sensor_delay_p_a_s", "valve_tau_s"] {
+            let mut q = p.clone();
+            let v = q.get(f).unwrap();
+            q.set(f, if v > 0.0 { v * 1.05 } else { 3e-3 }).unwrap();
+            sets.push(q);
+        }
+        let mut bad = p.clone();
+        bad.moving_mass_kg = -1.0;
+        sets.push(bad);
+        for active in [None, Some(&mask[..])] {
+            ol.active = active;
+            let alone: Vec<Result<Replayed>> = sets.iter().map(|q| ol.run(q)).collect();
+            let bits = |r: &Replayed| (r.readings.iter().flatten().chain(&r.u).map(|v| v.to_bits()).collect::<Vec<u64>>(), r.stats);
+            for threads in [2, 3, 8] {
+                for n in [2, 3, sets.len()] {
+                    let batch = ol.run_batch(&sets[..n], threads);
+                    assert_eq!(batch.len(), n);
+                    for (i, (a, b)) in alone.iter().zip(&batch).enumerate() {
+                        match (a, b) {
+                            (Ok(a), Ok(b)) => assert!(bits(a) == bits(b), "set {i}, {threads} threads, {n} sets"),
+                            (Err(a), Err(b)) => assert_eq!(a.to_string(), b.to_string()),
+                            _ => panic!("set {i}: {:?} vs {:?}", a.as_ref().err(), b.as_ref().err()),
+                        }
+                    }
+                }
+            }
+        }
+        // a record the replay rejects: every set gets its error
+        ol.horizon_s = -1.0;
+        assert!(ol.run_batch(&sets[..3], 2).iter().all(|r| r.as_ref().unwrap_err().to_string().contains("horizon_s")));
     }
 
     #[test]
