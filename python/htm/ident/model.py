@@ -204,6 +204,9 @@ class Candidate:
     # such test). The effect must cut the held-out error there (`search.pays_off`); a record that
     # never gets there cannot tell it from the base's form.
     shows: Callable[[], np.ndarray] | None = None
+    # The same effect on another coordinate (a vertical rig's asymmetry with the weight it trades
+    # with held): refitted beside this one, the better fit kept (`Selector.refit_one`).
+    alternate: "Candidate | None" = None
 
     def report(self, p: Any) -> dict[str, float]:
         return {name: float(p[key]) for name, key in self.fields}

@@ -410,10 +410,18 @@ class Selector:
         """Refit one screened candidate from the current fit and from the nominal base parameters
         (the current fit may have bent them to stand in for this very effect), each at the best
         size of the candidate's parameter; keep the better fit, judged."""
-        starts = [start.with_candidate(sc.cand, sc.step) for start in _restarts(self.model, self.x0, self.xn)]
-        trial, twork, tjac = fit(self.prob, _scan(self.prob, starts, sc.cand, q), iters=self.st.refit_iters)
-        tpred, verdict = judge(self.prob, self.pred, trial, twork, self.model, sc.cand)
-        return Trial(sc.cand, trial, twork, tpred, verdict, tjac, trial.x)
+        best: tuple[Candidate, Model, dict, np.ndarray] | None = None
+        # A candidate with an alternate coordinate (`Candidate.alternate`: a vertical rig's
+        # asymmetry with the weight it trades with held) is refitted both ways; the better fit is kept.
+        for cand in (sc.cand, sc.cand.alternate) if sc.cand.alternate is not None else (sc.cand,):
+            starts = [start.with_candidate(cand, sc.step) for start in _restarts(self.model, self.x0, self.xn)]
+            trial, twork, tjac = fit(self.prob, _scan(self.prob, starts, cand, q), iters=self.st.refit_iters)
+            if best is None or self.prob.fit_cost(twork) < self.prob.fit_cost(best[2]):
+                best = (cand, trial, twork, tjac)
+        assert best is not None
+        cand, trial, twork, tjac = best
+        tpred, verdict = judge(self.prob, self.pred, trial, twork, self.model, cand)
+        return Trial(cand, trial, twork, tpred, verdict, tjac, trial.x)
 
     def sibling_check(self, chosen: Trial, screened: dict[tuple[str, str | None], Screened]) -> Trial | None:
         """A sensor fault chosen on a reading with a sibling (the other chamber's pressure, measured

@@ -23,9 +23,6 @@ MIN_NULL_BIAS = DEFAULT.min_null_bias
 MIN_LEAKAGE = DEFAULT.min_leakage
 MIN_VALVE_LAG = DEFAULT.min_valve_lag
 MIN_SAG = DEFAULT.min_sag
-# The friction_asymmetry candidate's free: plain, or with the weight it trades with held
-# (settings.asymmetry_weighed).
-ASYMMETRY_KEY = {False: "friction_coulomb_diff_n", True: "friction_coulomb_diff_weighed_n"}
 # Base-model parameters stated by the metadata (nominal; bounds say how far a rig may be off).
 RIG_FREES = [
     logf("moving_mass_kg", 0.4, 2.5, prior=0.3),
@@ -240,8 +237,11 @@ class ValveFamily(Family):
             cand("internal_leakage", None, (lin("leakage_coeff_m3_per_s_pa", 1e-12, 0.0, 1e3),), "load pressure",
                  claimable=_share_of("coeff_m3_per_s_pa", st.min_leakage * p["valve_rated_flow_m3_s"]
                                      / max(p["supply_pressure_pa"], 1.0))),
-            cand("friction_asymmetry", None, (lin(ASYMMETRY_KEY[st.asymmetry_weighed], 50.0, -100.0, 100.0),), "sign(v)",
-                 claimable=_asymmetric(st.min_asymmetry)),
+            cand("friction_asymmetry", None, (lin("friction_coulomb_diff_n", 50.0, -100.0, 100.0),), "sign(v)",
+                 claimable=_asymmetric(st.min_asymmetry),
+                 alternate=cand("friction_asymmetry", None, (lin("friction_coulomb_diff_weighed_n", 50.0, -100.0, 100.0),),
+                                "sign(v)", claimable=_asymmetric(st.min_asymmetry))
+                 if st.asymmetry_weighed and p["gravity_m_s2"] > 0 else None),
             cand("pressure_dependent_friction", None, (lin("friction_pressure_coeff_n_per_pa", 1e-6, 0.0, 1e3, step=2.0),),
                  "(p_a + p_b) sign(v)"),
             cand("entrained_air", None, (lin("air_fraction", 1e-3, 0.0, 100.0, step=5.0),), "p_a + p_b",
