@@ -310,3 +310,71 @@ def test_a_delay_that_fits_its_own_reading_at_the_others_cost_is_not_claimed_and
     assert v.numbers()["others_worse"] == pytest.approx(22.0, rel=0.1)
     assert verdict("sensor_offset").ok
     assert verdict("sensor_delay", dataclasses.replace(DEFAULT, max_others_worse=30.0)).ok
+
+
+def test_a_vertical_rigs_asymmetry_moves_with_the_weight_it_trades_with_held_and_the_setting_switches_it():
+    """In motion a Coulomb pair C +- d adds d to the friction force whichever the direction, as a
+    weight d/g would: the base fit without the asymmetry takes it into the mass (a true 980/560 N
+    pair read as 74 kg against 53 kg). On a vertical rig the friction_asymmetry candidate has an
+    alternate free that holds m g + d: d moves the split only (set by the inertia and the holds);
+    `asymmetry_weighed` off, or a horizontal rig (no weight to trade), the plain pair alone."""
+    import numpy as np
+
+    from htm.ident.features import measured_channels
+    from htm.ident.model import Model
+    from htm.ident.valve import ValveFamily
+
+    rec, _ = offset_record()
+    channels = measured_channels(rec.columns)
+    scales = dict.fromkeys(channels, 1.0)
+
+    def moved(orientation: str, settings: SearchSettings = DEFAULT) -> tuple[float, float, float]:
+        meta = json.loads(json.dumps(rec.meta))
+        meta["rig"]["orientation"] = orientation
+        fam = ValveFamily(type(rec)(rec.columns, meta, rec.name), channels, settings=settings)
+        [plain] = [c for c in fam.candidates(scales, 500.0) if c.effect == "friction_asymmetry"]
+        cand = plain.alternate or plain  # refitted beside the plain pair (`Selector.refit_one`)
+        base = Model(fam.nominal, list(fam.base_frees), np.zeros(len(fam.base_frees)))
+        p0, p1 = base.params(), base.with_candidate(cand, 4.0).params()  # d = 4 x 50 N
+        d = 0.5 * (p1["friction_coulomb_pos_n"] - p1["friction_coulomb_neg_n"])
+        g = p1["gravity_m_s2"]
+        assert d == pytest.approx(200.0)
+        assert p1["friction_coulomb_pos_n"] + p1["friction_coulomb_neg_n"] == pytest.approx(2 * p0["friction_coulomb_pos_n"])
+        return p0["moving_mass_kg"], p1["moving_mass_kg"], g
+
+    m0, m1, g = moved("vertical")
+    assert g > 9 and m1 == pytest.approx(m0 - 200.0 / g)  # the force in motion, m g + d, held
+    m0, m1, _ = moved("vertical", dataclasses.replace(DEFAULT, asymmetry_weighed=False))
+    assert m1 == m0
+    m0, m1, _ = moved("horizontal")
+    assert m1 == m0
+
+
+def test_entrained_air_is_judged_where_a_chamber_runs_low_and_the_setting_moves_the_line():
+    """Entrained air's compliance grows as 1/p^2: at a chamber's typical pressure it is a level the
+    bulk modulus and dead volumes set as well, and the candidate is judged on the samples where a
+    chamber's absolute pressure is at or below its median over sqrt(signature_contrast)."""
+    import numpy as np
+
+    from htm.ident.features import measured_channels
+    from htm.ident.valve import ValveFamily
+
+    rec, _ = offset_record()
+    channels = measured_channels(rec.columns)
+    scales = dict.fromkeys(channels, 1.0)
+
+    def shows(settings: SearchSettings = DEFAULT):
+        fam = ValveFamily(rec, channels, settings=settings)
+        [cand] = [c for c in fam.candidates(scales, 500.0) if c.effect == "entrained_air"]
+        return cand.shows
+
+    mask = shows()()
+    expected = np.zeros(len(mask), dtype=bool)
+    for c in ("p_a", "p_b"):
+        p = np.asarray(rec.columns[c]) + 101325.0
+        expected |= p <= np.median(p) / np.sqrt(DEFAULT.signature_contrast)
+    assert np.array_equal(mask, expected)
+    assert 0 < mask.sum() < len(mask)
+    assert shows(dataclasses.replace(DEFAULT, signature_contrast=4.0))().sum() < mask.sum()
+    assert shows(dataclasses.replace(DEFAULT, signature_contrast=0.0)) is None
+

@@ -372,3 +372,51 @@ def test_probes_are_refitted_one_at_a_time_until_one_pays_off_and_the_trace_says
     off = dataclasses.replace(DEFAULT, probe_one_first=False)
     fitted, best, named = run(off, {"position_friction": -100.0, "position_damping": -300.0})
     assert sorted(fitted) == ["position_damping", "position_friction"] and best == "position_damping" and not named
+
+
+def test_an_effect_must_gain_where_it_shows_not_only_where_the_bases_parameters_could():
+    # Toy: a stiffness-like effect `s` scales channel `a` by 1/(1 + s/p^2) (entrained air's form)
+    # where `p` dips low on a few samples. The record's own misfit is a level (the base's form) on
+    # every sample: an effect sized to take the level where p is typical but that gets the dips
+    # wrong pays off by the cost and fails `gains where it shows`; the same effect as the record
+    # carries it (the dips right) passes; a record whose p never dips cannot tell it (no samples).
+    from htm.ident.fit import Problem, blocks
+    from htm.ident.model import Candidate, lin
+    from htm.ident.records import Record
+    from htm.ident.search import RULES, gains_where_it_shows, pays_off
+
+    rng = np.random.default_rng(7)
+    n = 4000
+    t = np.arange(n) * 1e-3
+    p = np.full(n, 90.0)
+    p[(np.arange(n) % 200) < 10] = 60.0  # short dips, 5 % of the samples, on both sides of the split
+    low = p < 90.0 / np.sqrt(2.0)
+
+    def simulate(plist, rec, **opts):
+        m = len(rec.columns["t"])
+        return [{"a": 100.0 * q["k"] / (1.0 + q["s"] / p[:m] ** 2), "b": np.zeros(m)} for q in plist]
+
+    fit_mask, val_mask = blocks(n, n, 1e3)
+
+    def verdict(truth_k, truth_s, trial_s, where=low):
+        rec = Record({"t": t, "y": p, "a": 100.0 * truth_k / (1.0 + truth_s / p**2) + rng.normal(0, 0.05, n),
+                      "b": rng.normal(0, 0.05, n)}, {}, "toy")
+        prob = Problem(rec, simulate, ["a", "b"], {"a": 0.05, "b": 0.05}, n, fit_mask, val_mask)
+        cand = Candidate("entrained_air", None, (lin("s", 1.0, 0.0, 1e6),), "p", fields=(("s", "s"),), shows=lambda: where)
+        base = Model({"k": 1.0, "s": 0.0}, [lin("k", 1.0, 0.0, 2.0)], np.ones(1))
+        pred0 = prob.predict([base.params()], whole=True)[0]
+        trial = base.with_candidate(cand, trial_s)
+        tpred = prob.predict([trial.params()], whole=True)[0]
+        return pays_off(prob, pred0, trial, tpred, base, cand), gains_where_it_shows(prob, pred0, tpred, cand)
+
+    # the record is 2 % softer everywhere (a level): s = 0.0204 * 90^2 takes it at p = 90 and
+    # overshoots in the dips (4.4 % at p = 60)
+    v, (shown, numbers) = verdict(0.98, 0.0, 0.0204 * 90.0**2)
+    assert v.dcost < -0.5, "it does buy the fit at the typical pressure"
+    assert not v.ok and RULES[7] in v.failed and not shown and numbers["after"] > numbers["before"]
+    # true air of that size: the dips gain most
+    v, (shown, _) = verdict(1.0, 0.0204 * 90.0**2, 0.0204 * 90.0**2)
+    assert v.ok and shown
+    # a record whose pressure never dips: not separable from the level, not claimed
+    v, (shown, numbers) = verdict(1.0, 0.0204 * 90.0**2, 0.0204 * 90.0**2, where=np.zeros(n, dtype=bool))
+    assert not v.ok and not shown and numbers == {"samples": 0}

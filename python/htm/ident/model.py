@@ -199,6 +199,14 @@ class Candidate:
     # parts, each a candidate on a contiguous run of these frees; refitted beside the single
     # candidates every round, and found as one finding per part.
     parts: tuple["Candidate", ...] = ()
+    # The samples where the effect stands apart from what the base's own parameters can mimic
+    # (entrained air: where a chamber's pressure runs low), as a mask over the record (None: no
+    # such test). The effect must cut the held-out error there (`search.pays_off`); a record that
+    # never gets there cannot tell it from the base's form.
+    shows: Callable[[], np.ndarray] | None = None
+    # The same effect on another coordinate (a vertical rig's asymmetry with the weight it trades
+    # with held): refitted beside this one, the better fit kept (`Selector.refit_one`).
+    alternate: "Candidate | None" = None
 
     def report(self, p: Any) -> dict[str, float]:
         return {name: float(p[key]) for name, key in self.fields}

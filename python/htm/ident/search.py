@@ -71,6 +71,7 @@ class Verdict:
     close_rules: tuple[str, ...] = ()
     alternative: str = ""
     others_worse: float = 0.0
+    shows: dict[str, float] | None = None  # where the effect stands apart from the base's form (`gains_where_it_shows`)
 
     def __getitem__(self, key: str) -> Any:
         return getattr(self, key)
@@ -83,6 +84,8 @@ class Verdict:
                "claimable": self.claimable}
         if self.others_worse:
             out["others_worse"] = self.others_worse
+        if self.shows is not None:
+            out["where_it_shows"] = self.shows
         return out
 
     @property
@@ -101,7 +104,7 @@ class Verdict:
 
 # The rules of `pays_off`, by the names the trace uses.
 RULES = ("dBIC < 0", "dcost < -min_gain", "ablation dBIC < 0", "ablation dcost < -min_gain", "explained >= min_share",
-         "claimable size", "others no worse than max_others_worse")
+         "claimable size", "others no worse than max_others_worse", "gains where it shows")
 # The effects whose fault is one reading's and that trade with the loop's phase (every channel):
 # judged also by what they do to the other readings (`others_worse`).
 PHASE_FAULTS = ("sensor_delay",)
@@ -383,7 +386,15 @@ class Selector:
                 self.pool = [c for c in self.pool if c.key != cand.key]
                 too_small = True
                 tr.add("judge", cand.label, "claimable size", "left the pool: too small to claim")
-            if verdict.dcost < -st.min_gain and RULES[6] not in verdict.failed:
+            elif RULES[7] in verdict.failed:
+                # It gains only where the base's own parameters mimic it, not where it shows: the
+                # base's form (its parameters left in a wrong basin), not to be screened again.
+                self.pool = [c for c in self.pool if c.key != cand.key]
+                too_small = True
+                tr.add("judge", cand.label, "gains where it shows (signature_contrast)",
+                       "left the pool: it stands in for the base's own parameters", **(verdict.shows or {}),
+                       signature_contrast=st.signature_contrast)
+            if verdict.dcost < -st.min_gain and RULES[6] not in verdict.failed and RULES[7] not in verdict.failed:
                 # Not the effect but a better fit of the base parameters: remember those — not a
                 # phase fault's, dropped for what it does to the other readings: its base
                 # parameters were bent around it and would carry it into the next round. (A refit
@@ -399,10 +410,18 @@ class Selector:
         """Refit one screened candidate from the current fit and from the nominal base parameters
         (the current fit may have bent them to stand in for this very effect), each at the best
         size of the candidate's parameter; keep the better fit, judged."""
-        starts = [start.with_candidate(sc.cand, sc.step) for start in _restarts(self.model, self.x0, self.xn)]
-        trial, twork, tjac = fit(self.prob, _scan(self.prob, starts, sc.cand, q), iters=self.st.refit_iters)
-        tpred, verdict = judge(self.prob, self.pred, trial, twork, self.model, sc.cand)
-        return Trial(sc.cand, trial, twork, tpred, verdict, tjac, trial.x)
+        best: tuple[Candidate, Model, dict, np.ndarray] | None = None
+        # A candidate with an alternate coordinate (`Candidate.alternate`: a vertical rig's
+        # asymmetry with the weight it trades with held) is refitted both ways; the better fit is kept.
+        for cand in (sc.cand, sc.cand.alternate) if sc.cand.alternate is not None else (sc.cand,):
+            starts = [start.with_candidate(cand, sc.step) for start in _restarts(self.model, self.x0, self.xn)]
+            trial, twork, tjac = fit(self.prob, _scan(self.prob, starts, cand, q), iters=self.st.refit_iters)
+            if best is None or self.prob.fit_cost(twork) < self.prob.fit_cost(best[2]):
+                best = (cand, trial, twork, tjac)
+        assert best is not None
+        cand, trial, twork, tjac = best
+        tpred, verdict = judge(self.prob, self.pred, trial, twork, self.model, cand)
+        return Trial(cand, trial, twork, tpred, verdict, tjac, trial.x)
 
     def sibling_check(self, chosen: Trial, screened: dict[tuple[str, str | None], Screened]) -> Trial | None:
         """A sensor fault chosen on a reading with a sibling (the other chamber's pressure, measured
@@ -879,8 +898,9 @@ def pays_off(prob: Problem, pred0: dict, trial: Model, tpred: dict, before: Mode
     share = prob.explained(pred0, tpred, only=own)
     big = cand.claimable is None or cand.claimable(cand.report(trial.params()))
     worse = others_worse(prob, pred0, tpred, cand)
+    shown, shows = gains_where_it_shows(prob, pred0, tpred, cand)
     met = (dbic < 0, dcost < -st.min_gain, abic < 0, acost < -st.min_gain, share >= st.min_share, big,
-           worse <= st.max_others_worse)
+           worse <= st.max_others_worse, shown)
     near = _near(st, dcost, acost, share)
     failed = [i for i, ok in enumerate(met) if not ok]
     # Close: a graded number within close_margin of its threshold (the ΔBIC and the size are not
@@ -889,7 +909,27 @@ def pays_off(prob: Problem, pred0: dict, trial: Model, tpred: dict, before: Mode
     close = any(near) if not failed else all(near[i] for i in failed)
     close_rules = tuple(RULES[i] for i, n in enumerate(near) if n and met[i])
     return Verdict(all(met) and not close_rules, dbic, dcost, acost, share, bool(big), tuple(RULES[i] for i in failed),
-                   bool(close), close_rules=close_rules, others_worse=worse)
+                   bool(close), close_rules=close_rules, others_worse=worse, shows=shows)
+
+
+def gains_where_it_shows(prob: Problem, pred0: dict, tpred: dict, cand: Candidate) -> tuple[bool, dict[str, float] | None]:
+    """For an effect with samples where it stands apart from the base's form (`Candidate.shows`:
+    entrained air where a chamber's pressure runs low): does it cut the held-out error there
+    (noise-scaled squares summed over the channels, `pred0` -> `tpred`)? An effect that gains
+    only where the base's own parameters could have done the same (entrained air at the
+    chambers' typical pressure: a bulk modulus or dead volumes set wrong) and not, or worse,
+    where its own signature is, stands in for them; a record that never gets there cannot tell
+    it from them. (True, None) for an effect without such samples to test."""
+    if cand.shows is None:
+        return True, None
+    where = np.asarray(cand.shows(), dtype=bool)
+    mask = prob.val_mask & where[: len(prob.val_mask)]
+    n = int(mask.sum())
+    if n == 0:
+        return False, {"samples": 0}
+    s0 = sum(v for v, _ in prob.channel_ssr(pred0, mask).values())
+    s1 = sum(v for v, _ in prob.channel_ssr(tpred, mask).values())
+    return s1 < s0, {"samples": n, "before": s0 / n, "after": s1 / n}
 
 
 def others_worse(prob: Problem, pred0: dict, tpred: dict, cand: Candidate) -> float:
@@ -923,7 +963,7 @@ def _near(st: SearchSettings, dcost: float, acost: float, share: float) -> tuple
     """Per rule of `RULES`: does its graded number lie within close_margin of its threshold?"""
     m = st.close_margin
     return (False, abs(dcost + st.min_gain) < m * st.min_gain, False, abs(acost + st.min_gain) < m * st.min_gain,
-            abs(share - st.min_share) < m * st.min_share, False, False)
+            abs(share - st.min_share) < m * st.min_share, False, False, False)
 
 
 def screen(prob: Problem, model: Model, work_pred: dict, jac: np.ndarray,

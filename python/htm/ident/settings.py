@@ -160,6 +160,25 @@ class SearchSettings:
                                    "by a sliver of their noise). A delay that buys its own reading at the cost of the others "
                                    "(a ripple, a lag of the valve) is the loop's phase moved into one reading: not claimed "
                                    "where the others' mean square rises by more than this")
+    signature_contrast: float = knob(2.0, "x the effect's size at the record's typical state",
+                                     "an effect whose size varies over the record (entrained air: its compliance, "
+                                     "~1/p^2) must cut the held-out error on the samples where it is at least this "
+                                     "many times its size at the typical state (a chamber's pressure at or below "
+                                     "1/sqrt of this times its median, absolute): at the typical state it is a level "
+                                     "the bulk modulus and the dead volumes set as well. Gaining only there, or none "
+                                     "such samples held out, it is not claimed (a friction asymmetry's record, the "
+                                     "external set with seeds + 1000 rec_e2: air 0.094 gained on the fast ramps at "
+                                     "~90 bar and lost on the steps that reach 45 bar). 0: off")
+    asymmetry_weighed: bool = knob(True, "switch", "a friction asymmetry d on a vertical rig is refitted also with the weight "
+                                                   "it trades with held (the mass lowered by d/g as d grows), the better fit "
+                                                   "kept: in motion d acts "
+                                                   "as a weight whichever the direction, and the base fit without it has "
+                                                   "taken d into the mass (inertia, and with it the oil's stiffness bent to "
+                                                   "keep the resonance); fitted plainly the search stays in that basin and "
+                                                   "an effect that reshapes the stiffness (entrained air) stands in for the "
+                                                   "rest (the external set with seeds + 1000 rec_e2: mass 74 kg against "
+                                                   "53 kg; fitted that way alone, a matrix pair of seed set B kept too little of "
+                                                   "its 1100/500 N and read unexplained). Off: the plain asymmetry only")
     min_valve_lag: float = knob(1.0, "x the spool's own lag 2*zeta/omega_n", "a first-order valve lag shorter than the lag "
                                                                              "of the base model's own second-order spool "
                                                                              "(declared; undeclared, the slowest its bound "

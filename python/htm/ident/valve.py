@@ -82,6 +82,24 @@ derive(Derived("friction_coulomb_diff_n", lambda p: 0.5 * (p["friction_coulomb_p
                _set_coulomb_diff, _COULOMB_PAIR))
 
 
+def _set_coulomb_diff_weighed(p: Any, value: float) -> None:
+    """The asymmetry d with the weight it trades with held: in motion the pair adds d to the
+    friction force whichever the direction (sign(v) (C + d sign(v)) = C sign(v) + d), as a weight
+    d/g would on a vertical rig; the mass's own coordinate then stands for the force in motion
+    (m g + d), and d moves only the split that the inertia and the holds set."""
+    _set_coulomb_diff(p, value)
+    g = p["gravity_m_s2"]
+    if g > 0:
+        m = p["moving_mass_kg"]
+        p["moving_mass_kg"] = max(m - value / g, 0.2 * m)
+
+
+# A vertical rig's asymmetry, separable from gravity (`_set_coulomb_diff_weighed`): the free the
+# friction_asymmetry candidate moves. Without gravity it is the plain asymmetry.
+derive(Derived("friction_coulomb_diff_weighed_n", lambda p: 0.5 * (p["friction_coulomb_pos_n"] - p["friction_coulomb_neg_n"]),
+               _set_coulomb_diff_weighed, (*_COULOMB_PAIR, "moving_mass_kg")))
+
+
 class ValveFamily(Family):
     """The valve-level plant for one record: nominal parameters, free parameters, candidates and
     the simulator options (a switched supply, the open-loop horizon)."""
@@ -123,6 +141,24 @@ class ValveFamily(Family):
             return spool_lag(self.nominal)
         p = dict(valve_natural_hz=_spool_lo() * SPOOL_HZ, valve_damping=float(rig.get("valve_damping") or SPOOL_DAMPING))
         return spool_lag(p)
+
+    def low_pressure(self) -> np.ndarray:
+        """The samples where entrained air stands apart from a bulk modulus or dead volumes set
+        wrong: where a measured chamber's absolute pressure is at or below its median over
+        sqrt(signature_contrast) — free air's compliance (~1/p^2) there at least that many times
+        its typical share. No sample at all where the chambers' pressures are not measured."""
+        cols = self.rec.columns
+        n = len(cols["t"])
+        mask = np.zeros(n, dtype=bool)
+        p_atm = float(self.nominal["atmospheric_pressure_pa"])
+        for c in ("p_a", "p_b"):
+            if c not in self.channels:
+                continue
+            p = np.asarray(cols[c], dtype=float) + p_atm
+            ok = np.isfinite(p)
+            if ok.any():
+                mask |= ok & (p <= float(np.median(p[ok])) / np.sqrt(self.settings.signature_contrast))
+        return mask
 
     def start(self, base: Model) -> np.ndarray:
         """Coordinates the fit starts from: the nominal values, the spool as fast as its bound
@@ -203,10 +239,14 @@ class ValveFamily(Family):
                  claimable=_share_of("coeff_m3_per_s_pa", st.min_leakage * p["valve_rated_flow_m3_s"]
                                      / max(p["supply_pressure_pa"], 1.0))),
             cand("friction_asymmetry", None, (lin("friction_coulomb_diff_n", 50.0, -100.0, 100.0),), "sign(v)",
-                 claimable=_asymmetric(st.min_asymmetry)),
+                 claimable=_asymmetric(st.min_asymmetry),
+                 alternate=cand("friction_asymmetry", None, (lin("friction_coulomb_diff_weighed_n", 50.0, -100.0, 100.0),),
+                                "sign(v)", claimable=_asymmetric(st.min_asymmetry))
+                 if st.asymmetry_weighed and p["gravity_m_s2"] > 0 else None),
             cand("pressure_dependent_friction", None, (lin("friction_pressure_coeff_n_per_pa", 1e-6, 0.0, 1e3, step=2.0),),
                  "(p_a + p_b) sign(v)"),
-            cand("entrained_air", None, (lin("air_fraction", 1e-3, 0.0, 100.0, step=5.0),), "p_a + p_b"),
+            cand("entrained_air", None, (lin("air_fraction", 1e-3, 0.0, 100.0, step=5.0),), "p_a + p_b",
+                 shows=self.low_pressure if st.signature_contrast > 0 else None),
         ]
         if p["valve_linear_flow"] > 0.5:  # a declared linear valve may in truth feel the load pressure
             out.append(cand("load_pressure_feedback", None, (), "load pressure", switch=(("valve_linear_flow", 0.0),)))
