@@ -372,7 +372,10 @@ class Selector:
             todo.append(sc)
 
         # The candidates are refitted side by side (each from the same state), then judged in order.
-        for t in side_by_side([lambda sc=sc: self.refit_one(sc, q) for sc in todo]):
+        # Every candidate's fits (both coordinates of one with an alternate) side by side at once.
+        jobs = [(i, c) for i, sc in enumerate(todo) for c in self.coordinates(sc.cand)]
+        fits = side_by_side([lambda sc=todo[i], c=c: self.fit_one(sc, c, q) for i, c in jobs])
+        for t in [self.judged([f for (i, _), f in zip(jobs, fits) if i == k]) for k in range(len(todo))]:
             cand, trial, twork, verdict = t.cand, t.model, t.work, t.verdict
             self.log("refit", cand.label, cand.report(trial.params()), verdict)
             tr.add("judge", cand.label, verdict.rule, "pays off" if verdict.ok else "does not pay off", close=verdict.close,
@@ -410,16 +413,22 @@ class Selector:
         """Refit one screened candidate from the current fit and from the nominal base parameters
         (the current fit may have bent them to stand in for this very effect), each at the best
         size of the candidate's parameter; keep the better fit, judged."""
-        best: tuple[Candidate, Model, dict, np.ndarray] | None = None
-        # A candidate with an alternate coordinate (`Candidate.alternate`: a vertical rig's
-        # asymmetry with the weight it trades with held) is refitted both ways; the better fit is kept.
-        for cand in (sc.cand, sc.cand.alternate) if sc.cand.alternate is not None else (sc.cand,):
-            starts = [start.with_candidate(cand, sc.step) for start in _restarts(self.model, self.x0, self.xn)]
-            trial, twork, tjac = fit(self.prob, _scan(self.prob, starts, cand, q), iters=self.st.refit_iters)
-            if best is None or self.prob.fit_cost(twork) < self.prob.fit_cost(best[2]):
-                best = (cand, trial, twork, tjac)
-        assert best is not None
-        cand, trial, twork, tjac = best
+        return self.judged(side_by_side([lambda c=c: self.fit_one(sc, c, q) for c in self.coordinates(sc.cand)]))
+
+    @staticmethod
+    def coordinates(cand: Candidate) -> tuple[Candidate, ...]:
+        """A candidate with an alternate coordinate (`Candidate.alternate`: a vertical rig's
+        asymmetry with the weight it trades with held) is refitted both ways (side by side)."""
+        return (cand, cand.alternate) if cand.alternate is not None else (cand,)
+
+    def fit_one(self, sc: Screened, cand: Candidate, q: np.ndarray) -> tuple[Candidate, Model, dict, np.ndarray]:
+        starts = [start.with_candidate(cand, sc.step) for start in _restarts(self.model, self.x0, self.xn)]
+        trial, twork, tjac = fit(self.prob, _scan(self.prob, starts, cand, q), iters=self.st.refit_iters)
+        return cand, trial, twork, tjac
+
+    def judged(self, fits: list[tuple[Candidate, Model, dict, np.ndarray]]) -> Trial:
+        """The better fit of a candidate's coordinates (the first on a tie), judged."""
+        cand, trial, twork, tjac = min(fits, key=lambda f: self.prob.fit_cost(f[2]))
         tpred, verdict = judge(self.prob, self.pred, trial, twork, self.model, cand)
         return Trial(cand, trial, twork, tpred, verdict, tjac, trial.x)
 
