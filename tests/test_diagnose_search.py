@@ -333,7 +333,7 @@ def test_a_vertical_rigs_asymmetry_moves_with_the_weight_it_trades_with_held_and
         meta["rig"]["orientation"] = orientation
         fam = ValveFamily(type(rec)(rec.columns, meta, rec.name), channels, settings=settings)
         [plain] = [c for c in fam.candidates(scales, 500.0) if c.effect == "friction_asymmetry"]
-        cand = plain.alternate or plain  # refitted beside the plain pair (`Selector.refit_one`)
+        cand = plain.alternate or plain  # refitted beside the plain pair (`Selector.coordinates`)
         base = Model(fam.nominal, list(fam.base_frees), np.zeros(len(fam.base_frees)))
         p0, p1 = base.params(), base.with_candidate(cand, 4.0).params()  # d = 4 x 50 N
         d = 0.5 * (p1["friction_coulomb_pos_n"] - p1["friction_coulomb_neg_n"])

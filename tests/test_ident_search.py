@@ -229,7 +229,8 @@ def test_a_phase_fault_dropped_for_the_other_readings_leaves_no_better_base():
         sel = Selector.__new__(Selector)
         sel.prob, sel.st, sel.trace, sel.log, sel.pool = Prob(), DEFAULT, Trace(), lambda *a: None, [cand]
         sel.model, sel.jac = base, np.eye(4, 1)
-        sel.refit_one = lambda sc, q: Trial(sc.cand, base, {}, {}, verdict)
+        sel.fit_one = lambda sc, c, q: (c, base, {}, np.eye(4, 1))
+        sel.judged = lambda fits: Trial(fits[0][0], base, {}, {}, verdict)
         return sel.refit([Screened(cand, 1.0, 1e-3)], 1)
 
     phase = Verdict(False, -1e4, -0.55, -0.62, 0.96, failed=(RULES[6],), others_worse=5.7)
