@@ -421,3 +421,39 @@ def test_an_effect_must_gain_where_it_shows_not_only_where_the_bases_parameters_
     # a record whose pressure never dips: not separable from the level, not claimed
     v, (shown, numbers) = verdict(1.0, 0.0204 * 90.0**2, 0.0204 * 90.0**2, where=np.zeros(n, dtype=bool))
     assert not v.ok and not shown and numbers == {"samples": 0}
+
+
+def test_an_effect_that_does_not_gain_at_all_is_not_dropped_for_where_it_shows():
+    """`gains where it shows` takes a candidate out of the pool (the search screens the others)
+    only where it gains on the record but not where its signature stands out; one that does not
+    gain at all fails as any other, and the search may end there (a clean foreign record, seed 3
+    fr28, otherwise ran two rounds more and moved its anti-alias delay from 2.6 to 3.0 ms)."""
+    from htm.ident.model import Candidate, lin
+    from htm.ident.search import RULES, Screened, Selector, Trial, Verdict
+    from htm.ident.settings import DEFAULT
+    from htm.ident.trace import Trace
+
+    base = Model({"a": 1.0}, [logf("a", 0.5, 2.0)], np.zeros(1))
+
+    class Prob:
+        settings = DEFAULT
+
+        @staticmethod
+        def fit_cost(work: dict) -> float:
+            return 1.0
+
+    def refit_with(verdict: Verdict):
+        cand = Candidate("entrained_air", None, (lin("air_fraction", 1e-3, 0.0, 1.0),), "p_a + p_b")
+        sel = Selector.__new__(Selector)
+        sel.prob, sel.st, sel.trace, sel.log, sel.pool = Prob(), DEFAULT, Trace(), lambda *a: None, [cand]
+        sel.model, sel.jac = base, np.eye(4, 1)
+        sel.fit_one = lambda sc, c, q: (c, base, {}, np.eye(4, 1))
+        sel.judged = lambda fits: Trial(fits[0][0], base, {}, {}, verdict)
+        return sel.refit([Screened(cand, 1.0, 1e-3)], 1), sel.pool
+
+    gains_elsewhere = Verdict(False, -5e4, -0.36, -0.4, 0.6, failed=(RULES[7],))
+    (good, better, too_small), pool = refit_with(gains_elsewhere)
+    assert not good and better is None and too_small and not pool
+    no_gain = Verdict(False, 1771.8, 0.042, 0.05, 0.06, failed=(RULES[0], RULES[1], RULES[7]))
+    (good, better, too_small), pool = refit_with(no_gain)
+    assert not good and better is None and not too_small and len(pool) == 1

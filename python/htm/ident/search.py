@@ -389,9 +389,10 @@ class Selector:
                 self.pool = [c for c in self.pool if c.key != cand.key]
                 too_small = True
                 tr.add("judge", cand.label, "claimable size", "left the pool: too small to claim")
-            elif RULES[7] in verdict.failed:
-                # It gains only where the base's own parameters mimic it, not where it shows: the
-                # base's form (its parameters left in a wrong basin), not to be screened again.
+            elif RULES[7] in verdict.failed and verdict.dcost < -st.min_gain:
+                # It gains, but only where the base's own parameters mimic it, not where it shows:
+                # the base's form (its parameters left in a wrong basin), not to be screened again.
+                # (One that does not gain at all fails as any other: the search may end there.)
                 self.pool = [c for c in self.pool if c.key != cand.key]
                 too_small = True
                 tr.add("judge", cand.label, "gains where it shows (signature_contrast)",
