@@ -29,6 +29,18 @@ def offset_record():
     return _cache["rec"]
 
 
+def valve_candidate(effect: str, settings: SearchSettings = DEFAULT):
+    """The valve family's candidate `effect` on the offset record under `settings`, and the family."""
+    from htm.ident.features import measured_channels
+    from htm.ident.valve import ValveFamily
+
+    rec, _ = offset_record()
+    channels = measured_channels(rec.columns)
+    fam = ValveFamily(rec, channels, settings=settings)
+    [cand] = [c for c in fam.candidates(dict.fromkeys(channels, 1.0), 500.0) if c.effect == effect]
+    return cand, fam
+
+
 def default_report() -> dict:
     if "report" not in _cache:
         _cache["report"] = diagnose(offset_record()[0])
@@ -255,16 +267,8 @@ def test_a_play_narrower_than_the_valves_null_tolerance_is_not_claimed_and_the_s
     narrower than the valve's null tolerance (min_null_bias of the rated command) is the valve's
     null form — on a vertical rig a friction asymmetry's small reversal error read as a 0.01 V
     play — not claimable; a wider one is, and min_null_bias moves the line."""
-    from htm.ident.features import measured_channels
-    from htm.ident.valve import ValveFamily
-
-    rec, _ = offset_record()
-    channels = measured_channels(rec.columns)
-    scales = dict.fromkeys(channels, 1.0)
-
     def claim(settings: SearchSettings = DEFAULT):
-        fam = ValveFamily(rec, channels, settings=settings)
-        [c] = [c for c in fam.candidates(scales, 500.0) if c.effect == "valve_hysteresis"]
+        c, fam = valve_candidate("valve_hysteresis", settings)
         return c.claimable, settings.min_null_bias * fam.nominal["valve_max_command_v"]
 
     play, line = claim()
@@ -356,17 +360,10 @@ def test_entrained_air_is_judged_where_a_chamber_runs_low_and_the_setting_moves_
     chamber's absolute pressure is at or below its median over sqrt(signature_contrast)."""
     import numpy as np
 
-    from htm.ident.features import measured_channels
-    from htm.ident.valve import ValveFamily
-
     rec, _ = offset_record()
-    channels = measured_channels(rec.columns)
-    scales = dict.fromkeys(channels, 1.0)
 
     def shows(settings: SearchSettings = DEFAULT):
-        fam = ValveFamily(rec, channels, settings=settings)
-        [cand] = [c for c in fam.candidates(scales, 500.0) if c.effect == "entrained_air"]
-        return cand.shows
+        return valve_candidate("entrained_air", settings)[0].shows
 
     mask = shows()()
     expected = np.zeros(len(mask), dtype=bool)

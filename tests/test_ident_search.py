@@ -204,14 +204,10 @@ def test_a_channel_at_its_noise_has_no_systematic_part_to_share():
     assert prob.explained(before, before) == 0.0
 
 
-def test_a_phase_fault_dropped_for_the_other_readings_leaves_no_better_base():
-    """A refit that cuts the cost without paying off leaves its base parameters behind for the
-    next round (the base's convergence) — but not a sensor delay dropped because it made the
-    other readings worse (`others no worse than max_others_worse`): its base parameters were bent
-    around that delay and would carry it into the next round (a y delay on a ripple record).
-    A lag too small to claim does leave its base (the spool's form)."""
-    from htm.ident.model import Candidate, lin
-    from htm.ident.search import RULES, Screened, Selector, Trial, Verdict
+def stub_refit(cand, verdict):
+    """The refit stage on one candidate whose fits all end at a one-parameter base with `verdict`:
+    (good, better base, too small) and the pool left after it."""
+    from htm.ident.search import Screened, Selector, Trial
     from htm.ident.settings import DEFAULT
     from htm.ident.trace import Trace
 
@@ -224,14 +220,26 @@ def test_a_phase_fault_dropped_for_the_other_readings_leaves_no_better_base():
         def fit_cost(work: dict) -> float:
             return 1.0
 
+    sel = Selector.__new__(Selector)
+    sel.prob, sel.st, sel.trace, sel.log, sel.pool = Prob(), DEFAULT, Trace(), lambda *a: None, [cand]
+    sel.model, sel.jac = base, np.eye(4, 1)
+    sel.fit_one = lambda sc, c, q: (c, base, {}, np.eye(4, 1))
+    sel.judged = lambda fits: Trial(fits[0][0], base, {}, {}, verdict)
+    return sel.refit([Screened(cand, 1.0, 1e-3)], 1), sel.pool
+
+
+def test_a_phase_fault_dropped_for_the_other_readings_leaves_no_better_base():
+    """A refit that cuts the cost without paying off leaves its base parameters behind for the
+    next round (the base's convergence) — but not a sensor delay dropped because it made the
+    other readings worse (`others no worse than max_others_worse`): its base parameters were bent
+    around that delay and would carry it into the next round (a y delay on a ripple record).
+    A lag too small to claim does leave its base (the spool's form)."""
+    from htm.ident.model import Candidate, lin
+    from htm.ident.search import RULES, Verdict
+
     def refit_with(effect: str, verdict: Verdict):
         cand = Candidate(effect, "y" if effect == "sensor_delay" else None, (lin("k", 1e-3, 0.0, 1.0),), "du/dt")
-        sel = Selector.__new__(Selector)
-        sel.prob, sel.st, sel.trace, sel.log, sel.pool = Prob(), DEFAULT, Trace(), lambda *a: None, [cand]
-        sel.model, sel.jac = base, np.eye(4, 1)
-        sel.fit_one = lambda sc, c, q: (c, base, {}, np.eye(4, 1))
-        sel.judged = lambda fits: Trial(fits[0][0], base, {}, {}, verdict)
-        return sel.refit([Screened(cand, 1.0, 1e-3)], 1)
+        return stub_refit(cand, verdict)[0]
 
     phase = Verdict(False, -1e4, -0.55, -0.62, 0.96, failed=(RULES[6],), others_worse=5.7)
     good, better, _ = refit_with("sensor_delay", phase)
@@ -429,27 +437,10 @@ def test_an_effect_that_does_not_gain_at_all_is_not_dropped_for_where_it_shows()
     gain at all fails as any other, and the search may end there (a clean foreign record, seed 3
     fr28, otherwise ran two rounds more and moved its anti-alias delay from 2.6 to 3.0 ms)."""
     from htm.ident.model import Candidate, lin
-    from htm.ident.search import RULES, Screened, Selector, Trial, Verdict
-    from htm.ident.settings import DEFAULT
-    from htm.ident.trace import Trace
-
-    base = Model({"a": 1.0}, [logf("a", 0.5, 2.0)], np.zeros(1))
-
-    class Prob:
-        settings = DEFAULT
-
-        @staticmethod
-        def fit_cost(work: dict) -> float:
-            return 1.0
+    from htm.ident.search import RULES, Verdict
 
     def refit_with(verdict: Verdict):
-        cand = Candidate("entrained_air", None, (lin("air_fraction", 1e-3, 0.0, 1.0),), "p_a + p_b")
-        sel = Selector.__new__(Selector)
-        sel.prob, sel.st, sel.trace, sel.log, sel.pool = Prob(), DEFAULT, Trace(), lambda *a: None, [cand]
-        sel.model, sel.jac = base, np.eye(4, 1)
-        sel.fit_one = lambda sc, c, q: (c, base, {}, np.eye(4, 1))
-        sel.judged = lambda fits: Trial(fits[0][0], base, {}, {}, verdict)
-        return sel.refit([Screened(cand, 1.0, 1e-3)], 1), sel.pool
+        return stub_refit(Candidate("entrained_air", None, (lin("air_fraction", 1e-3, 0.0, 1.0),), "p_a + p_b"), verdict)
 
     gains_elsewhere = Verdict(False, -5e4, -0.36, -0.4, 0.6, failed=(RULES[7],))
     (good, better, too_small), pool = refit_with(gains_elsewhere)
