@@ -205,7 +205,7 @@ class Candidate:
     # never gets there cannot tell it from the base's form.
     shows: Callable[[], np.ndarray] | None = None
     # The same effect on another coordinate (a vertical rig's asymmetry with the weight it trades
-    # with held): refitted beside this one, the better fit kept (`Selector.refit_one`).
+    # with held): refitted beside this one, the better fit kept (`Selector.coordinates`).
     alternate: "Candidate | None" = None
 
     def report(self, p: Any) -> dict[str, float]:
