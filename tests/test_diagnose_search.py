@@ -375,3 +375,15 @@ def test_entrained_air_is_judged_where_a_chamber_runs_low_and_the_setting_moves_
     assert shows(dataclasses.replace(DEFAULT, signature_contrast=4.0))().sum() < mask.sum()
     assert shows(dataclasses.replace(DEFAULT, signature_contrast=0.0)) is None
 
+
+
+def test_the_systematic_ratio_a_person_reads_in_the_search_log_is_a_plain_number():
+    """`htm diagnose --verbose` logs each round's systematic ratios: with a noise floor estimated
+    from the record (a numpy scalar) the ratio must still print as a number, not as
+    `np.float64(...)`."""
+    import numpy as np
+
+    from htm.ident import features as ft
+
+    r = ft.systematic_ratio(np.sin(np.linspace(0.0, 20.0, 2000)), np.float64(0.1), 500.0)
+    assert type(r) is float and "np." not in repr({"y": round(r, 2)})

@@ -106,7 +106,7 @@ def systematic_ratio(residual: np.ndarray, sigma: float, rate_hz: float) -> floa
     s = smooth(r, n)
     slow = float(np.sqrt(np.mean(s**2)))
     fast = float(np.sqrt(max(0.0, np.mean(r**2) - sigma**2)))
-    return max(slow, fast / FAST_SHARE) / sigma
+    return float(max(slow, fast / FAST_SHARE) / sigma)  # a plain float: the log a person reads shows no numpy repr
 
 
 # The part of the residual beyond the noise counts as systematic above this share of sigma.
