@@ -206,3 +206,53 @@ def test_commands_right_after_open_act_on_a_valid_reading():
         assert s.loop.load_offset_n == off
     finally:
         s.close()
+
+
+def _until(cond, seconds: float) -> bool:
+    t0 = time.monotonic()
+    while not cond():
+        if time.monotonic() - t0 > seconds:
+            return False
+        time.sleep(0.02)
+    return True
+
+
+def test_an_in_process_rig_late_on_a_loaded_host_is_no_silent_transducer_but_a_silent_one_trips(monkeypatch):
+    """In real time the loop pumps the in-process rig, as in lock-step: the rig's answer to a SYNC
+    comes within the period however late the host runs its code. A host that does not run the rig
+    for 5 ms (every 50th SYNC here; measured under load: 14 ms with the rig on its own thread)
+    makes late periods, counted in the loop's timing, and no transducer_silent trip — on a thread
+    of its own the rig answered two SYNCs late and the loop powered off. A transducer that stops
+    answering (the rig's `transducer_silent` fault) still trips it and powers off."""
+    from htm.devices.rig import VirtualRig
+
+    on_sync = VirtualRig._on_sync
+    delayed = []
+
+    def late(self):
+        if self.periods % 50 == 25:
+            delayed.append(self.periods)
+            time.sleep(0.005)
+        return on_sync(self)
+
+    monkeypatch.setattr(VirtualRig, "_on_sync", late)
+    spec = load(ROOT / "examples" / "ct_constant_force.toml")
+    s = Session().open(virtual_config("realtime"), virtual=True, specimen=specimen_of(spec))
+    try:
+        s.start(spec, record=False)
+        assert _until(lambda: s.snapshot()["timing"]["periods"] > 500, 30.0)
+        snap = s.snapshot()
+        trips = [e["message"] for e in s.events_since(0) if e["kind"] == "trip"]
+        assert len(delayed) >= 9 and snap["timing"]["overruns"] >= 9, (len(delayed), snap["timing"])
+        assert snap["interlock"] is None and not trips, trips
+        assert snap["state"] in ("starting", "running") and snap["amplifier"] and s.rig.daq.relay(0)
+        s.rig.inject("transducer_silent")
+        assert _until(lambda: s.snapshot()["interlock"] == "power_off", 5.0), [e["message"] for e in s.events_since(0)]
+        trips = [e["detector"] for e in s.events_since(0) if e["kind"] == "trip"]
+        assert "transducer_silent" in trips
+        assert _until(lambda: not s.rig.daq.relay(0), 1.0), "amplifier off after the silent transducer"
+        with pytest.raises(InterlockTripped, match="transducer_silent"):
+            s.start(spec, record=False)
+    finally:
+        s.close()
+
