@@ -1,5 +1,6 @@
 """The operator-console facade: commands, specimen protect, interlocks and e-stop, the decimated
 feed, a real-time threaded run, and the rig served by another process over udp_multicast."""
+import json
 import math
 import os
 import subprocess
@@ -206,3 +207,110 @@ def test_commands_right_after_open_act_on_a_valid_reading():
         assert s.loop.load_offset_n == off
     finally:
         s.close()
+
+
+def _until(cond, seconds: float) -> bool:
+    t0 = time.monotonic()
+    while not cond():
+        if time.monotonic() - t0 > seconds:
+            return False
+        time.sleep(0.02)
+    return True
+
+
+def test_an_in_process_rig_late_on_a_loaded_host_is_no_silent_transducer_but_a_silent_one_trips(monkeypatch):
+    """In real time the loop pumps the in-process rig, as in lock-step: the rig's answer to a SYNC
+    comes within the period however late the host runs its code. A host that does not run the rig
+    for 5 ms (every 50th SYNC here; measured under load: 14 ms with the rig on its own thread)
+    makes late periods, counted in the loop's timing, and no transducer_silent trip — on a thread
+    of its own the rig answered two SYNCs late and the loop powered off. A transducer that stops
+    answering (the rig's `transducer_silent` fault) still trips it and powers off."""
+    from htm.devices.rig import VirtualRig
+
+    on_sync = VirtualRig._on_sync
+    delayed = []
+
+    def late(self):
+        if self.periods % 50 == 25:
+            delayed.append(self.periods)
+            time.sleep(0.005)
+        return on_sync(self)
+
+    monkeypatch.setattr(VirtualRig, "_on_sync", late)
+    spec = load(ROOT / "examples" / "ct_constant_force.toml")
+    s = Session().open(virtual_config("realtime"), virtual=True, specimen=specimen_of(spec))
+    try:
+        s.start(spec, record=False)
+        assert _until(lambda: s.snapshot()["timing"]["periods"] > 500, 30.0)
+        snap = s.snapshot()
+        trips = [e["message"] for e in s.events_since(0) if e["kind"] == "trip"]
+        assert len(delayed) >= 9 and snap["timing"]["overruns"] >= 9, (len(delayed), snap["timing"])
+        assert snap["interlock"] is None and not trips, trips
+        assert snap["state"] in ("starting", "running") and snap["amplifier"] and s.rig.daq.relay(0)
+        s.rig.inject("transducer_silent")
+        assert _until(lambda: s.snapshot()["interlock"] == "power_off", 5.0), [e["message"] for e in s.events_since(0)]
+        trips = [e["detector"] for e in s.events_since(0) if e["kind"] == "trip"]
+        assert "transducer_silent" in trips
+        assert _until(lambda: not s.rig.daq.relay(0), 1.0), "amplifier off after the silent transducer"
+        with pytest.raises(InterlockTripped, match="transducer_silent"):
+            s.start(spec, record=False)
+    finally:
+        s.close()
+
+
+def _latched(s: Session) -> Session:
+    """`s` with its transducer silenced until transducer_silent has latched (power off)."""
+    s.rig.inject("transducer_silent")
+    if s._thread is None:
+        s.step(5)
+    else:
+        assert _until(lambda: s.snapshot()["interlock"] == "power_off", 5.0)
+    assert s.snapshot()["interlock"] == "power_off"
+    return s
+
+
+def test_the_loop_benchmark_reports_a_latched_session_as_refused_instead_of_raising(tmp_path):
+    """benchmarks/realtime_loop.py: a session whose interlock latched before the start (as the
+    transducer_silent one on a loaded host did) is a result with its one-line reason, and a
+    figure it could not measure is null — not an InterlockTripped traceback."""
+    import realtime_loop
+
+    spec = load(ROOT / "examples" / "ct_constant_force.toml")
+    s = _latched(Session().open(virtual_config("lockstep"), virtual=True, specimen=specimen_of(spec), thread=False))
+    ls = realtime_loop.lockstep(100, tmp_path, session=s)
+    assert ls["periods_per_s"] is None and ls["interlock"] == "power_off"
+    assert ls["refused"] == "interlock latched (transducer_silent): reset() first"
+    assert any(t.startswith("transducer_silent:") for t in ls["trips"])
+    assert s.loop is None, "the benchmark closed the session"
+    s = _latched(Session().open(virtual_config("realtime"), virtual=True, specimen=specimen_of(spec)))
+    rt = realtime_loop.realtime(500.0, 0.2, 0, tmp_path, session=s)
+    assert rt["refused"] == "interlock latched (transducer_silent): reset() first"
+    assert rt["p99_ms"] is None and rt["overrun_pct"] is None and rt["cycles"] is None
+
+
+@pytest.mark.parametrize("latch", ["realtime", "every"])
+def test_the_loop_benchmark_goes_on_past_a_refused_session_and_fails_only_when_nothing_measured(latch, monkeypatch, capsys):
+    """The whole benchmark with the real-time sessions (or every session) latched at open: the
+    JSON keeps its keys, null where nothing was measured, the reason beside it; exit 0 while
+    something was measured (the lock-step figure), else 1 with one line on stderr."""
+    import realtime_loop
+
+    class Latched(Session):
+        def open(self, config, **kw):
+            super().open(config, **kw)
+            return _latched(self) if latch == "every" or config.loop.mode == "realtime" else self
+
+    monkeypatch.setattr(realtime_loop, "Session", Latched)
+    monkeypatch.setattr(sys, "argv", ["realtime_loop.py", "--seconds", "0.2", "--lockstep-periods", "200", "--priority", "0"])
+    rc = realtime_loop.main()
+    out, err = capsys.readouterr()
+    j = json.loads(out)
+    refused = "interlock latched (transducer_silent): reset() first"
+    assert j["rt500_p99_ms"] is None and j["rt1000_p99_ms"] is None and j["rt500_overrun_pct"] is None
+    assert j["rt500"]["refused"] == j["rt1000"]["refused"] == refused
+    if latch == "realtime":
+        assert rc == 0 and err == ""
+        assert j["lockstep_periods_per_s"] > 0.0 and j["lockstep"]["refused"] is None and j["lockstep"]["trips"] == []
+    else:
+        assert rc == 1 and j["lockstep_periods_per_s"] is None and j["lockstep"]["refused"] == refused
+        assert err.count("\n") == 1 and err.startswith("realtime_loop: nothing measured: lock-step interlock latched")

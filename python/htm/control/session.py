@@ -97,8 +97,10 @@ class Session:
              paced: bool = False) -> Session:
         """Validate the configuration, open the bus and the DAQ, check the transducer over SDO, start
         it (NMT) and the loop. `None` = an in-process virtual rig; `virtual=True` puts one behind
-        any config. `paced=True` with a lock-step in-process rig keeps the deterministic device path
-        (the loop pumps the rig) but runs the periods on the wall clock, as the console does.
+        any config; the loop pumps an in-process rig, which answers each SYNC within the period
+        (a starved host delays the loop's periods, never the virtual transducer's answer).
+        `paced=True` with a lock-step in-process rig keeps the deterministic device path but runs
+        the periods on the wall clock, as the console does.
         Nothing is energised until a motion or a test is commanded. `specimen`, gripped in a
         virtual rig: a `TestSpec` (its specimen and material) or the rig's specimen dict."""
         if specimen is not None and not isinstance(specimen, dict):
@@ -114,21 +116,23 @@ class Session:
         params = with_overrides(core.Params(cfg.rig_preset), cfg.rig_overrides)
         try:
             if virtual:
-                self.rig = VirtualRig(cfg, specimen, threaded=True)
+                self.rig = VirtualRig(cfg, specimen, threaded=True, handover=True)
             bus = open_bus(cfg.bus)
-            self._net = network_on(bus, threaded=True, lockstep=cfg.loop.mode == "lockstep")
+            self._net = network_on(bus, threaded=True, handover=True)
             self._io = AnalogIO(cfg.analog)
             master = TransducerMaster(self._net, cfg.transducer, 1.0 / cfg.loop.rate_hz)
             info = master.configure()
             master.start()
             stop_notifier(self._net)
-            lockstep = cfg.loop.mode == "lockstep"
+            # the in-process rig: pumped by the loop from now on, in real time too (on a thread of
+            # its own it answered when the host's scheduler let it: 14 ms late on a loaded host,
+            # a silent transducer to the loop, which a transducer on the wire never is)
             pump = None
-            if self.rig is not None and lockstep:
-                self.rig.lockstep()
+            if self.rig is not None:
+                self.rig.hand_over()
                 pump = self.rig.pump
             self.loop = ControlLoop(cfg, master, self._io, params, pump, self.log)
-            self._first_contact(lockstep and self.rig is not None)
+            self._first_contact(self.rig is not None)
         except BaseException:
             self.close()
             raise

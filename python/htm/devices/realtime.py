@@ -1,5 +1,5 @@
 """Real-time scheduling of the calling thread, shared by the control loop and the virtual rig
-(both run a fixed period on a thread of their own)."""
+served on its own (`htm rig serve`: its notifier thread answers each SYNC)."""
 from __future__ import annotations
 
 import os

@@ -1,7 +1,10 @@
 """The virtual rig: the Rust plant and a cracking specimen behind the real interfaces — a CANopen
 `LocalNode` transducer on the configured bus and the simulated DAQ — answering each SYNC with
-one plant period. In-process it is pumped by the loop (lock-step) or runs on its own notifier
-thread (real time); `htm rig serve` runs it as another process. Faults can be injected."""
+one plant period. In-process it is pumped by the loop, in lock-step and in real time alike: it
+answers each SYNC within the period, as a transducer on the wire does, however loaded the host
+(on a thread of its own a starved host delayed the rig's answer, and the loop saw a silent
+transducer a real one would not be). `htm rig serve` runs it as another process, on its own
+notifier thread. Faults can be injected."""
 from __future__ import annotations
 
 import math
@@ -131,8 +134,11 @@ def _idx(ch: str) -> int:
 class VirtualRig:
     """Plant + specimen + transducer + DAQ. `specimen` is a `RigPlant` specimen dict (or None)."""
 
-    def __init__(self, cfg: RigConfig, specimen: dict | None = None, threaded: bool = True):
+    def __init__(self, cfg: RigConfig, specimen: dict | None = None, threaded: bool = True, handover: bool = False):
+        """`threaded`: a notifier thread answers the bus; `handover`: only until the loop pumps
+        the rig (`hand_over`, in-process), else for good (`htm rig serve`)."""
         self.cfg = cfg
+        self.handover = handover
         self.params = plant_params(cfg)
         self.gripped = specimen  # the specimen dict as given (the spec's; the rig's truth departs from it)
         # a life test's round bar (`{"life": core dict}`), else a cracking specimen (or none)
@@ -172,7 +178,7 @@ class VirtualRig:
         self.daq = SimulatedDaq(cfg.analog.device, create=True)
         try:
             self.bus = open_bus(cfg.bus)
-            self.net = network_on(self.bus, threaded, lockstep=cfg.loop.mode == "lockstep")
+            self.net = network_on(self.bus, threaded, handover=handover)
             self._write_sensors(self.plant.outputs())
             self.daq.write_output(self._supply, self.params["supply_pressure_pa"] / SUPPLY_PA_PER_V)
             self.device = TransducerDevice(self.net, cfg.transducer, self._on_sync)
@@ -186,8 +192,8 @@ class VirtualRig:
 
     # -- one plant period per SYNC ------------------------------------------------------------
     def _on_sync(self) -> tuple[float, float]:
-        if self.periods == 0 and self.cfg.loop.mode == "realtime":
-            set_priority(self.cfg.loop.priority)  # refused: the rig runs on at normal priority
+        if self.periods == 0 and self.cfg.loop.mode == "realtime" and not self.handover:
+            set_priority(self.cfg.loop.priority)  # its own thread; refused: the rig runs on at normal priority
         f = self.faults
         u = self.daq.output(self._valve)
         self.valve_command_v = u
@@ -236,13 +242,13 @@ class VirtualRig:
             d.set_input(ai, self._cal["dcpd_current"].to_volts(0.0 if "dcpd_current_lost" in f else amps))
 
     def pump(self) -> None:
-        """Handle every frame waiting on the rig's bus (lock-step, no notifier thread)."""
+        """Handle every frame waiting on the rig's bus (in-process: the loop's thread, no notifier thread)."""
         bus, notify = self.bus, self.net.notify
         while (msg := bus.recv(0)) is not None:
             if not msg.is_error_frame:
                 notify(msg.arbitration_id, msg.data, msg.timestamp)
 
-    def lockstep(self) -> None:
+    def hand_over(self) -> None:
         """Stop the notifier thread: the loop pumps the rig from now on."""
         stop_notifier(self.net)
 

@@ -31,14 +31,14 @@ def open_bus(cfg: BusConfig) -> can.BusABC:
         raise DeviceError(f"cannot open CAN bus {cfg.interface}:{cfg.channel}: {e}") from None
 
 
-def network_on(bus: can.BusABC, threaded: bool, lockstep: bool = False) -> canopen.Network:
-    """A canopen network on `bus`; `threaded` starts python-can's notifier thread. In
-    `lockstep` the thread only serves the start-up (SDO) before the loop pumps the bus itself:
+def network_on(bus: can.BusABC, threaded: bool, handover: bool = False) -> canopen.Network:
+    """A canopen network on `bus`; `threaded` starts python-can's notifier thread. With
+    `handover` the thread only serves the start-up (SDO) before the loop pumps the bus itself:
     its idle wait is short, so handing the bus over takes milliseconds instead of up to the
     1 s python-can waits (a message wakes it at once either way)."""
     net = canopen.Network(bus)
     net.NOTIFIER_SHUTDOWN_TIMEOUT = 1.0
-    if lockstep:
+    if handover:
         net.NOTIFIER_CYCLE = 0.05
     if threaded:
         net.connect()
