@@ -448,3 +448,85 @@ def test_an_effect_that_does_not_gain_at_all_is_not_dropped_for_where_it_shows()
     no_gain = Verdict(False, 1771.8, 0.042, 0.05, 0.06, failed=(RULES[0], RULES[1], RULES[7]))
     (good, better, too_small), pool = refit_with(no_gain)
     assert not good and better is None and not too_small and len(pool) == 1
+
+
+def test_a_leak_must_cut_the_error_where_its_flow_shows_about_as_well_as_elsewhere():
+    # Toy: an effect `s` adds s * f(t) to channel `a`; its flow "shows" on every tenth block of
+    # samples (slow motion under load, for a leak). A record whose misfit is f everywhere (a true
+    # leak) is cut alike there and elsewhere: claimed. A record whose misfit is f elsewhere but,
+    # where the leak shows, f plus as much structure it does not make (a foreign rig's line
+    # dynamics that a leak's damping stands in for) gains there too, but leaves there 50x the
+    # share it leaves elsewhere: `gains where it shows` fails, the trace carries both shares.
+    # `shows_ratio` = 0 takes the comparison out (only the gain there is asked).
+    import dataclasses
+
+    from htm.ident.fit import Problem, blocks
+    from htm.ident.model import Candidate, lin
+    from htm.ident.records import Record
+    from htm.ident.search import RULES, gains_where_it_shows, pays_off
+    from htm.ident.settings import DEFAULT
+
+    rng = np.random.default_rng(11)
+    n = 4000
+    t = np.arange(n) * 1e-3
+    f = np.sin(2 * np.pi * 3.0 * t)
+    g = np.cos(2 * np.pi * 7.0 * t)  # structure the effect does not make
+    where = (np.arange(n) // 20) % 10 == 0
+
+    def simulate(plist, rec, **opts):
+        m = len(rec.columns["t"])
+        return [{"a": q["s"] * f[:m], "b": np.zeros(m)} for q in plist]
+
+    fit_mask, val_mask = blocks(n, n, 1e3)
+
+    def verdict(record_a, settings=DEFAULT):
+        rec = Record({"t": t, "y": t, "a": record_a + rng.normal(0, 0.02, n), "b": rng.normal(0, 0.02, n)}, {}, "toy")
+        prob = Problem(rec, simulate, ["a", "b"], {"a": 0.02, "b": 0.02}, n, fit_mask, val_mask, settings=settings)
+        cand = Candidate("internal_leakage", None, (lin("s", 1.0, 0.0, 10.0),), "load pressure", fields=(("s", "s"),),
+                         shows=lambda: where, shows_against_rest=True)
+        base = Model({"s": 0.0, "k": 1.0}, [lin("k", 1.0, 0.0, 2.0)], np.ones(1))
+        pred0 = prob.predict([base.params()], whole=True)[0]
+        trial = base.with_candidate(cand, 1.0)
+        tpred = prob.predict([trial.params()], whole=True)[0]
+        return pays_off(prob, pred0, trial, tpred, base, cand), gains_where_it_shows(prob, pred0, tpred, cand)
+
+    v, (shown, numbers) = verdict(f)  # a true leak
+    assert v.ok and shown and numbers["left"] <= DEFAULT.shows_ratio * numbers["left_elsewhere"]
+    stand_in = f + np.where(where, g, 0.0)
+    v, (shown, numbers) = verdict(stand_in)
+    assert v.dcost < -0.5, "it does buy the fit"
+    assert numbers["after"] < numbers["before"], "and gains where it shows too"
+    assert not v.ok and RULES[7] in v.failed and not shown
+    assert numbers["left"] > 10 * numbers["left_elsewhere"] and numbers["shows_ratio"] == DEFAULT.shows_ratio
+    v, (shown, numbers) = verdict(stand_in, dataclasses.replace(DEFAULT, shows_ratio=0.0))
+    assert shown and RULES[7] not in v.failed and "left" not in numbers
+
+
+def test_the_valve_familys_leak_is_judged_where_its_flow_shows_only_with_both_chamber_readings():
+    """The leak candidate carries the samples where its flow stands apart (load pressure over
+    the actuator's flow at least signature_contrast times its median: slow motion under load)
+    when both chamber pressures are read; without p_b, or with shows_ratio 0, it is judged as before."""
+    import dataclasses
+
+    from htm.ident import proving
+    from htm.ident.records import Record
+    from htm.ident.settings import DEFAULT
+    from htm.ident.valve import ValveFamily
+
+    rec, _ = proving.make_record({}, seed=4, duration_s=6)
+
+    def leak(record, settings=DEFAULT):
+        fam = ValveFamily(record, [c for c in ("y", "v", "p_a", "p_b", "p_s") if c in record.columns], settings=settings)
+        scales = {c: 1.0 for c in fam.channels}
+        return next(c for c in fam.candidates(scales, 500.0) if c.effect == "internal_leakage")
+
+    c = leak(rec)
+    assert c.shows is not None and c.shows_against_rest
+    mask = c.shows()
+    cols = rec.columns
+    share = np.abs(np.asarray(cols["p_a"]) - np.asarray(cols["p_b"])) / (np.abs(np.asarray(cols["v"])) + 1e-3)
+    assert 0 < mask.sum() < 0.5 * len(mask)
+    assert np.median(share[mask]) > DEFAULT.signature_contrast * np.median(share)
+    assert leak(rec, dataclasses.replace(DEFAULT, shows_ratio=0.0)).shows is None
+    no_pb = Record({k: v for k, v in cols.items() if k != "p_b"}, rec.meta, "no_pb")
+    assert leak(no_pb).shows is None

@@ -204,6 +204,11 @@ class Candidate:
     # such test). The effect must cut the held-out error there (`search.pays_off`); a record that
     # never gets there cannot tell it from the base's form.
     shows: Callable[[], np.ndarray] | None = None
+    # ...and must cut it there about as well as elsewhere, not only gain there (a leak: its flow
+    # is in every sample, largest against the actuator's where the load holds it slow; one that
+    # gains mostly elsewhere stands in for the base's dynamics): the share of the error it leaves
+    # where it shows at most `SearchSettings.shows_ratio` times the share it leaves elsewhere.
+    shows_against_rest: bool = False
     # The same effect on another coordinate (a vertical rig's asymmetry with the weight it trades
     # with held): refitted beside this one, the better fit kept (`Selector.coordinates`).
     alternate: "Candidate | None" = None

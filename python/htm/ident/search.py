@@ -932,14 +932,26 @@ def gains_where_it_shows(prob: Problem, pred0: dict, tpred: dict, cand: Candidat
     it from them. (True, None) for an effect without such samples to test."""
     if cand.shows is None:
         return True, None
-    where = np.asarray(cand.shows(), dtype=bool)
-    mask = prob.val_mask & where[: len(prob.val_mask)]
+    where = np.asarray(cand.shows(), dtype=bool)[: len(prob.val_mask)]
+    mask = prob.val_mask & where
     n = int(mask.sum())
     if n == 0:
         return False, {"samples": 0}
     s0 = sum(v for v, _ in prob.channel_ssr(pred0, mask).values())
     s1 = sum(v for v, _ in prob.channel_ssr(tpred, mask).values())
-    return s1 < s0, {"samples": n, "before": s0 / n, "after": s1 / n}
+    out = {"samples": n, "before": s0 / n, "after": s1 / n}
+    ok = s1 < s0
+    rest = prob.val_mask & ~where
+    ratio = prob.settings.shows_ratio
+    if cand.shows_against_rest and ratio > 0 and rest.any() and s0 > 0:
+        # ...and there about as well as elsewhere: the share of the error it leaves where it shows
+        # at most shows_ratio times the share it leaves on the other held-out samples.
+        e0 = sum(v for v, _ in prob.channel_ssr(pred0, rest).values())
+        e1 = sum(v for v, _ in prob.channel_ssr(tpred, rest).values())
+        left, left_rest = s1 / s0, (e1 / e0 if e0 > 0 else 1.0)
+        out.update(left=left, left_elsewhere=left_rest, shows_ratio=ratio)
+        ok = ok and left <= ratio * left_rest
+    return ok, out
 
 
 def others_worse(prob: Problem, pred0: dict, tpred: dict, cand: Candidate) -> float:

@@ -169,6 +169,13 @@ class SearchSettings:
                                      "such samples held out, it is not claimed (a friction asymmetry's record, the "
                                      "external set with seeds + 1000 rec_e2: air 0.094 gained on the fast ramps at "
                                      "~90 bar and lost on the steps that reach 45 bar). 0: off")
+    shows_ratio: float = knob(2.0, "ratio of the error shares left", "an effect judged also against the rest of the "
+                              "record where it shows (an internal leak: where the load pressure drives a leak flow that "
+                              "is at least signature_contrast times its typical share of the actuator's flow, slow motion "
+                              "under load) must leave there at most this many times the share of the held-out error it "
+                              "leaves elsewhere: a true leak cuts the error there as much or more (htm's own leak records, judged: 0.25-0.5), a leak "
+                              "standing in for a foreign rig's line dynamics gains mostly where the motion is fast "
+                              "(foreign seed 2 fr16: 2.7 polished). 0: a leak is not judged where it shows")
     asymmetry_weighed: bool = knob(True, "switch", "a friction asymmetry d on a vertical rig is refitted also with the weight "
                                                    "it trades with held (the mass lowered by d/g as d grows), the better fit "
                                                    "kept: in motion d acts "

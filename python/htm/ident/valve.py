@@ -160,6 +160,24 @@ class ValveFamily(Family):
                 mask |= ok & (p <= float(np.median(p[ok])) / np.sqrt(self.settings.signature_contrast))
         return mask
 
+    def leak_flow_share(self) -> np.ndarray:
+        """The samples where an internal leak stands apart from the base's dynamics: where its
+        flow, proportional to the measured load pressure |p_a - p_b|, is at least
+        signature_contrast times its typical (median) share of the actuator's flow A |v| (slow
+        motion under load; |v| floored at the velocity reading's noise). Both chamber pressures
+        must be measured (else no test: `shows` is None)."""
+        cols = self.rec.columns
+        dp = np.abs(np.asarray(cols["p_a"], dtype=float) - np.asarray(cols["p_b"], dtype=float))
+        if "v" in self.channels:
+            v = np.asarray(cols["v"], dtype=float)
+        else:
+            v = np.gradient(np.asarray(cols["y"], dtype=float), np.asarray(cols["t"], dtype=float))
+        ok = np.isfinite(v) & np.isfinite(dp)
+        floor = float(np.std(np.diff(v[ok]))) / np.sqrt(2.0) if ok.sum() > 2 else 0.0
+        share = np.where(ok, dp / (np.abs(np.where(ok, v, 0.0)) + max(floor, 1e-12)), 0.0)
+        typical = float(np.median(share[ok])) if ok.any() else 0.0
+        return ok & (share >= self.settings.signature_contrast * typical) & (share > 0)
+
     def start(self, base: Model) -> np.ndarray:
         """Coordinates the fit starts from: the nominal values, the spool as fast as its bound
         allows (a static valve until the second stage frees it)."""
@@ -194,6 +212,8 @@ class ValveFamily(Family):
         ctrl = (rec.meta.get("controller") or {}).get("type")
         st = self.settings
         cand = self.candidate
+        # a leak is judged where its flow stands apart only when both chambers' pressures are read
+        leak_shows = st.signature_contrast > 0 and st.shows_ratio > 0 and {"p_a", "p_b"} <= set(channels)
 
         for c in channels:
             offset = self.sensor_candidate("sensor_offset", c, scales[c], claimable=_not_a_tolerated_gain(rec, c, st.min_gain_error))
@@ -237,7 +257,8 @@ class ValveFamily(Family):
                                      / max(p["valve_rated_flow_m3_s"], 1e-12))),
             cand("internal_leakage", None, (lin("leakage_coeff_m3_per_s_pa", 1e-12, 0.0, 1e3),), "load pressure",
                  claimable=_share_of("coeff_m3_per_s_pa", st.min_leakage * p["valve_rated_flow_m3_s"]
-                                     / max(p["supply_pressure_pa"], 1.0))),
+                                     / max(p["supply_pressure_pa"], 1.0)),
+                 shows=self.leak_flow_share if leak_shows else None, shows_against_rest=leak_shows),
             cand("friction_asymmetry", None, (lin("friction_coulomb_diff_n", 50.0, -100.0, 100.0),), "sign(v)",
                  claimable=_asymmetric(st.min_asymmetry),
                  alternate=cand("friction_asymmetry", None, (lin("friction_coulomb_diff_weighed_n", 50.0, -100.0, 100.0),),
