@@ -24,6 +24,9 @@ CYCLES_KEEP = 2000  # per-cycle points shown
 DETECTOR_COLUMNS = (("name", "detector"), ("watches", "watches"), ("lo", "low limit"), ("hi", "high limit"),
                     ("value", "value"), ("unit", "unit"), ("state", "state"), ("action", "action"), ("latched", "latched"))
 NUMERIC = {"lo", "hi", "value"}
+# The numeric columns' width [cells]: fixed, so that a transient wide value (a heartbeat's age on
+# a busy host) does not widen the panel for good and the columns stay where the operator reads them.
+NUMERIC_WIDTH = 10
 
 
 def detector_row(d: dict[str, Any]) -> tuple[Text, ...]:
@@ -90,7 +93,8 @@ class RunPane(Vertical):
     def on_mount(self) -> None:
         t = self.query_one("#detectors", DataTable)
         for key, label in DETECTOR_COLUMNS:
-            t.add_column(right(label) if key in NUMERIC else plain(label), key=key)
+            t.add_column(right(label) if key in NUMERIC else plain(label), key=key,
+                         width=NUMERIC_WIDTH if key in NUMERIC else None)
 
     # ---- data from the app's poller (≤ 10 Hz, coalesced) ---------------------------------------
     def add_feed(self, samples: list[dict[str, Any]]) -> None:
