@@ -24,8 +24,9 @@ CYCLES_KEEP = 2000  # per-cycle points shown
 DETECTOR_COLUMNS = (("name", "detector"), ("watches", "watches"), ("lo", "low limit"), ("hi", "high limit"),
                     ("value", "value"), ("unit", "unit"), ("state", "state"), ("action", "action"), ("latched", "latched"))
 NUMERIC = {"lo", "hi", "value"}
-# The numeric columns' width [cells]: fixed, so that a transient wide value (a heartbeat's age on
-# a busy host) does not widen the panel for good and the columns stay where the operator reads them.
+# The numeric columns' width [cells]: fixed, so that a wider value shown earlier in a run does not
+# widen the panel for good (a cell's update only grows its column) and the columns stay where the
+# operator reads them.
 NUMERIC_WIDTH = 10
 
 
