@@ -175,7 +175,7 @@ class SearchSettings:
                               "under load) must leave there at most this many times the share of the held-out error it "
                               "leaves elsewhere: a true leak cuts the error there as much or more (htm's own leak records, judged: 0.25-0.5), a leak "
                               "standing in for a foreign rig's line dynamics gains mostly where the motion is fast "
-                              "(foreign seed 2 fr16: 2.7 polished). 0: a leak is not judged where it shows")
+                              "(foreign seed 2 fr16: 2.8 polished). 0: a leak is not judged where it shows")
     asymmetry_weighed: bool = knob(True, "switch", "a friction asymmetry d on a vertical rig is refitted also with the weight "
                                                    "it trades with held (the mass lowered by d/g as d grows), the better fit "
                                                    "kept: in motion d acts "

@@ -113,6 +113,7 @@ class ValveFamily(Family):
         self.settings = settings
         self.rec = rec
         self.channels = channels
+        self._shown: dict[str, np.ndarray] = {}  # the candidates' `shows` masks, by effect
         if {"p_a", "p_b"} <= set(channels):  # the chamber pressures: two transducers measuring alike
             self.siblings = {"p_a": "p_b", "p_b": "p_a"}
         nominal = sim.params_from_meta(rec.meta)
@@ -146,7 +147,10 @@ class ValveFamily(Family):
         """The samples where entrained air stands apart from a bulk modulus or dead volumes set
         wrong: where a measured chamber's absolute pressure is at or below its median over
         sqrt(signature_contrast) — free air's compliance (~1/p^2) there at least that many times
-        its typical share. No sample at all where the chambers' pressures are not measured."""
+        its typical share. No sample at all where the chambers' pressures are not measured.
+        Computed once (asked at every judge of the candidate)."""
+        if "air" in self._shown:
+            return self._shown["air"]
         cols = self.rec.columns
         n = len(cols["t"])
         mask = np.zeros(n, dtype=bool)
@@ -158,6 +162,7 @@ class ValveFamily(Family):
             ok = np.isfinite(p)
             if ok.any():
                 mask |= ok & (p <= float(np.median(p[ok])) / np.sqrt(self.settings.signature_contrast))
+        self._shown["air"] = mask
         return mask
 
     def leak_flow_share(self) -> np.ndarray:
@@ -165,18 +170,22 @@ class ValveFamily(Family):
         flow, proportional to the measured load pressure |p_a - p_b|, is at least
         signature_contrast times its typical (median) share of the actuator's flow A |v| (slow
         motion under load; |v| floored at the velocity reading's noise). Both chamber pressures
-        must be measured (else no test: `shows` is None)."""
+        must be measured (else no test: `shows` is None). Computed once."""
+        if "leak" in self._shown:
+            return self._shown["leak"]
         cols = self.rec.columns
         dp = np.abs(np.asarray(cols["p_a"], dtype=float) - np.asarray(cols["p_b"], dtype=float))
         if "v" in self.channels:
             v = np.asarray(cols["v"], dtype=float)
+            floor = ft.noise_floor(v, ft.declared_resolution(self.rec.meta, "v"))
         else:
             v = np.gradient(np.asarray(cols["y"], dtype=float), np.asarray(cols["t"], dtype=float))
+            floor = ft.noise_floor(v)
         ok = np.isfinite(v) & np.isfinite(dp)
-        floor = float(np.std(np.diff(v[ok]))) / np.sqrt(2.0) if ok.sum() > 2 else 0.0
-        share = np.where(ok, dp / (np.abs(np.where(ok, v, 0.0)) + max(floor, 1e-12)), 0.0)
+        share = np.where(ok, dp / (np.abs(np.where(ok, v, 0.0)) + floor), 0.0)
         typical = float(np.median(share[ok])) if ok.any() else 0.0
-        return ok & (share >= self.settings.signature_contrast * typical) & (share > 0)
+        self._shown["leak"] = ok & (share >= self.settings.signature_contrast * typical) & (share > 0)
+        return self._shown["leak"]
 
     def start(self, base: Model) -> np.ndarray:
         """Coordinates the fit starts from: the nominal values, the spool as fast as its bound
