@@ -253,8 +253,8 @@ class _Fitting:
         self.pool = family.candidates(scales, rate)
 
     def search(self, trace: Trace, stages: Stages) -> Result:
-        return search(self.prob, self.base, self.nominal, self.pool, self.rate, first=self.family.first_stage, log=self.log,
-                      trace=trace, stages=stages)
+        return search(self.prob, self.base, self.nominal, self.pool, self.rate, first=self.family.first_stage,
+                      stated=frozenset(self.family.rig_keys), log=self.log, trace=trace, stages=stages)
 
 
 def _restate_free_run(prob: Problem, res: Result, rate: float) -> Result:

@@ -194,16 +194,18 @@ class _BetterBase:
 
 
 def search(prob: Problem, base: Model, nominal: Any, pool: list[Candidate], rate: float, *, max_findings: int | None = None,
-           max_refits: int | None = None, first: frozenset[str] = frozenset(), log: Log = lambda *a: None,
-           trace: Trace | None = None, stages: Stages | None = None) -> Result:
+           max_refits: int | None = None, first: frozenset[str] = frozenset(), stated: frozenset[str] = frozenset(),
+           log: Log = lambda *a: None, trace: Trace | None = None, stages: Stages | None = None) -> Result:
     """Fit the base model, then add effects from `pool` while one pays off on the held-out data
     (`Selector`; the settings are `prob.settings`, `max_findings`/`max_refits` override theirs).
     The base model is fitted in two stages: first with the parameters in `first` held (the
     details of a real rig — its spool, return line, orifice shape — that would otherwise wander
-    into a wrong basin while the gross parameters are far off), then with all free."""
+    into a wrong basin while the gross parameters are far off), then with all free. `stated`: the
+    base parameters the metadata states (a rig's geometry, mass, valve rating): one of them at its
+    bound when the search would end is a base in a wrong basin (`SearchSettings.widen_when_pinned`)."""
     st = prob.settings
     sel = Selector(prob, nominal, pool, rate, log=log, trace=trace if trace is not None else Trace(),
-                   stages=stages if stages is not None else Stages())
+                   stages=stages if stages is not None else Stages(), stated=stated)
     return sel.run(base, first, st.max_findings if max_findings is None else max_findings,
                    st.max_refits if max_refits is None else max_refits)
 
@@ -213,11 +215,13 @@ class Selector:
     stage per method; its state is the current model, its predictions and Jacobian."""
 
     def __init__(self, prob: Problem, nominal: Any, pool: list[Candidate], rate: float, *, log: Log, trace: Trace,
-                 stages: Stages) -> None:
+                 stages: Stages, stated: frozenset[str] = frozenset()) -> None:
         self.prob, self.nominal, self.pool, self.rate = prob, nominal, list(pool), rate
+        self.stated = stated
         self.st: SearchSettings = prob.settings
         self.log, self.trace, self.stages = log, trace, stages
         self.findings: list[Finding] = []
+        self.refitted: list[Trial] = []  # the last refit's trials, judged
         self.common: list[Finding] = []  # findings whose sibling reading showed the same fault since (sibling_check)
 
     # --- the loop --------------------------------------------------------------------------
@@ -239,6 +243,7 @@ class Selector:
         self.model, self.pred, self.work_pred, self.jac = base, base_pred, work_pred, jac
         self.settled_at: np.ndarray | None = None  # where a refit without a new effect last ended converged
         kept_base = False
+        widened = False  # the rest of a round's screened candidates refitted (once per search)
         for rnd in range(2 * max_findings + 2):  # a round per finding, and one per better base
             tr.round = rnd + 1
             if len(self.findings) >= max_findings:
@@ -271,6 +276,7 @@ class Selector:
                    ranked={c.label: g for c, g, _ in ranked[:6]})
             with self.stages("refit", f"round {rnd + 1}: {', '.join(c.label for c, _, _ in ranked[:max_refits]) or 'none'}"):
                 good, better_base, too_small = self.refit(ranked, max_refits)
+            done = {t.cand.key for t in self.refitted}
             if composites := [c for c in self.pool if c.parts]:
                 # effects that may pay off only together (a composite), refitted beside the single
                 # candidates, every one from its starts with its first parameter scanned (a linearised
@@ -278,6 +284,20 @@ class Selector:
                 ranked = [Screened(c, 0.0, c.frees[0].step) for c in composites]
                 with self.stages("refit", f"round {rnd + 1}: composites {', '.join(c.label for c in composites)}"):
                     good += self.refit(ranked, len(ranked))[0]
+            if not good and not widened and st.widen_when_pinned and (pinned := self.pinned_stated()):
+                # The base sits in a wrong basin (a stated parameter at its bound standing in for an
+                # effect it lacks), so the screen's ranking, read there, misleads: the candidates it
+                # ranked lower are refitted too, once, before the search may end or refuse the record.
+                widened = True
+                rest = [sc for sc in ranked if sc.cand.key not in done and any(c.key == sc.cand.key for c in self.pool)]
+                tr.add("refit", None, "no candidate pays off while a stated parameter sits at its bound (widen_when_pinned)",
+                       f"the other {len(rest)} screened candidates refitted", pinned=pinned)
+                if rest:
+                    with self.stages("refit", f"round {rnd + 1}: widened to {', '.join(sc.cand.label for sc in rest)}"):
+                        more, more_base, more_small = self.refit(rest, len(rest), share=0.0)
+                    good, too_small = more, too_small or more_small
+                    if more_base is not None and (better_base is None or more_base.cost < better_base.cost):
+                        better_base = more_base
             if better_base is not None and good:
                 good = self.settle(good, better_base)
             if not good:
@@ -352,22 +372,33 @@ class Selector:
         return False
 
     # --- stages ----------------------------------------------------------------------------
-    def refit(self, ranked: list[Screened], max_refits: int) -> tuple[list[Trial], _BetterBase | None, bool]:
-        """Refit the best screened candidates (those within refit_share of the best), each from
-        the current fit and from the nominal base parameters at the best size of its parameter;
-        judge each. Returns the trials that pay off, the better base parameters a refit that did
-        not pay off found, and whether a candidate left the pool as too small to claim."""
+    def pinned_stated(self) -> list[str]:
+        """The stated base parameters (`stated`) the current model holds at a bound."""
+        return self.stated_pins(self.model)
+
+    def stated_pins(self, model: Model) -> list[str]:
+        """The stated base parameters (`stated`) `model` holds at a bound."""
+        return [k for k in model.pinned(len(self.x0)) if k in self.stated]
+
+    def refit(self, ranked: list[Screened], max_refits: int, share: float | None = None
+              ) -> tuple[list[Trial], _BetterBase | None, bool]:
+        """Refit the best screened candidates (those within refit_share, or `share`, of the best),
+        each from the current fit and from the nominal base parameters at the best size of its
+        parameter; judge each. Returns the trials that pay off, the better base parameters a
+        refit that did not pay off found, and whether a candidate left the pool as too small to
+        claim. Every trial is kept in `refitted` (the round's, until the next refit)."""
         prob, st, tr = self.prob, self.st, self.trace
+        share = st.refit_share if share is None else share
         q = np.linalg.qr(self.jac)[0]  # what the base parameters can absorb, to first order
         good: list[Trial] = []
         better_base: _BetterBase | None = None
         too_small = False
         todo: list[Screened] = []
         for sc in ranked[:max_refits]:
-            if sc.gain < st.refit_share * ranked[0].gain:
+            if sc.gain < share * ranked[0].gain:
                 tr.add("refit", sc.cand.label, "screened gain >= refit_share x the best", "not refitted",
-                       close=abs(sc.gain - st.refit_share * ranked[0].gain) < st.close_margin * st.refit_share * ranked[0].gain,
-                       other=ranked[0].cand.label, gain=sc.gain, best=ranked[0].gain, refit_share=st.refit_share)
+                       close=abs(sc.gain - share * ranked[0].gain) < st.close_margin * share * ranked[0].gain,
+                       other=ranked[0].cand.label, gain=sc.gain, best=ranked[0].gain, refit_share=share)
                 break
             todo.append(sc)
 
@@ -375,7 +406,8 @@ class Selector:
         # Every candidate's fits (both coordinates of one with an alternate) side by side at once.
         jobs = [(i, c) for i, sc in enumerate(todo) for c in self.coordinates(sc.cand)]
         fits = side_by_side([lambda sc=todo[i], c=c: self.fit_one(sc, c, q) for i, c in jobs])
-        for t in [self.judged([f for (i, _), f in zip(jobs, fits) if i == k]) for k in range(len(todo))]:
+        self.refitted = [self.judged([f for (i, _), f in zip(jobs, fits) if i == k]) for k in range(len(todo))]
+        for t in self.refitted:
             cand, trial, twork, verdict = t.cand, t.model, t.work, t.verdict
             self.log("refit", cand.label, cand.report(trial.params()), verdict)
             tr.add("judge", cand.label, verdict.rule, "pays off" if verdict.ok else "does not pay off", close=verdict.close,
@@ -470,6 +502,18 @@ class Selector:
                params=sib.report(t.model.params()), **t.verdict.numbers(), **_against(t.verdict, st))
         theirs = _size(t.model, sib)
         ratio = _ratio(mine, theirs)
+        mine_pins, their_pins = self.stated_pins(chosen.model), self.stated_pins(t.model)
+        if mine_pins and not their_pins and t.verdict.dbic < 0 and t.verdict.dcost < 0 and mine * theirs < 0:
+            # Two offsets of opposite sign, one per chamber, trade with the weight a stated mass
+            # carries: the one that needs a stated parameter at its bound contradicts the metadata,
+            # the other keeps the whole stated rig inside its bounds. The metadata decides.
+            won = self.polish(t)
+            if won.verdict.ok and not self.stated_pins(won.model):
+                tr.add("sibling check", won.cand.label, "the chosen fault needs a stated parameter at its bound, the "
+                       "sibling's keeps the stated rig inside its bounds (the metadata decides the chamber)", "chosen",
+                       other=c.label, pinned=mine_pins, size=mine, sibling_size=_size(won.model, sib),
+                       dbic=won.verdict.dbic, other_dbic=chosen.verdict.dbic)
+                return won
         # The own-reading share is no judge between the two readings: the base's pressure levels
         # (supply, tank) carry a chamber's offset over into its sibling's reading, so the true
         # chamber's fault may show more in the other reading. A sibling that meets every other rule,

@@ -77,6 +77,10 @@ class SearchSettings:
     screen_fraction: float = knob(0.01, "share of the fit cost", "...and as a share of the fit cost")
     refit_share: float = knob(0.3, "share of the best screened gain", "candidates refitted per round: those within this "
                                                                       "share of the best screened gain")
+    widen_when_pinned: bool = knob(True, "on/off", "when no refitted candidate pays off while a parameter the metadata "
+                                                   "states sits at its bound (the base in a wrong basin, the screen's "
+                                                   "ranking read there), the rest of the screened candidates are refitted "
+                                                   "once before the search ends (a record is refused only after that)")
     scan_octaves: tuple[int, ...] = knob((-1, 0, 1, 2, 3, 4, 5, 6), "powers of 2 of the parameter's step",
                                          "sizes of a candidate's first parameter tried before its refit (a delay's, a dead "
                                          "band's cost is not convex)")
