@@ -530,3 +530,111 @@ def test_the_valve_familys_leak_is_judged_where_its_flow_shows_only_with_both_ch
     assert leak(rec, dataclasses.replace(DEFAULT, shows_ratio=0.0)).shows is None
     no_pb = Record({k: v for k, v in cols.items() if k != "p_b"}, rec.meta, "no_pb")
     assert leak(no_pb).shows is None
+
+
+def _pinned_selector(settings, stated, calls):
+    """A Selector whose base holds the stated `mass` at its lower bound, over three screened
+    candidates; `fit` and `screen` faked, `refit` recording what it refits (nothing pays off)."""
+    from htm.ident import search as S
+    from htm.ident.model import Candidate, lin
+
+    base = Model({"mass": 100.0}, [logf("mass", 0.4, 2.5)], np.array([np.log(0.4)]))
+    cands = [Candidate(e, None, (lin("k", 1e-3, 0.0, 1.0),), "du/dt") for e in ("valve_null_bias", "valve_deadband",
+                                                                                 "valve_dynamics")]
+
+    class Prob:
+        def __init__(self):
+            self.settings = settings
+
+        def whole(self, model, work):
+            return work
+
+        def ratios(self, pred, rate):
+            return {"y": 50.0}
+
+        def rmse(self, pred):
+            return {"y": 1.0}
+
+    def fake_fit(prob, model, *, iters, info=None, **kw):
+        if info is not None:
+            info.update(iterations=2, ended="converged")
+        return model, {"y": np.zeros(3)}, np.eye(3, len(model.x))
+
+    def fake_refit(self, ranked, max_refits, share=None):
+        share = settings.refit_share if share is None else share
+        todo = [sc for sc in ranked[:max_refits] if sc.gain >= share * ranked[0].gain]
+        calls.append([sc.cand.effect for sc in todo])
+        self.refitted = [S.Trial(sc.cand, self.model, {}, {}, S.Verdict(False, 1.0, 0.1, 0.1, 0.0)) for sc in todo]
+        return [], None, False
+
+    gains = {"valve_null_bias": 0.7, "valve_deadband": 0.5, "valve_dynamics": 0.1}
+    saved = S.fit, S.screen, S.Selector.refit
+    S.fit = fake_fit
+    S.screen = lambda prob, model, work, jac, pool: [S.Screened(c, gains[c.effect], 1e-3) for c in pool]
+    S.Selector.refit = fake_refit
+    try:
+        sel = S.Selector(Prob(), {"mass": 100.0}, cands, 500.0, log=lambda *a: None, trace=S.Trace(), stages=S.Stages(),
+                         stated=stated)
+        sel.run(base, frozenset(), 3, 2)
+    finally:
+        S.fit, S.screen, S.Selector.refit = saved
+    return sel
+
+
+def test_a_search_stalled_with_a_stated_parameter_at_its_bound_refits_the_rest_once():
+    """widen_when_pinned: no refitted candidate pays off while the base holds a stated parameter
+    (the rig's mass) at its bound — a wrong basin, where the screen's ranking misleads (a valve
+    lag ranked fourth on a record whose mass the fit pinned): the candidates the round left out
+    (by max_refits and refit_share) are refitted once before the search ends, and the trace
+    names the rule. Off, or with no stated parameter pinned, the search ends as before."""
+    import dataclasses
+
+    from htm.ident.settings import DEFAULT
+
+    calls: list = []
+    sel = _pinned_selector(DEFAULT, frozenset({"mass"}), calls)
+    assert calls == [["valve_null_bias", "valve_deadband"], ["valve_dynamics"]]
+    named = [d for d in sel.trace.to_json() if "widen_when_pinned" in d["rule"]]
+    assert len(named) == 1 and named[0]["numbers"]["pinned"] == ["mass"]
+    calls.clear()
+    _pinned_selector(dataclasses.replace(DEFAULT, widen_when_pinned=False), frozenset({"mass"}), calls)
+    assert calls == [["valve_null_bias", "valve_deadband"]]
+    calls.clear()
+    _pinned_selector(DEFAULT, frozenset(), calls)  # the pinned parameter is not one the metadata states
+    assert calls == [["valve_null_bias", "valve_deadband"]]
+
+
+def test_between_two_chambers_offsets_the_one_that_keeps_the_stated_rig_inside_its_bounds_is_chosen():
+    """A p_b offset chosen with the stated mass pinned at its bound against the same fault on p_a,
+    of opposite sign, that keeps every stated parameter inside its bounds and gains too (if not
+    by min_gain): the metadata decides the chamber — the sibling, polished, is chosen and the
+    trace says why. Where the sibling pins a stated parameter as well, the rule says nothing."""
+    from htm.ident import search as S
+    from htm.ident.model import Candidate, lin
+    from htm.ident.settings import DEFAULT
+
+    frees = [logf("mass", 0.4, 2.5)]
+    off = {ch: Candidate("sensor_offset", ch, (lin(f"off_{ch}", 1e5, -100.0, 100.0),), "constant",
+                         fields=(("offset_pa", f"off_{ch}"),), own_reading=True, sibling=other)
+           for ch, other in (("p_a", "p_b"), ("p_b", "p_a"))}
+    pinned = Model({"mass": 100.0, "off_p_a": 0.0, "off_p_b": 0.0}, frees, np.array([np.log(0.4)]))
+
+    def run(sibling_mass_x: float):
+        sel = S.Selector.__new__(S.Selector)
+        sel.prob, sel.st, sel.trace, sel.log = None, DEFAULT, S.Trace(), lambda *a: None
+        sel.findings, sel.stated, sel.x0 = [], frozenset({"mass"}), np.zeros(1)
+        sel.pool = list(off.values())
+        sel.jac = np.eye(3, 1)
+        chosen = S.Trial(off["p_b"], pinned.with_candidate(off["p_b"], 5.3), {}, {}, S.Verdict(True, -3e4, -0.77, -0.64, 0.79))
+        sib_model = Model(pinned.nominal, frees, np.array([sibling_mass_x])).with_candidate(off["p_a"], -3.6)
+        sib = S.Trial(off["p_a"], sib_model, {}, {}, S.Verdict(False, -1257.0, -0.058, -0.69, 0.88,
+                                                                failed=("dcost < -min_gain",)))
+        sel.refit_one = lambda sc, q: sib
+        sel.polish = lambda t: S.Trial(t.cand, t.model, {}, {}, S.Verdict(True, -2e4, -0.6, -0.7, 0.9))
+        got = sel.sibling_check(chosen, {})
+        return got, [d for d in sel.trace.to_json() if "metadata decides" in d["rule"]]
+
+    got, named = run(np.log(1.35))  # the sibling's mass 135 kg: inside its bounds
+    assert got.cand.channel == "p_a" and len(named) == 1 and named[0]["numbers"]["pinned"] == ["mass"]
+    got, named = run(np.log(0.4))  # the sibling pins the mass too: this reading's own fault
+    assert got.cand.channel == "p_b" and not named
