@@ -235,15 +235,13 @@ class Selector:
             if first:
                 base, _, _ = fit(prob, base, iters=st.base_iters, hold=first)
                 log("first stage", {k: f"{v:.4g}" for k, v in base.values().items()})
-            based: dict[str, Any] = {}
-            base, work_pred, jac = fit(prob, base, iters=st.base_iters, info=based)
+            base, work_pred, jac = fit(prob, base, iters=st.base_iters)
             base_pred = prob.whole(base, work_pred)
         self.jac_at: np.ndarray | None = base.x  # where self.jac belongs
         log("baseline", {k: f"{v:.4g}" for k, v in base.values().items()}, prob.rmse(base_pred))
         self.base, self.base_pred = base, base_pred
         self.model, self.pred, self.work_pred, self.jac = base, base_pred, work_pred, jac
-        # where a refit without a new effect (or the base fit: `base_settles`) last ended converged
-        self.settled_at: np.ndarray | None = base.x if st.base_settles and based["ended"] == "converged" else None
+        self.settled_at: np.ndarray | None = None  # where a refit without a new effect last ended converged
         kept_base = False
         widened = False  # the rest of a round's screened candidates refitted (once per search)
         for rnd in range(2 * max_findings + 2):  # a round per finding, and one per better base

@@ -108,9 +108,6 @@ class SearchSettings:
                                           "less than ftol an iteration; a Jacobian and its trials saved) and screens "
                                           "the same point again (from the cache); benchmarks/diagnose.py's outside-the-table "
                                           "path 844 -> 528 simulations, the same verdict")
-    base_settles: bool = knob(True, "switch", "the base fit that ended converged counts as round 1's refit without a new "
-                                              "effect (resettle's rule from the start: fitted longer it would gain less "
-                                              "than ftol an iteration)")
     backward_stop: float = knob(0.5, "relative fit-block cost (as dcost reads it)",
                                 "the backward check's refit without a finding stops once, even gaining on each iteration "
                                 "left twice the best share any iteration so far gained (no less than backward_rate, at most "
