@@ -67,10 +67,7 @@ def test_estop_latches_until_reset_and_refuses_motion():
 
 def test_realtime_thread_runs_a_test_with_a_decimated_feed():
     spec = load(ROOT / "examples" / "ct_constant_force.toml")
-    # timing is the benchmark's business: on a loaded shared machine a late TPDO must not end this
-    # functional test, so freshness and heartbeat get slack here
-    slack = {"transducer_silent": {"hi": 200.0}, "heartbeat": {"hi": 2.0}, "position_plausibility": {"hi": 1.0}}
-    s = Session().open(virtual_config("realtime", limits=slack), virtual=True, specimen=specimen_of(spec))
+    s = Session().open(virtual_config("realtime"), virtual=True, specimen=specimen_of(spec))
     try:
         s.start(spec)
         t0 = time.monotonic()  # the loop's own pace: a loaded machine may take longer than 2 s
