@@ -271,6 +271,23 @@ def test_a_refit_without_a_finding_stops_only_once_it_cannot_come_near_the_model
     assert _far_above([with_cost + gap, with_cost + gap], 0, with_cost, n, 0.2, 0.25)
 
 
+class _FakeProb:
+    """The little of a `Problem` the Selector's loop asks for when its fits and screens are faked:
+    the settings, a whole-record prediction, and `y`'s systematic ratio (above 1: not at the floor)."""
+
+    def __init__(self, settings, ratio: float):
+        self.settings, self.ratio = settings, ratio
+
+    def whole(self, model, work):
+        return work
+
+    def ratios(self, pred, rate):
+        return {"y": self.ratio}
+
+    def rmse(self, pred):
+        return {"y": 1.0}
+
+
 def test_a_model_where_the_last_refit_without_an_effect_converged_is_not_refitted_again():
     """resettle: a round that only lost a candidate too small to claim leaves the model where the
     refit without a new effect ended converged; the next round does not refit it again (the trace
@@ -286,19 +303,6 @@ def test_a_model_where_the_last_refit_without_an_effect_converged_is_not_refitte
 
     def run(settings, ended: str) -> tuple[int, list]:
         calls: list = []
-
-        class Prob:
-            def __init__(self):
-                self.settings = settings
-
-            def whole(self, model, work):
-                return work
-
-            def ratios(self, pred, rate):
-                return {"y": 5.0}
-
-            def rmse(self, pred):
-                return {"y": 1.0}
 
         def fake_fit(prob, model, *, iters, info=None, **kw):
             calls.append(iters)
@@ -317,7 +321,7 @@ def test_a_model_where_the_last_refit_without_an_effect_converged_is_not_refitte
         S.screen = lambda prob, model, work, jac, pool: [S.Screened(c, 0.5, 1e-3) for c in pool]
         S.Selector.refit = fake_refit
         try:
-            sel = S.Selector(Prob(), {"a": 1.0}, cands, 500.0, log=lambda *a: None, trace=S.Trace(), stages=S.Stages())
+            sel = S.Selector(_FakeProb(settings, 5.0), {"a": 1.0}, cands, 500.0, log=lambda *a: None, trace=S.Trace(), stages=S.Stages())
             sel.run(base, frozenset(), 3, 2)
         finally:
             S.fit, S.screen, S.Selector.refit = saved
@@ -542,19 +546,6 @@ def _pinned_selector(settings, stated, calls):
     cands = [Candidate(e, None, (lin("k", 1e-3, 0.0, 1.0),), "du/dt") for e in ("valve_null_bias", "valve_deadband",
                                                                                  "valve_dynamics")]
 
-    class Prob:
-        def __init__(self):
-            self.settings = settings
-
-        def whole(self, model, work):
-            return work
-
-        def ratios(self, pred, rate):
-            return {"y": 50.0}
-
-        def rmse(self, pred):
-            return {"y": 1.0}
-
     def fake_fit(prob, model, *, iters, info=None, **kw):
         if info is not None:
             info.update(iterations=2, ended="converged")
@@ -573,7 +564,7 @@ def _pinned_selector(settings, stated, calls):
     S.screen = lambda prob, model, work, jac, pool: [S.Screened(c, gains[c.effect], 1e-3) for c in pool]
     S.Selector.refit = fake_refit
     try:
-        sel = S.Selector(Prob(), {"mass": 100.0}, cands, 500.0, log=lambda *a: None, trace=S.Trace(), stages=S.Stages(),
+        sel = S.Selector(_FakeProb(settings, 50.0), {"mass": 100.0}, cands, 500.0, log=lambda *a: None, trace=S.Trace(), stages=S.Stages(),
                          stated=stated)
         sel.run(base, frozenset(), 3, 2)
     finally:

@@ -284,7 +284,7 @@ class Selector:
                 ranked = [Screened(c, 0.0, c.frees[0].step) for c in composites]
                 with self.stages("refit", f"round {rnd + 1}: composites {', '.join(c.label for c in composites)}"):
                     good += self.refit(ranked, len(ranked))[0]
-            if not good and not widened and st.widen_when_pinned and (pinned := self.pinned_stated()):
+            if not good and not widened and st.widen_when_pinned and (pinned := self.stated_pins(self.model)):
                 # The base sits in a wrong basin (a stated parameter at its bound standing in for an
                 # effect it lacks), so the screen's ranking, read there, misleads: the candidates it
                 # ranked lower are refitted too, once, before the search may end or refuse the record.
@@ -372,10 +372,6 @@ class Selector:
         return False
 
     # --- stages ----------------------------------------------------------------------------
-    def pinned_stated(self) -> list[str]:
-        """The stated base parameters (`stated`) the current model holds at a bound."""
-        return self.stated_pins(self.model)
-
     def stated_pins(self, model: Model) -> list[str]:
         """The stated base parameters (`stated`) `model` holds at a bound."""
         return [k for k in model.pinned(len(self.x0)) if k in self.stated]
