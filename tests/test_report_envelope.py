@@ -1,5 +1,9 @@
 """The envelope that long lines are drawn from (htm.report.envelope): what a plot of a 60 s record
-shows must be what the full line shows — every extreme kept, in time order, each column's range."""
+shows must be what the full line shows — every extreme kept, in time order, each column's range;
+and the plotting library loaded in the background while a diagnosis computes (preload)."""
+import subprocess
+import sys
+
 import numpy as np
 
 from htm.report import envelope
@@ -24,3 +28,19 @@ def test_a_short_line_is_drawn_as_it_is():
     t, y = np.arange(100.0), np.sin(np.arange(100.0))
     tx, yx = envelope(t, y, columns=1000)
     assert np.array_equal(tx, t) and np.array_equal(yx, y)
+
+
+def test_preload_imports_the_plotting_library_in_the_background_once():
+    # a fresh interpreter: matplotlib is not loaded until preload() loads it on its own thread,
+    # and a second call starts no second thread
+    code = ("import sys, htm.report as r\n"
+            "assert 'matplotlib.pyplot' not in sys.modules\n"
+            "r.preload(); r.preload()\n"
+            "assert len(r._PRELOAD) == 1 and r._PRELOAD[0].name == 'htm-preload-matplotlib'\n"
+            "r._PRELOAD[0].join(60)\n"
+            "assert 'matplotlib.pyplot' in sys.modules\n"
+            "import matplotlib; assert matplotlib.get_backend().lower() == 'agg'\n"
+            "print('ok')\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "ok"

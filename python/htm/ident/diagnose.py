@@ -74,6 +74,10 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
     information (too short, no excitation) or that does not belong to its metadata's rig.
     """
     t_start = time.perf_counter()
+    if out_dir is not None:  # the plots' library loads while the core simulates
+        from htm.report import preload
+
+        preload()
     st = settings if settings is not None else DEFAULT
     over = {k: v for k, v in (("max_findings", max_findings), ("max_refits", max_refits), ("work_s", work_s)) if v is not None}
     if over:

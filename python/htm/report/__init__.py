@@ -7,14 +7,36 @@ from __future__ import annotations
 
 import base64
 import html
+import threading
 from pathlib import Path
 from typing import Any
 
-__all__ = ["pyplot", "save", "envelope", "md_table", "markdown_to_html", "write"]
+__all__ = ["pyplot", "preload", "save", "envelope", "md_table", "markdown_to_html", "write"]
+
+
+_PRELOAD: list[threading.Thread] = []
+
+
+def preload() -> None:
+    """Begin importing matplotlib.pyplot (Agg) on a background thread, once: a caller that draws
+    after a long computation that releases the GIL (a diagnosis: the core's simulations) then
+    finds the import (~0.5 s of a report's writing) done. `pyplot()` waits for it; an import
+    that fails there fails again, with its message, in `pyplot()`."""
+    if not _PRELOAD:
+        def load() -> None:
+            try:
+                pyplot()
+            except Exception:  # reported by the caller's own pyplot()
+                pass
+
+        _PRELOAD.append(threading.Thread(target=load, name="htm-preload-matplotlib", daemon=True))
+        _PRELOAD[0].start()
 
 
 def pyplot() -> Any:
     """matplotlib.pyplot on the Agg backend (files only, no display; imported on first use)."""
+    if _PRELOAD and _PRELOAD[0] is not threading.current_thread():
+        _PRELOAD[0].join()
     import matplotlib
 
     matplotlib.use("Agg")
