@@ -195,6 +195,12 @@ class SearchSettings:
                                                                              "(declared; undeclared, the slowest its bound "
                                                                              "admits, 60 Hz at damping 0.7) is the spool's "
                                                                              "form, not a lag of its own")
+    min_sensor_delay: float = knob(0.25, "sample periods", "a reading's transport delay shorter than this is where in "
+                                                           "its sample period the reading is taken (a sub-sample phase "
+                                                           "the base model's form leaves: clean foreign seed 6 fr10, "
+                                                           "0.09 of a period on v), not a delay of its own; a CAN "
+                                                           "frame's age, the delay EFFECTS.md names, averages half a "
+                                                           "period or more")
 
     def describe(self) -> dict[str, dict[str, Any]]:
         """{name: {value, unit, reason}} of every setting."""
