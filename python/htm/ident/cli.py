@@ -101,24 +101,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     _register_predict(sub)
 
 
-def _load_later_libraries() -> None:
-    from htm.report import pyplot
-
-    pyplot()
-
-
 def cmd_diagnose(args: argparse.Namespace) -> int:
     import sys
 
     from htm.ident.diagnose import diagnose
 
     rec = read_record(args.record, args.meta)
-    # The plotting library report.md needs loads while the fit runs (its simulations release the
-    # GIL): about half a second of imports off the end of every diagnosis. (The diagnosis itself
-    # needs no scipy: htm.ident.dsp.)
-    import threading
-
-    threading.Thread(target=_load_later_libraries, name="htm-import", daemon=True).start()
+    # (diagnose() loads the plotting library report.md needs on a thread while the fit runs:
+    # htm.report.preload; the diagnosis itself needs no scipy: htm.ident.dsp.)
     run: dict[str, Any] = {}
     report = diagnose(rec, out_dir=args.out, verbose=args.verbose, stats=run, progress=None if args.quiet else stage_line())
     if sys.stderr.isatty() and not args.quiet:
