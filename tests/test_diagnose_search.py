@@ -277,11 +277,11 @@ def test_a_play_narrower_than_the_valves_null_tolerance_is_not_claimed_and_the_s
     assert play2({"half_width_v": 0.5 * line})
 
 
-def test_a_sensor_delay_shorter_than_a_quarter_sample_is_not_claimed_and_the_setting_moves_the_line():
-    """A transport delay well inside one sample period is where in its period a reading is taken
-    (a sub-sample phase the base model's form leaves: 0.09 of a period on a clean foreign record's
-    v), not a fault: every reading's delay is claimable only from min_sensor_delay sample periods
-    on (500 Hz: 0.5 ms); a lower setting moves the line."""
+def test_a_sensor_delay_floor_in_sample_periods_moves_the_claim_line_and_is_off_by_default():
+    """min_sensor_delay: a transport delay shorter than that many sample periods is not claimed
+    (a sub-sample phase the base model's form leaves). Off by default (its measured trade in
+    settings.py): every reading's delay is then claimable at any size; at 0.25 periods (500 Hz:
+    0.5 ms) a shorter delay is not, a longer one is."""
     from htm.ident.features import measured_channels
     from htm.ident.valve import ValveFamily
 
@@ -292,14 +292,15 @@ def test_a_sensor_delay_shorter_than_a_quarter_sample_is_not_claimed_and_the_set
         fam = ValveFamily(rec, channels, settings=settings)
         return {c.channel: c.claimable for c in fam.candidates(dict.fromkeys(channels, 1.0), 500.0) if c.effect == "sensor_delay"}
 
-    dt = 1.0 / 500.0
-    delays = claims()
+    dt, floor = 1.0 / 500.0, 0.25
+    assert DEFAULT.min_sensor_delay == 0.0
+    default = claims()
+    assert set(default) == set(channels) and all(claim is None for claim in default.values())  # no size rule
+    delays = claims(dataclasses.replace(DEFAULT, min_sensor_delay=floor))
     assert set(delays) == set(channels)  # every reading's delay is a candidate, each with the line
     for claim in delays.values():
-        assert not claim({"delay_s": 0.9 * DEFAULT.min_sensor_delay * dt})
-        assert claim({"delay_s": 1.1 * DEFAULT.min_sensor_delay * dt}) and claim({"delay_s": 3 * dt})
-    looser = claims(dataclasses.replace(DEFAULT, min_sensor_delay=0.05))
-    assert all(claim({"delay_s": 0.9 * DEFAULT.min_sensor_delay * dt}) for claim in looser.values())
+        assert not claim({"delay_s": 0.9 * floor * dt})
+        assert claim({"delay_s": 1.1 * floor * dt}) and claim({"delay_s": 3 * dt})
 
 
 def test_a_delay_that_fits_its_own_reading_at_the_others_cost_is_not_claimed_and_the_rule_is_named():

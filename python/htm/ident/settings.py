@@ -195,12 +195,15 @@ class SearchSettings:
                                                                              "(declared; undeclared, the slowest its bound "
                                                                              "admits, 60 Hz at damping 0.7) is the spool's "
                                                                              "form, not a lag of its own")
-    min_sensor_delay: float = knob(0.25, "sample periods", "a reading's transport delay shorter than this is where in "
-                                                           "its sample period the reading is taken (a sub-sample phase "
-                                                           "the base model's form leaves: clean foreign seed 6 fr10, "
-                                                           "0.09 of a period on v), not a delay of its own; a CAN "
-                                                           "frame's age, the delay EFFECTS.md names, averages half a "
-                                                           "period or more")
+    min_sensor_delay: float = knob(0.0, "sample periods", "a reading's transport delay shorter than this is not claimed "
+                                                          "(where in its sample period a reading is taken, a sub-sample "
+                                                          "phase the base model's form leaves). Off: at 0.25 the clean "
+                                                          "foreign seed 6 fr10 lost its false 0.18 ms delay on v, but the "
+                                                          "external set with seeds + 1000 rec_e2 (a vertical rig's "
+                                                          "asymmetry) gained entrained air 0.016 after its asymmetry — "
+                                                          "the 0.37 ms p_b delay it had claimed first, and dropped at the "
+                                                          "end, had held the p_b phase that the air then took (STRICT "
+                                                          "12 -> 11 of 13)")
 
     def describe(self) -> dict[str, dict[str, Any]]:
         """{name: {value, unit, reason}} of every setting."""

@@ -227,7 +227,8 @@ class ValveFamily(Family):
         for c in channels:
             offset = self.sensor_candidate("sensor_offset", c, scales[c], claimable=_not_a_tolerated_gain(rec, c, st.min_gain_error))
             gain = self.sensor_candidate("sensor_gain", c, 0.01, claimable=_calibrated_off(st.min_gain_error))
-            delay = self.sensor_candidate("sensor_delay", c, dt, claimable=_share_of("delay_s", st.min_sensor_delay * dt))
+            delay = self.sensor_candidate("sensor_delay", c, dt, claimable=_share_of("delay_s", st.min_sensor_delay * dt)
+                                          if st.min_sensor_delay > 0 else None)
             # The loop regulates what its own sensor reads: an offset or gain of that sensor only
             # moves the true state, which nothing else measures — unless a specimen ties position
             # and force: its zero-force position is trusted, so the force's offset shows against
