@@ -7,7 +7,9 @@
 //! ```text
 //!   x   = play(y; g/2)                               load-train play of gap g (EFFECTS load_train_backlash)
 //!   ẋ   = (x[k+m] − x[k−m]) / (2m·Δt)                the specimen's velocity (central difference, window 2m·Δt)
-//!   F   = k·(x − y_s) − k_cl·⌊y_s + y_cl − x⌋₊        spring, stiffer by k_cl below the closure position
+//!   F   = k·(x − y_s) − k_cl·(⌊y_s + y_cl − x⌋₊ − ⌊y_cl⌋₊)
+//!                                                    spring, stiffer by k_cl below the closure position,
+//!                                                    no force at y_s on either branch
 //!         + c·ẋ + F_c·tanh(ẋ/v_f)                     viscous damping, friction in the load path
 //!         + F_p·z(u),  u = clip(u + Δy, ±(g/2 + δ_e))  friction built up over a displacement (pre-sliding),
 //!           z(u) = sign(u)·min(⌊|u| − g/2⌋₊/δ_e, 1)     behind the play in series (below), δ_e = δ_p − g/2
@@ -35,13 +37,13 @@
 //! **The same physics as `crack_measure`.** Its closure fit describes the loading branch as the
 //! opening against the force, compliance C_open above the opening force and C_open·(1 − d)
 //! below it (the compliance offset d of E647 X2). The spring above is the same bilinear law read
-//! the other way: C_open = 1/k, d = k_cl/(k + k_cl), and the opening force F_t = k·y_cl + f_0 (the
-//! force at the closure position). `closure_fit` and `from_closure_fit` convert between the two,
+//! the other way: C_open = 1/k, d = k_cl/(k + k_cl), and the opening force F_t = k·y_cl +
+//! k_cl·⌊y_cl⌋₊ + f_0 (the force at the closure position, `closure_force`). `closure_fit` and `from_closure_fit` convert between the two,
 //! and a loading branch simulated here and reduced by `crack_measure::fit_closure` returns them
 //! (test `crack_measure_reads_this_closure_back`).
 use crate::crack_measure::ClosureFit;
 use crate::error::{Error, Result};
-use crate::hydraulics::smooth_opening;
+use crate::hydraulics::{smooth_opening, smooth_opening_dx};
 use crate::machine::CLOSURE_SMOOTHING_M;
 use crate::measure::held;
 use crate::params::Field;
@@ -134,7 +136,7 @@ impl SpecimenParams {
         ClosureFit {
             c_open: 1.0 / k,
             depth: if k + kc > 0.0 { kc / (k + kc) } else { 0.0 },
-            f_t: k * self.specimen_closure_offset_m + self.sensor_offset_f,
+            f_t: closure_force(k, kc, self.specimen_closure_offset_m) + self.sensor_offset_f,
             w: k * CLOSURE_SMOOTHING_M,
         }
     }
@@ -153,22 +155,49 @@ impl SpecimenParams {
         let mut p = self.clone();
         p.specimen_stiffness_n_m = k;
         p.specimen_closure_stiffness_n_m = k * fit.depth / (1.0 - fit.depth);
-        p.specimen_closure_offset_m = (fit.f_t - self.sensor_offset_f) / k;
+        p.specimen_closure_offset_m = closure_offset_at(k, p.specimen_closure_stiffness_n_m, fit.f_t - self.sensor_offset_f);
         p.validate()?;
         Ok(p)
     }
 }
 
-/// The bilinear spring of a specimen [N] at displacement `x`: stiffness `k` about the zero-force
-/// position `y0`, and `k_cl` more below `y0 + closure_offset` (corner smoothed over
-/// `CLOSURE_SMOOTHING_M`). The one copy of the closure law (plant, displacement loop, this model).
+/// The bilinear spring of a specimen [N] at displacement `x`: stiffness `k`, and `k_cl` more
+/// below `y0 + closure_offset` (corner smoothed over `CLOSURE_SMOOTHING_M`), carrying no force
+/// at the zero-force position `y0` whichever branch it lies on (DATA_FORMAT.md: the position at
+/// which the gripped specimen carried no force). A closure above `y0` (at a positive force, the
+/// usual crack closure) puts `y0` on the closed, stiffer branch: that branch passes through
+/// (`y0`, 0) and the open branch lies `k_cl·⌊closure_offset⌋₊` above `k·(x − y0)`; a closure below
+/// `y0` leaves the open branch through (`y0`, 0). The one copy of the closure law (plant,
+/// displacement loop, this model).
 #[inline]
 pub fn spring_force(k: f64, y0: f64, k_cl: f64, closure_offset: f64, x: f64) -> f64 {
     let mut f = k * (x - y0);
     if k_cl > 0.0 {
-        f -= k_cl * smooth_opening(y0 + closure_offset - x, CLOSURE_SMOOTHING_M);
+        f -= k_cl * (smooth_opening(y0 + closure_offset - x, CLOSURE_SMOOTHING_M)
+            - smooth_opening(closure_offset, CLOSURE_SMOOTHING_M));
     }
     f
+}
+
+/// The force at the closure position (where the two branches of [`spring_force`] meet),
+/// without a load cell's offset: k·y_cl + k_cl·⌊y_cl⌋₊ (the corner's smoothing as in the spring).
+pub fn closure_force(k: f64, k_cl: f64, closure_offset: f64) -> f64 {
+    k * closure_offset + k_cl * smooth_opening(closure_offset, CLOSURE_SMOOTHING_M)
+}
+
+/// The closure offset whose [`closure_force`] is `f` (the inverse: monotone in the offset).
+pub fn closure_offset_at(k: f64, k_cl: f64, f: f64) -> f64 {
+    let mut y = if f > 0.0 { f / (k + k_cl) } else { f / k };
+    for _ in 0..50 {
+        let r = closure_force(k, k_cl, y) - f;
+        let d = k + k_cl * smooth_opening_dx(y, CLOSURE_SMOOTHING_M);
+        let step = r / d;
+        y -= step;
+        if step.abs() <= 1e-15 * y.abs().max(CLOSURE_SMOOTHING_M) {
+            break;
+        }
+    }
+    y
 }
 
 /// The velocity-dependent force of a specimen [N] at velocity `v`: viscous damping `c` and a
@@ -338,6 +367,29 @@ mod tests {
         let q = SpecimenParams { load_train_gap_m: 0.0, ..p };
         let g = force(&q, 1e-3, &y).unwrap();
         assert!(g[2300].abs() < 1e-6 && (g[2600] + fp).abs() < 1e-9 && (g[2150] - 0.5 * fp).abs() < 1e-6);
+    }
+
+    #[test]
+    fn the_spring_carries_no_force_at_its_zero_force_position_on_either_branch() {
+        let (k, kc, y0) = (2e6, 1.5e6, 0.01);
+        for yc in [0.5e-3, 0.0, -0.5e-3] {
+            assert!(spring_force(k, y0, kc, yc, y0).abs() < 1e-9, "closure offset {yc}: {}", spring_force(k, y0, kc, yc, y0));
+            // the branches' slopes: k + k_cl well below the closure position, k well above it
+            let slope = |x: f64| (spring_force(k, y0, kc, yc, x + 1e-7) - spring_force(k, y0, kc, yc, x - 1e-7)) / 2e-7;
+            assert!((slope(y0 + yc - 0.5e-3) / (k + kc) - 1.0).abs() < 1e-3 && (slope(y0 + yc + 0.5e-3) / k - 1.0).abs() < 1e-3);
+        }
+        // a closure at a positive force (above y0): y0 on the closed branch, the open branch
+        // lies k_cl·y_cl above k·(x − y0); the force at the closure position is (k + k_cl)·y_cl
+        let yc = 0.5e-3;
+        assert!((spring_force(k, y0, kc, yc, y0 + 2e-3) - (k * 2e-3 + kc * yc)).abs() < 1.0);
+        assert!((closure_force(k, kc, yc) - (k + kc) * yc).abs() < 1.0);
+        assert!((closure_force(k, kc, -yc) + k * yc).abs() < 1.0);
+        // below y0: unchanged, the open branch through (y0, 0)
+        assert!((spring_force(k, y0, kc, -yc, y0 + 1e-3) - k * 1e-3).abs() < 0.5); // the corner's smoothing only
+        for f in [-2000.0, -1.0, 0.0, 3.0, 1750.0] {
+            let y = closure_offset_at(k, kc, f);
+            assert!((closure_force(k, kc, y) - f).abs() < 1e-6, "{f}: {}", closure_force(k, kc, y));
+        }
     }
 
     #[test]

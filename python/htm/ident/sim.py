@@ -13,7 +13,8 @@ Conventions (agreed with `diagnose`):
   spool (`valve_linear_flow = 1`) and the effect is the switch to the sqrt(p_s - p_L) law
   (`valve_linear_flow = 0`). It has no parameters.
 * `specimen_nonlinearity` is a bilinear (crack-closure) spring: `closure_stiffness_n_m` added
-  below `zero-force position + closure_offset_m`.
+  below `zero-force position + closure_offset_m`, with no force at the zero-force position on
+  either branch (a closure above it, at a positive force, puts that position on the stiffer one).
 * The sensor effects act in the loop: in closed loop the controller sees the simulated readings.
 """
 from __future__ import annotations
