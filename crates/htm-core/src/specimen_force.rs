@@ -38,9 +38,9 @@
 //! opening against the force, compliance C_open above the opening force and C_open·(1 − d)
 //! below it (the compliance offset d of E647 X2). The spring above is the same bilinear law read
 //! the other way: C_open = 1/k, d = k_cl/(k + k_cl), and the opening force F_t = k·y_cl +
-//! k_cl·⌊y_cl⌋₊ + f_0 (the force at the closure position, `closure_force`). `closure_fit` and `from_closure_fit` convert between the two,
-//! and a loading branch simulated here and reduced by `crack_measure::fit_closure` returns them
-//! (test `crack_measure_reads_this_closure_back`).
+//! k_cl·⌊y_cl⌋₊ + f_0 (the force at the closure position, `closure_force`). `closure_fit` and
+//! `from_closure_fit` convert between the two, and a loading branch simulated here and reduced by
+//! `crack_measure::fit_closure` returns them (test `crack_measure_reads_this_closure_back`).
 use crate::crack_measure::ClosureFit;
 use crate::error::{Error, Result};
 use crate::hydraulics::{smooth_opening, smooth_opening_dx};
