@@ -504,6 +504,17 @@ def test_a_leak_must_cut_the_error_where_its_flow_shows_about_as_well_as_elsewhe
     assert numbers["left"] > 10 * numbers["left_elsewhere"] and numbers["shows_ratio"] == DEFAULT.shows_ratio
     v, (shown, numbers) = verdict(stand_in, dataclasses.replace(DEFAULT, shows_ratio=0.0))
     assert shown and RULES[7] not in v.failed and "left" not in numbers
+    # A true leak that takes nearly all of the error everywhere, with a little structure it does
+    # not make where it shows: the shares left differ by far more than shows_ratio (both near the
+    # floor), but it takes there about the share it takes elsewhere (`shows_gain`): claimed; with
+    # shows_gain 0 the ratio alone judges, and it fails.
+    nearly_all = f + np.where(where, 0.15 * g, 0.0)
+    v, (shown, numbers) = verdict(nearly_all)
+    assert numbers["left"] > DEFAULT.shows_ratio * numbers["left_elsewhere"], "the ratio alone would refuse it"
+    assert 1 - numbers["left"] >= DEFAULT.shows_gain * (1 - numbers["left_elsewhere"]) and numbers["shows_gain"] == DEFAULT.shows_gain
+    assert v.ok and shown
+    v, (shown, numbers) = verdict(nearly_all, dataclasses.replace(DEFAULT, shows_gain=0.0))
+    assert not v.ok and RULES[7] in v.failed and not shown
 
 
 def test_the_valve_familys_leak_is_judged_where_its_flow_shows_only_with_both_chamber_readings():

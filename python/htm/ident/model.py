@@ -207,7 +207,8 @@ class Candidate:
     # ...and must cut it there about as well as elsewhere, not only gain there (a leak: its flow
     # is in every sample, largest against the actuator's where the load holds it slow; one that
     # gains mostly elsewhere stands in for the base's dynamics): the share of the error it leaves
-    # where it shows at most `SearchSettings.shows_ratio` times the share it leaves elsewhere.
+    # where it shows at most `SearchSettings.shows_ratio` times the share it leaves elsewhere, or
+    # the share it takes there at least `shows_gain` times the share it takes elsewhere.
     shows_against_rest: bool = False
     # The same effect on another coordinate (a vertical rig's asymmetry with the weight it trades
     # with held): refitted beside this one, the better fit kept (`Selector.coordinates`).

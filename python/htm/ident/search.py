@@ -985,12 +985,16 @@ def gains_where_it_shows(prob: Problem, pred0: dict, tpred: dict, cand: Candidat
     ratio = prob.settings.shows_ratio
     if cand.shows_against_rest and ratio > 0 and rest.any() and s0 > 0:
         # ...and there about as well as elsewhere: the share of the error it leaves where it shows
-        # at most shows_ratio times the share it leaves on the other held-out samples.
+        # at most shows_ratio times the share it leaves on the other held-out samples — or, where
+        # it takes nearly all of the error everywhere (both shares left near the floor, their
+        # ratio the floor's scatter), a share taken there at least shows_gain times the one taken
+        # elsewhere.
         e0 = sum(v for v, _ in prob.channel_ssr(pred0, rest).values())
         e1 = sum(v for v, _ in prob.channel_ssr(tpred, rest).values())
         left, left_rest = s1 / s0, (e1 / e0 if e0 > 0 else 1.0)
-        out.update(left=left, left_elsewhere=left_rest, shows_ratio=ratio)
-        ok = ok and left <= ratio * left_rest
+        gain = prob.settings.shows_gain
+        out.update(left=left, left_elsewhere=left_rest, shows_ratio=ratio, shows_gain=gain)
+        ok = ok and (left <= ratio * left_rest or (gain > 0 and 1.0 - left >= gain * (1.0 - left_rest)))
     return ok, out
 
 

@@ -180,6 +180,12 @@ class SearchSettings:
                               "leaves elsewhere: a true leak cuts the error there as much or more (htm's own leak records, judged: 0.25-0.5), a leak "
                               "standing in for a foreign rig's line dynamics gains mostly where the motion is fast "
                               "(foreign seed 2 fr16: 2.8 polished). 0: a leak is not judged where it shows")
+    shows_gain: float = knob(0.75, "ratio of the error shares taken", "a leak that fails shows_ratio still passes where the "
+                             "share of the held-out error it takes where it shows is at least this many times the share it "
+                             "takes elsewhere: a leak that explains nearly all of the error everywhere leaves shares near the "
+                             "floor on both sides, and their ratio is the floor's scatter, not a signature (a foreign rig's "
+                             "force-controlled leak, f_leak seed 2 fr17: 0.044 left where it shows against 0.018 elsewhere, "
+                             "i.e. 96 % taken against 98 %; the stand-in of fr16 takes 42 % against 80 %). 0: off (the ratio alone judges)")
     asymmetry_weighed: bool = knob(True, "switch", "a friction asymmetry d on a vertical rig is refitted also with the weight "
                                                    "it trades with held (the mass lowered by d/g as d grows), the better fit "
                                                    "kept: in motion d acts "
