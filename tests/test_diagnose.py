@@ -188,3 +188,21 @@ def test_one_channel_the_model_cannot_follow_is_left_out_not_the_record(tmp_path
     assert report["final"]["rmse"]["v"] == pytest.approx(rmse(pred["v_after"], cols["v"]), rel=1e-6)
     assert report["final"]["rmse"]["y"] < 0.1 * float(np.std(cols["y"]))  # the rest is fitted
     assert "left out of the fit" in (tmp_path / "out" / "report.md").read_text()
+
+
+def test_under_force_control_a_missed_position_with_a_pinned_rig_parameter_is_unexplained_not_refused():
+    """Under force control the specimen, not the rig, sets the motion: a position the fit misses
+    grossly while a parameter of the rig sits at its bound is a specimen's form the model lacks
+    (here a closure 0.5 mm above the zero-force position, 5x as stiff as the specimen, which the
+    search may not add: max_findings 0), not another rig. The record is reported unexplained, the
+    pins named, the rule in the trace (it was refused as "does not match its metadata's rig"). A
+    position-controlled record so is refused (test_a_record_of_another_rig_is_refused_not_diagnosed)."""
+    rec, _ = proving.make_record({"specimen_nonlinearity": {"closure_stiffness_n_m": 1e7, "closure_offset_m": 5e-4}},
+                                 seed=7, duration_s=10, experiment="force")
+    assert rec.meta["controller"]["type"] == "force_p"
+    report = diagnose(rec, max_findings=0)
+    assert report["unexplained"] and not report["findings"]
+    said = " ".join(report["warnings"])
+    assert "at its bound" in said and "under force control the specimen sets the motion" in said, said
+    rules = [e for e in report["trace"] if e["stage"] == "verdict" and "where the rig sets the motion" in e["rule"]]
+    assert rules and rules[0]["numbers"]["pinned"] and "y" in rules[0]["numbers"]["beyond_form"], report["trace"]

@@ -16,7 +16,7 @@ from htm.ident.family import for_record
 from htm.ident.fit import Problem, blocks, simulations_so_far, spread_blocks
 from htm.ident.floor import form_ratios, own_floor, unexplained
 from htm.ident.model import Model, get_value
-from htm.ident.records import Record, clean_record, validate_record
+from htm.ident.records import Record, clean_record, force_controlled, validate_record
 from htm.ident.search import Finding, Result, probe, search
 from htm.ident.settings import DEFAULT, SearchSettings
 from htm.ident.sim import DEFAULT_HORIZON_S
@@ -145,16 +145,28 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
     log("own floor", {c: round(v, 2) for c, v in floor.items()}, "beyond form", {c: round(v, 2) for c, v in form.items()},
         "structure left on " + ", ".join(left) if left else "")
     pinned = [k for k in fitted.model.pinned(len(family.base_frees)) if k in family.rig_keys]
-    # The declared rig sets the motion: a position missed grossly with a rig parameter at its
-    # bound is another rig. Pressures missed so are the details real rigs add (lines, seals,
-    # the valve's form): that is reported, unexplained, not refused.
     if "y" in gross and pinned:
         vals = fitted.model.values()
-        raise IdentificationError(
-            f"cannot identify `{rec.name}`: the record does not match its metadata's rig — the fit pins "
-            + ", ".join(f"{k} = {vals[k]:.4g} (nominal {get_value(nominal, k):.4g})" for k in pinned)
-            + " at its bound and still misses " + ", ".join(f"{c} by {form[c]:.0f}x its noise floor" for c in gross)
-            + "; check the `rig` metadata (geometry, valve rating, mass)")
+        pins = ", ".join(f"{k} = {vals[k]:.4g} (nominal {get_value(nominal, k):.4g})" for k in pinned)
+        misses = ", ".join(f"{c} by {form[c]:.0f}x its noise floor" for c in gross)
+        if force_controlled(rec):
+            # Under force control the loop holds the force and the specimen sets the motion: a
+            # position missed so is a specimen's form the model lacks (a closure the search did
+            # not find), not another rig. Reported, unexplained, the pins named.
+            warnings.append(f"the fit pins {pins} at its bound and still misses {misses}: under force control the "
+                            "specimen sets the motion, so the record is reported unexplained, not refused (a specimen's "
+                            "form outside the model, or check the `rig` and `specimen` metadata)")
+            trace.add("verdict", None, "a position missed grossly with a rig parameter at its bound is another rig only "
+                      "where the rig sets the motion", "force control: the specimen sets it; the record is unexplained",
+                      pinned=pinned, beyond_form={c: form[c] for c in gross})
+            unfollowed = unfollowed or {c: form[c] for c in gross}
+        else:
+            # The declared rig sets the motion: a position missed grossly with a rig parameter at
+            # its bound is another rig. Pressures missed so are the details real rigs add (lines,
+            # seals, the valve's form): that is reported, unexplained, not refused.
+            raise IdentificationError(
+                f"cannot identify `{rec.name}`: the record does not match its metadata's rig — the fit pins {pins}"
+                f" at its bound and still misses {misses}; check the `rig` metadata (geometry, valve rating, mass)")
     outside = None
     if family.has_probes:
         # Structure left: is it of a kind outside the vocabulary (a force over part of the stroke,

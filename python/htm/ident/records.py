@@ -267,6 +267,13 @@ def displacement_input(rec: Record) -> bool:
     return isinstance(ctrl, dict) and ctrl.get("type") == DISPLACEMENT_INPUT
 
 
+def force_controlled(rec: Record) -> bool:
+    """Was the record taken under force control (`force_p`)? Its loop regulates the force; the
+    position follows from the specimen the force acts on, not from the rig alone."""
+    ctrl = rec.meta.get("controller")
+    return isinstance(ctrl, dict) and ctrl.get("type") == "force_p"
+
+
 def machine_position(rec: Record) -> bool:
     """Does the record declare a machine that closes its own displacement loop (no `u`)?"""
     ctrl = rec.meta.get("controller")
