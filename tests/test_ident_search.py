@@ -640,3 +640,38 @@ def test_between_two_chambers_offsets_the_one_that_keeps_the_stated_rig_inside_i
     assert got.cand.channel == "p_a" and len(named) == 1 and named[0]["numbers"]["pinned"] == ["mass"]
     got, named = run(np.log(0.4))  # the sibling pins the mass too: this reading's own fault
     assert got.cand.channel == "p_b" and not named
+
+
+def test_a_closure_refit_also_starts_from_the_spring_the_force_shows_against_the_position():
+    """A force-controlled record of a specimen 5x stiffer below a closure 0.5 mm above its
+    zero-force position: the closure candidates carry the spring read from the record's force
+    against its position (`closure_spring`) as a restart — the specimen's own stiffness (which a
+    base fitted without the closure averages over both branches), the closure stiffness and the
+    closure position near the truth — and a refit's starts include it (`Model.moved_to`)."""
+    import pytest
+
+    from htm.core import closure_spring
+    from htm.ident import proving
+    from htm.ident.family import for_record
+    from htm.ident.model import lin
+
+    k_cl, off = 1e7, 5e-4
+    rec, truth = proving.make_record({"specimen_nonlinearity": {"closure_stiffness_n_m": k_cl, "closure_offset_m": off}},
+                                     seed=7, duration_s=10, experiment="force")
+    k_true = truth["params"]["specimen_stiffness_n_m"]
+    fam = for_record(rec, ["y", "p_a", "p_b", "f"])
+    closures = [c for c in fam.candidates({c: 1.0 for c in ("y", "p_a", "p_b", "f")}, 500.0) if c.effect == "specimen_nonlinearity"]
+    assert closures and all(c.restart == closures[0].restart for c in closures)
+    got = dict(closures[0].restart)
+    assert abs(got["specimen_stiffness_n_m"] / k_true - 1) < 0.1, (got, k_true)
+    assert abs(got["specimen_closure_stiffness_n_m"] / k_cl - 1) < 0.2, got
+    assert abs(got["specimen_closure_offset_m"] - off) < 0.1e-3, got
+    # a straight spring shows none
+    assert closure_spring(2e6 * rec.columns["y"], rec.columns["y"]) is None or \
+        closure_spring(2e6 * rec.columns["y"], rec.columns["y"])[1] < 0.01 * 2e6
+    # the restart moves only the parameters it names, within their bounds
+    m = Model({"specimen_stiffness_n_m": 1e6, "other": 1.0}, [logf("specimen_stiffness_n_m", 0.33, 3.0), lin("other", 1.0, 0.0, 2.0)],
+              np.array([0.0, 0.5]))
+    moved = m.moved_to({"specimen_stiffness_n_m": 2e6, "absent": 3.0})
+    assert moved.values()["specimen_stiffness_n_m"] == pytest.approx(2e6) and moved.x[1] == 0.5
+    assert m.moved_to({"specimen_stiffness_n_m": 1e9}).values()["specimen_stiffness_n_m"] == pytest.approx(3e6)

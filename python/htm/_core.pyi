@@ -11,7 +11,7 @@ __all__ = [
     "CyclicController", "Detectors", "RigPlant", "Progress", "EVENTS", "run_test", "start_amplitude_cycles", "run_batch", "TestRun",
     "TestConfig", "Outcome", "Chunk", "Table",
     "feasibility", "MARGINAL_FRACTION", "RESONANCE_FRACTION",
-    "friction_force", "LoopParams", "loop_simulate", "replay", "SpecimenParams", "specimen_force",
+    "friction_force", "LoopParams", "loop_simulate", "replay", "SpecimenParams", "specimen_force", "closure_spring",
     "CHANNELS", "RAW_COLUMNS", "RAW_POLICY", "TEST_DEFAULTS", "TEST_R_RATIO_RANGE", "LOAD_R_RATIO_RANGE", "MAX_TOLERANCE",
     "TEST_TOLERANCE", "PRECRACK_TOLERANCE", "MIN_SAMPLES_PER_CYCLE", "MAX_CONTROL_RATE_HZ", "E647_MIN_K_GRADIENT_PER_M",
     "RTOL_RANGE", "NASGRO_DEFAULTS", "YOUNGS_MODULUS_RANGE_PA", "POISSON_RATIO_RANGE",
@@ -342,6 +342,9 @@ class SpecimenParams:
 
 # the load cell's force [N] per sample for each set; a set that cannot be evaluated is its HtmError
 def specimen_force(params: list[SpecimenParams], dt: float, y: npt.NDArray[np.float64], threads: int = 0) -> list[npt.NDArray[np.float64] | HtmError]: ...
+# the bilinear spring a record's force shows against its displacement: (stiffness [N/m], closure
+# stiffness [N/m], closure position [m], the record's coordinates), None where none is stiffer below
+def closure_spring(f: npt.NDArray[np.float64], y: npt.NDArray[np.float64]) -> tuple[float, float, float] | None: ...
 
 # --- real-time loop (crates/htm-core/src/cyclic.rs, control/limits.rs, rig.rs) ---
 # the last closed cycle of the real-time loop (the per-cycle table's row, with the stroke range)

@@ -109,9 +109,9 @@ def columns(table: Table) -> dict[str, np.ndarray]:
     return {name: col.to_numpy(zero_copy_only=True) for name, col in zip(batch.schema.names, batch.columns, strict=True)}
 
 # the specimen and load-train force model of displacement_input records (specimen_force.rs)
-from htm._core import SpecimenParams, specimen_force  # noqa: E402
+from htm._core import SpecimenParams, closure_spring, specimen_force  # noqa: E402
 
-__all__ += ["SpecimenParams", "specimen_force"]
+__all__ += ["SpecimenParams", "closure_spring", "specimen_force"]
 
 # life tests (force_life, strain_life) and the virtual cyclic specimen (engine/life.rs, cyclic_material.rs)
 from htm._core import LifeController, LifeRig, cyclic_stress, run_life, run_life_batch, virtual_life  # noqa: E402

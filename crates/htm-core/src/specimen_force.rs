@@ -161,6 +161,52 @@ impl SpecimenParams {
     }
 }
 
+/// The bilinear spring a record's force shows against its displacement (samples `f` [N], `x`
+/// [m], any order, NaN pairs skipped): f = a + k·x − k_cl·⌊x_c − x⌋₊ by least squares, the
+/// corner x_c tried at each percentile (2 % to 98 %) of the displacement and the best kept.
+/// Returns (k, k_cl, x_c) — the stiffness, the closure stiffness and the closure's position, in
+/// the record's coordinates — or `None` where no corner makes the spring stiffer below it (or
+/// fewer than 20 samples). A start for a fit of [`spring_force`], not a result of its own: the
+/// damping, friction and play of a load train, a sensor's lag and the corner's smoothing are
+/// not in it. (`crack_measure::fit_closure` reads the same law from a loading branch as
+/// compliance, its transition in the lower part of the force range where a crack closes; a
+/// record's closure may sit anywhere along its travel.)
+pub fn spring_from_samples(f: &[f64], x: &[f64]) -> Option<(f64, f64, f64)> {
+    let (f, x): (Vec<f64>, Vec<f64>) = f.iter().zip(x).filter(|(a, b)| a.is_finite() && b.is_finite()).map(|(a, b)| (*a, *b)).unzip();
+    if f.len() < 20 {
+        return None;
+    }
+    let mut sorted = x.clone();
+    sorted.sort_by(f64::total_cmp);
+    let (x0, span) = (sorted[sorted.len() / 2], (sorted[sorted.len() - 1] - sorted[0]).max(1e-300));
+    let fs = f.iter().map(|v| v.abs()).fold(0.0, f64::max).max(1e-300);
+    let yy: f64 = f.iter().map(|v| (v / fs) * (v / fs)).sum();
+    let mut best: Option<(f64, [f64; 3], f64)> = None;
+    for q in 2..=98 {
+        let xc = sorted[(q * (sorted.len() - 1)) / 100];
+        // normal equations in scaled units (x about its median over its span, f over its largest)
+        let (mut m, mut r) = ([[0.0; 3]; 3], [0.0; 3]);
+        for (&fi, &xi) in f.iter().zip(&x) {
+            let c = [1.0, (xi - x0) / span, ((xc - xi) / span).max(0.0)];
+            for a in 0..3 {
+                r[a] += c[a] * fi / fs;
+                for b in 0..3 {
+                    m[a][b] += c[a] * c[b];
+                }
+            }
+        }
+        if let Some(s) = crate::crack_measure::solve3(m, r) {
+            let sse = yy - s[0] * r[0] - s[1] * r[1] - s[2] * r[2];
+            if best.is_none_or(|b| sse < b.0) {
+                best = Some((sse, s, xc));
+            }
+        }
+    }
+    let (_, s, xc) = best?;
+    let (k, k_cl) = (s[1] * fs / span, -s[2] * fs / span);
+    (k > 0.0 && k_cl > 0.0).then_some((k, k_cl, xc))
+}
+
 /// The bilinear spring of a specimen [N] at displacement `x`: stiffness `k`, and `k_cl` more
 /// below `y0 + closure_offset` (corner smoothed over `CLOSURE_SMOOTHING_M`), carrying no force
 /// at the zero-force position `y0` whichever branch it lies on (DATA_FORMAT.md: the position at
@@ -416,6 +462,38 @@ mod tests {
         assert!((back.specimen_stiffness_n_m / 4e6 - 1.0).abs() < 0.01);
         assert!((back.specimen_closure_stiffness_n_m / 4e6 - 1.0).abs() < 0.05, "{}", back.specimen_closure_stiffness_n_m);
         assert!((back.specimen_closure_offset_m / 0.4e-3 - 1.0).abs() < 0.05, "{}", back.specimen_closure_offset_m);
+    }
+
+    #[test]
+    fn a_records_force_against_its_displacement_gives_its_spring_back() {
+        // a record's samples: cycles of a closure spring with noise, up and down, in time order;
+        // the closure 1 mm above the zero-force position at 0.5 mm, high in the force range
+        let p = SpecimenParams {
+            specimen_stiffness_n_m: 2e6,
+            specimen_zero_force_position_m: 0.5e-3,
+            specimen_closure_stiffness_n_m: 2e6,
+            specimen_closure_offset_m: 1e-3,
+            ..Default::default()
+        };
+        let n = 20_000;
+        let mut seed = 7_u64;
+        let mut noise = || {
+            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 40.0 // +-20 N
+        };
+        let y: Vec<f64> = (0..n).map(|i| 1e-3 + 2.5e-3 * (i as f64 * 0.01).sin()).collect();
+        let e: Vec<f64> = (0..n).map(|_| noise()).collect();
+        let f: Vec<f64> = force(&p, 1e-3, &y).unwrap().iter().zip(&e).map(|(v, ei)| v + ei).collect();
+        let (k, k_cl, xc) = spring_from_samples(&f, &y).expect("a closure");
+        assert!((k / 2e6 - 1.0).abs() < 0.02, "{k}");
+        assert!((k_cl / 2e6 - 1.0).abs() < 0.05, "{k_cl}");
+        assert!((xc - 1.5e-3).abs() < 0.05e-3, "{xc}");
+        // a straight spring shows no stiffer branch worth a start; a softer one below none at all
+        let line: Vec<f64> = y.iter().zip(&e).map(|(v, ei)| 2e6 * v + ei).collect();
+        assert!(spring_from_samples(&line, &y).is_none_or(|(_, k_cl, _)| k_cl < 0.02 * 2e6));
+        let softer: Vec<f64> = f.iter().map(|v| -v).collect();
+        assert!(spring_from_samples(&softer, &y.iter().map(|v| -v).collect::<Vec<_>>()).is_none());
+        assert!(spring_from_samples(&[1.0, f64::NAN], &[0.0, 1.0]).is_none());
     }
 
     #[test]

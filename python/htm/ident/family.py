@@ -11,6 +11,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from htm.core import closure_spring
 from htm.ident.model import Candidate, Free, Model, lin
 from htm.ident.records import Record, displacement_input, machine_position
 from htm.ident.settings import DEFAULT, SearchSettings
@@ -91,20 +92,30 @@ class Family:
             raise ValueError(f"`{effect}` is not a sensor effect ({', '.join(SENSOR_EFFECTS)})")
         return self.candidate(effect, channel, (free,), signature, claimable=claimable)
 
-    def closure_candidates(self, y: np.ndarray, zero_position_m: float, stiffness_n_m: float) -> list[Candidate]:
+    def closure_candidates(self, y: np.ndarray, zero_position_m: float, stiffness_n_m: float,
+                           f: np.ndarray | None = None) -> list[Candidate]:
         """A specimen's closure (EFFECTS.md `specimen_nonlinearity` on f: a stiffer spring
         beyond a closure position): its position is not smooth to find, so a few starts along
         the travel are screened, and it stays inside the travel the record visits. Its stiffness
-        in units of a tenth of `stiffness_n_m` (up to 1000 times it)."""
+        in units of a tenth of `stiffness_n_m` (up to 1000 times it). With the force `f` read, a
+        refit also starts from the spring the force shows against the position (`closure_spring`:
+        the specimen's stiffness, closure stiffness and closure position), which a base fitted
+        without the closure has averaged over both branches (`Candidate.restart`)."""
         y = np.asarray(y, dtype=float)
         unit_off = max(1e-6, 0.1 * float(np.nanstd(y)))
         lo, hi = ((float(np.nanpercentile(y, q)) - zero_position_m) / unit_off for q in CLOSURE_TRAVEL)
+        restart: tuple[tuple[str, float], ...] = ()
+        if f is not None and (spring := closure_spring(np.asarray(f, dtype=float), y)) is not None:
+            k, k_cl, at = spring
+            restart = (("specimen_stiffness_n_m", k), ("specimen_closure_stiffness_n_m", k_cl),
+                       ("specimen_closure_offset_m", at - zero_position_m))
         out = []
         for q in CLOSURE_PERCENTILES:
             off = float(np.nanpercentile(y, q)) - zero_position_m
             out.append(self.candidate("specimen_nonlinearity", "f",
                                       (lin("specimen_closure_stiffness_n_m", 0.1 * stiffness_n_m, 0.0, 1e4),
-                                       lin("specimen_closure_offset_m", unit_off, lo, hi)), "y", starts=(off / unit_off,)))
+                                       lin("specimen_closure_offset_m", unit_off, lo, hi)), "y", starts=(off / unit_off,),
+                                      restart=restart))
         return out
 
 

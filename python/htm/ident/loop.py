@@ -229,7 +229,8 @@ class LoopFamily(Family):
                      starts=(0.0,)),
             ]
             k = max(self.nominal["specimen_stiffness_n_m"], fmax / self.y_span)
-            out += self.closure_candidates(self.rec.columns["y"], self.nominal["specimen_zero_force_position_m"], k)
+            out += self.closure_candidates(self.rec.columns["y"], self.nominal["specimen_zero_force_position_m"], k,
+                                           self.rec.columns["f"])
         return out
 
 

@@ -125,6 +125,15 @@ class Model:
                 x[i] = nominal[i]
         return self.at(x)
 
+    def moved_to(self, values: dict[str, float]) -> "Model":
+        """This model with the free parameters named in `values` at those values (within their
+        bounds); the others as they are."""
+        x = self.x.copy()
+        for i, f in enumerate(self.frees):
+            if f.key in values:
+                x[i] = min(max(f.coord(values[f.key], get_value(self.nominal, f.key) if f.log else 0.0), f.lo), f.hi)
+        return self.at(x)
+
     def with_candidate(self, cand: "Candidate", x0: float | None = None) -> "Model":
         """This model with a candidate effect added (its first parameter at x0, default its step)."""
         nominal = self.nominal
@@ -210,6 +219,11 @@ class Candidate:
     # where it shows at most `SearchSettings.shows_ratio` times the share it leaves elsewhere, or
     # the share it takes there at least `shows_gain` times the share it takes elsewhere.
     shows_against_rest: bool = False
+    # Values (parameter key, value: base parameters or the effect's own) at which a refit also
+    # starts, beside the current fit and the nominal base (`search._restarts`): what the record
+    # itself shows of the effect and of the base parameters it trades with (a closure's spring
+    # read from the force against the position). Keys the model does not free are left alone.
+    restart: tuple[tuple[str, float], ...] = ()
     # The same effect on another coordinate (a vertical rig's asymmetry with the weight it trades
     # with held): refitted beside this one, the better fit kept (`Selector.coordinates`).
     alternate: "Candidate | None" = None

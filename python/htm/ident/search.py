@@ -452,6 +452,8 @@ class Selector:
 
     def fit_one(self, sc: Screened, cand: Candidate, q: np.ndarray) -> tuple[Candidate, Model, dict, np.ndarray]:
         starts = [start.with_candidate(cand, sc.step) for start in _restarts(self.model, self.x0, self.xn)]
+        if cand.restart:  # and from what the record itself shows of the effect (`Candidate.restart`)
+            starts += [s.moved_to(dict(cand.restart)) for s in starts]
         trial, twork, tjac = fit(self.prob, _scan(self.prob, starts, cand, q), iters=self.st.refit_iters)
         return cand, trial, twork, tjac
 

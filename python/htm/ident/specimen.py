@@ -232,7 +232,8 @@ class SpecimenFamily(Family):
         # the closure position's step a tenth of its unit: the kink is sharp (its corner is 20 um)
         # and a coarse difference stalls the fit a few percent short of it
         out += [dataclasses.replace(c, frees=(c.frees[0], dataclasses.replace(c.frees[1], step=0.1)))
-                for c in self.closure_candidates(self.rec.columns["y"], self.nominal["specimen_zero_force_position_m"], k)]
+                for c in self.closure_candidates(self.rec.columns["y"], self.nominal["specimen_zero_force_position_m"], k,
+                                                 self.rec.columns["f"])]
         return out
 
 

@@ -282,7 +282,8 @@ class ValveFamily(Family):
         if p["valve_linear_flow"] > 0.5:  # a declared linear valve may in truth feel the load pressure
             out.append(cand("load_pressure_feedback", None, (), "load pressure", switch=(("valve_linear_flow", 0.0),)))
         if p["specimen_stiffness_n_m"] > 0 and "f" in channels:
-            out += self.closure_candidates(rec.columns["y"], p["specimen_zero_force_position_m"], p["specimen_stiffness_n_m"])
+            out += self.closure_candidates(rec.columns["y"], p["specimen_zero_force_position_m"], p["specimen_stiffness_n_m"],
+                                           rec.columns["f"])
         return [c for c in out if all(has_key(p, f.key) for f in c.frees)]
 
     def probes(self, residual: dict[str, np.ndarray], rate_hz: float) -> list[Candidate]:

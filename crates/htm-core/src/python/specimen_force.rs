@@ -7,7 +7,7 @@ use pyo3::types::PyList;
 use super::convert::ParamSet;
 use super::InputError;
 use crate::params::Field;
-use crate::specimen_force::{force_batch, validate_input, SpecimenParams, SPECIMEN_FIELDS};
+use crate::specimen_force::{force_batch, spring_from_samples, validate_input, SpecimenParams, SPECIMEN_FIELDS};
 
 impl ParamSet for SpecimenParams {
     const WHAT: &'static str = "specimen parameter";
@@ -71,7 +71,20 @@ fn specimen_force<'py>(py: Python<'py>, params: Vec<PySpecimenParams>, dt: f64, 
     Ok(out)
 }
 
+/// The bilinear spring a record's force `f` [N] shows against its displacement `y` [m]
+/// (`spring_from_samples`): (stiffness [N/m], closure stiffness [N/m], closure position [m], in
+/// the record's coordinates), or None where no corner makes it stiffer below. A start for a fit.
+#[pyfunction]
+fn closure_spring<'py>(py: Python<'py>, f: PyReadonlyArray1<'py, f64>, y: PyReadonlyArray1<'py, f64>) -> PyResult<Option<(f64, f64, f64)>> {
+    let (f, y) = (f.as_slice()?, y.as_slice()?);
+    if f.len() != y.len() {
+        return Err(InputError::new_err(format!("f has {} values but y has {}", f.len(), y.len())));
+    }
+    Ok(py.detach(|| spring_from_samples(f, y)))
+}
+
 pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(closure_spring, m)?)?;
     m.add_class::<PySpecimenParams>()?;
     m.add_function(wrap_pyfunction!(specimen_force, m)?)?;
     Ok(())
