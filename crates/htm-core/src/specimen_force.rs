@@ -181,20 +181,32 @@ pub fn spring_from_samples(f: &[f64], x: &[f64]) -> Option<(f64, f64, f64)> {
     let (x0, span) = (sorted[sorted.len() / 2], (sorted[sorted.len() - 1] - sorted[0]).max(1e-300));
     let fs = f.iter().map(|v| v.abs()).fold(0.0, f64::max).max(1e-300);
     let yy: f64 = f.iter().map(|v| (v / fs) * (v / fs)).sum();
+    // normal equations in scaled units (x about its median over its span, f over its largest):
+    // the line's columns (1, x) once, the corner's column per corner
+    let u: Vec<f64> = x.iter().map(|xi| (xi - x0) / span).collect();
+    let (mut line, mut rl) = ([[0.0; 2]; 2], [0.0; 2]);
+    for (&ui, &fi) in u.iter().zip(&f) {
+        let c = [1.0, ui];
+        for a in 0..2 {
+            rl[a] += c[a] * fi / fs;
+            for b in 0..2 {
+                line[a][b] += c[a] * c[b];
+            }
+        }
+    }
     let mut best: Option<(f64, [f64; 3], f64)> = None;
     for q in 2..=98 {
         let xc = sorted[(q * (sorted.len() - 1)) / 100];
-        // normal equations in scaled units (x about its median over its span, f over its largest)
-        let (mut m, mut r) = ([[0.0; 3]; 3], [0.0; 3]);
-        for (&fi, &xi) in f.iter().zip(&x) {
-            let c = [1.0, (xi - x0) / span, ((xc - xi) / span).max(0.0)];
-            for a in 0..3 {
-                r[a] += c[a] * fi / fs;
-                for b in 0..3 {
-                    m[a][b] += c[a] * c[b];
-                }
-            }
+        let (mut mh, mut rh) = ([0.0; 3], 0.0); // Σ h·1, Σ h·x, Σ h², Σ h·f of the corner's column h
+        for ((&xi, &ui), &fi) in x.iter().zip(&u).zip(&f) {
+            let h = ((xc - xi) / span).max(0.0);
+            mh[0] += h;
+            mh[1] += ui * h;
+            mh[2] += h * h;
+            rh += h * fi / fs;
         }
+        let m = [[line[0][0], line[0][1], mh[0]], [line[1][0], line[1][1], mh[1]], [mh[0], mh[1], mh[2]]];
+        let r = [rl[0], rl[1], rh];
         if let Some(s) = crate::crack_measure::solve3(m, r) {
             let sse = yy - s[0] * r[0] - s[1] * r[1] - s[2] * r[2];
             if best.is_none_or(|b| sse < b.0) {
