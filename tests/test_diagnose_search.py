@@ -352,7 +352,7 @@ def test_a_vertical_rigs_asymmetry_moves_with_the_weight_it_trades_with_held_and
 
     from htm.ident.features import measured_channels
     from htm.ident.model import Model
-    from htm.ident.valve import ValveFamily
+    from htm.ident.valve import WEIGHED_MASS_FLOOR, ValveFamily
 
     rec, _ = offset_record()
     channels = measured_channels(rec.columns)
@@ -374,6 +374,21 @@ def test_a_vertical_rigs_asymmetry_moves_with_the_weight_it_trades_with_held_and
 
     m0, m1, g = moved("vertical")
     assert g > 9 and m1 == pytest.approx(m0 - 200.0 / g)  # the force in motion, m g + d, held
+    # ...while the mass stays above the floor the coordinate clamps it at: beyond it the weight is
+    # no longer held, and the coordinate says it does not hold there (`Candidate.holds`).
+    meta = json.loads(json.dumps(rec.meta))
+    meta["rig"]["orientation"] = "vertical"
+    fam = ValveFamily(type(rec)(rec.columns, meta, rec.name), channels)
+    [plain] = [c for c in fam.candidates(scales, 500.0) if c.effect == "friction_asymmetry"]
+    alt = plain.alternate
+    assert alt is not None and alt.holds is not None and plain.holds is None
+    base = Model(fam.nominal, list(fam.base_frees), np.zeros(len(fam.base_frees)))
+    assert alt.holds(base.with_candidate(alt, 4.0).params())
+    steps = 1.01 * (1 - WEIGHED_MASS_FLOOR) * m0 * g / 50.0  # d just past (1 - floor) m g
+    clamped = base.with_candidate(alt, steps).params()
+    assert clamped["moving_mass_kg"] == pytest.approx(WEIGHED_MASS_FLOOR * m0)
+    assert not alt.holds(clamped)
+    assert alt.holds(base.with_candidate(alt, 0.98 * (1 - WEIGHED_MASS_FLOOR) * m0 * g / 50.0).params())
     m0, m1, _ = moved("vertical", dataclasses.replace(DEFAULT, asymmetry_weighed=False))
     assert m1 == m0
     m0, m1, _ = moved("horizontal")

@@ -76,6 +76,34 @@ def test_two_contenders_are_judged_on_one_base():
     assert abs(best.model.params()["gain_a"] - 0.95) < 0.002 and abs(best.model.params()["k"] - 2.0) < 0.01
 
 
+def test_of_a_candidates_coordinates_only_one_that_holds_at_its_fit_is_judged():
+    """Two coordinates of one effect (`Candidate.alternate`) refitted side by side: the better fit
+    is judged — unless its coordinate does not hold at its fitted point (`Candidate.holds`: a
+    weighed asymmetry whose mass went to its floor), when the other is judged and the trace says
+    why."""
+    import dataclasses
+
+    from htm.ident import search as S
+
+    prob, base, _, gain = _sensor_problem()
+
+    def fitted(cand, g):
+        trial = base.with_candidate(cand, (g - 1.0) / 0.01).at(np.array([2.0 / 0.1, (g - 1.0) / 0.01]))
+        return cand, trial, prob.predict([trial.params()])[0], np.zeros((1, 2))
+
+    def judged(alternate):
+        sel = S.Selector(prob, base.nominal, [gain], 1e3, log=lambda *a: None, trace=S.Trace(), stages=S.Stages())
+        sel.model, sel.pred = base, prob.predict([base.params()], whole=True)[0]
+        t = sel.judged([fitted(gain, 0.97), fitted(alternate, 0.95)])  # the alternate at the truth fits better
+        return t, sel.trace
+
+    t, trace = judged(dataclasses.replace(gain, holds=None))
+    assert abs(t.model.params()["gain_a"] - 0.95) < 1e-9 and not trace.decisions
+    t, trace = judged(dataclasses.replace(gain, holds=lambda p: p["gain_a"] > 0.96))
+    assert abs(t.model.params()["gain_a"] - 0.97) < 1e-9
+    assert "holds at its fit" in trace.decisions[-1].rule and trace.decisions[-1].candidate == gain.label
+
+
 def test_an_offset_a_tolerated_gain_would_read_is_not_claimed():
     # A supply gauge reads nearly constant: an offset under 1 % of its reading is a gain inside
     # calibration tolerance; a chamber pressure that swings tells an offset from a gain.

@@ -227,6 +227,11 @@ class Candidate:
     # The same effect on another coordinate (a vertical rig's asymmetry with the weight it trades
     # with held): refitted beside this one, the better fit kept (`Selector.coordinates`).
     alternate: "Candidate | None" = None
+    # Where the coordinate holds, as a test of a fitted point's whole parameter set (None: everywhere):
+    # a weighed asymmetry holds the weight it trades with only while its mass stays above the floor
+    # its setter clamps at; a fit beyond that is the plain asymmetry with the mass moved, not this
+    # coordinate's, and `Selector.judged` judges the other coordinate's fit instead.
+    holds: Callable[[Any], bool] | None = None
 
     def report(self, p: Any) -> dict[str, float]:
         return {name: float(p[key]) for name, key in self.fields}

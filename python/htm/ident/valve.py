@@ -82,6 +82,10 @@ derive(Derived("friction_coulomb_diff_n", lambda p: 0.5 * (p["friction_coulomb_p
                _set_coulomb_diff, _COULOMB_PAIR))
 
 
+# The share of its own mass below which the weighed coordinate does not move a vertical rig's mass.
+WEIGHED_MASS_FLOOR = 0.2
+
+
 def _set_coulomb_diff_weighed(p: Any, value: float) -> None:
     """The asymmetry d with the weight it trades with held: in motion the pair adds d to the
     friction force whichever the direction (sign(v) (C + d sign(v)) = C sign(v) + d), as a weight
@@ -91,7 +95,16 @@ def _set_coulomb_diff_weighed(p: Any, value: float) -> None:
     g = p["gravity_m_s2"]
     if g > 0:
         m = p["moving_mass_kg"]
-        p["moving_mass_kg"] = max(m - value / g, 0.2 * m)
+        p["moving_mass_kg"] = max(m - value / g, WEIGHED_MASS_FLOOR * m)
+
+
+def _weight_held(p: Any) -> bool:
+    """The weighed coordinate holds at `p`: its setter left the mass above the floor (from a mass
+    m, m - d/g while d/g < (1 - floor) m; at the floor, d/g >= (1 - floor)/floor times the mass
+    that is left). At the floor the weight it trades with is no longer held."""
+    g = p["gravity_m_s2"]
+    d = 0.5 * (p["friction_coulomb_pos_n"] - p["friction_coulomb_neg_n"])
+    return g <= 0 or d / g < (1.0 - WEIGHED_MASS_FLOOR) / WEIGHED_MASS_FLOOR * p["moving_mass_kg"]
 
 
 # A vertical rig's asymmetry, separable from gravity (`_set_coulomb_diff_weighed`): the free the
@@ -272,7 +285,7 @@ class ValveFamily(Family):
             cand("friction_asymmetry", None, (lin("friction_coulomb_diff_n", 50.0, -100.0, 100.0),), "sign(v)",
                  claimable=_asymmetric(st.min_asymmetry),
                  alternate=cand("friction_asymmetry", None, (lin("friction_coulomb_diff_weighed_n", 50.0, -100.0, 100.0),),
-                                "sign(v)", claimable=_asymmetric(st.min_asymmetry))
+                                "sign(v)", claimable=_asymmetric(st.min_asymmetry), holds=_weight_held)
                  if st.asymmetry_weighed and p["gravity_m_s2"] > 0 else None),
             cand("pressure_dependent_friction", None, (lin("friction_pressure_coeff_n_per_pa", 1e-6, 0.0, 1e3, step=2.0),),
                  "(p_a + p_b) sign(v)"),
