@@ -460,11 +460,13 @@ class Selector:
     def judged(self, fits: list[tuple[Candidate, Model, dict, np.ndarray]]) -> Trial:
         """The better fit of a candidate's coordinates (the first on a tie) among those that hold at
         their fitted point (`Candidate.holds`), judged."""
-        held = [f for f in fits if f[0].holds is None or f[0].holds(f[1].params())]
-        if len(held) < len(fits):
-            left = next(f for f in fits if f not in held)
-            self.trace.add("judge", left[0].label, "the coordinate holds at its fit (Candidate.holds)",
-                           "that coordinate's fit left, the other judged", cost=self.prob.fit_cost(left[2]))
+        held = []
+        for f in fits:
+            if f[0].holds is None or f[0].holds(f[1].params()):
+                held.append(f)
+            else:
+                self.trace.add("judge", f[0].label, "the coordinate holds at its fit (Candidate.holds)",
+                               "that coordinate's fit left, the other judged", cost=self.prob.fit_cost(f[2]))
         cand, trial, twork, tjac = min(held or fits, key=lambda f: self.prob.fit_cost(f[2]))
         tpred, verdict = judge(self.prob, self.pred, trial, twork, self.model, cand)
         return Trial(cand, trial, twork, tpred, verdict, tjac, trial.x)

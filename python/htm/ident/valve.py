@@ -103,8 +103,7 @@ def _weight_held(p: Any) -> bool:
     m, m - d/g while d/g < (1 - floor) m; at the floor, d/g >= (1 - floor)/floor times the mass
     that is left). At the floor the weight it trades with is no longer held."""
     g = p["gravity_m_s2"]
-    d = 0.5 * (p["friction_coulomb_pos_n"] - p["friction_coulomb_neg_n"])
-    return g <= 0 or d / g < (1.0 - WEIGHED_MASS_FLOOR) / WEIGHED_MASS_FLOOR * p["moving_mass_kg"]
+    return g <= 0 or get_value(p, "friction_coulomb_diff_n") / g < (1.0 - WEIGHED_MASS_FLOOR) / WEIGHED_MASS_FLOOR * p["moving_mass_kg"]
 
 
 # A vertical rig's asymmetry, separable from gravity (`_set_coulomb_diff_weighed`): the free the
