@@ -305,11 +305,15 @@ def test_a_sensor_delay_floor_in_sample_periods_moves_the_claim_line_and_is_off_
 
 def test_a_delay_that_fits_its_own_reading_at_the_others_cost_is_not_claimed_and_the_rule_is_named():
     """A sensor delay is a fault of one reading: the others see it only through the loop, and a
-    true one fits them better. A delay on y that takes y's residual away while the pressure's
-    held-out mean square grows by 22 noise variances (a ripple's or a valve lag's phase moved into
-    y) fails the rule
+    true one fits them better. A delay on y that takes most of y's residual away, leaving y about
+    as far off as the pressure was, while the pressure's held-out mean square grows by 22 noise
+    variances (a ripple's or a valve lag's phase moved into y) fails the rule
     `others no worse than max_others_worse`, which the verdict names; an offset (not a phase
-    fault) with the same numbers is not held to it, and a looser setting lets the delay pass."""
+    fault) with the same numbers is not held to it, and a looser setting lets the delay pass.
+    A delay that takes y to its noise — the reading's whole misfit was the time shift — is its
+    reading's fault although the pressure rises the same (the base's own form, which parameters
+    bent around the delay had hidden): `delay_own_level`, its number in the verdict; set to 0 it
+    is refused again."""
     import numpy as np
 
     from htm.ident.fit import Problem, blocks
@@ -328,18 +332,29 @@ def test_a_delay_that_fits_its_own_reading_at_the_others_cost_is_not_claimed_and
     prob = Problem(rec, lambda *a, **k: [], list(meas), sigma, n, fit_mask, val_mask)
     wave = np.sin(2 * np.pi * 3 * t)
     before = {"y": meas["y"] + 2e-5 * wave, "p_a": meas["p_a"] + 1e5 * wave}
-    after = {"y": meas["y"], "p_a": meas["p_a"] + 1.2e5 * wave}
+    after = {"y": meas["y"] + 1e-5 * wave, "p_a": meas["p_a"] + 1.2e5 * wave}
 
-    def verdict(effect: str, settings: SearchSettings = DEFAULT):
+    def verdict(effect: str, settings: SearchSettings = DEFAULT, after: dict = after, channel: str = "y"):
         prob.settings = settings
-        cand = Candidate(effect, "y", (lin("k", 1e-3, -1.0, 1.0),), "constant", own_reading=True)
+        cand = Candidate(effect, channel, (lin("k", 1e-3, -1.0, 1.0),), "constant", own_reading=True)
         return pays_off(prob, before, None, after, None, cand, abl=before)
 
     v = verdict("sensor_delay")
     assert not v.ok and v.failed == ("others no worse than max_others_worse",)
     assert v.numbers()["others_worse"] == pytest.approx(22.0, rel=0.1)
+    assert v.numbers()["own_level"] == pytest.approx(1.0, rel=0.1)  # y left as far off as p_a was
     assert verdict("sensor_offset").ok
     assert verdict("sensor_delay", dataclasses.replace(DEFAULT, max_others_worse=30.0)).ok
+    to_noise = {**after, "y": meas["y"]}
+    v = verdict("sensor_delay", after=to_noise)
+    assert v.ok and v.numbers()["others_worse"] == pytest.approx(22.0, rel=0.1)
+    assert v.numbers()["own_level"] == pytest.approx(1.0 / 51.0, rel=0.1)
+    v = verdict("sensor_delay", dataclasses.replace(DEFAULT, delay_own_level=0.0), after=to_noise)
+    assert not v.ok and v.failed == ("others no worse than max_others_worse",)
+    # p_a was not the model's worst reading (y was): a delay that takes it to its noise while y
+    # rises is no such case, and the rule refuses it
+    v = verdict("sensor_delay", after={"y": meas["y"] + 2.2e-5 * wave, "p_a": meas["p_a"]}, channel="p_a")
+    assert not v.ok and "others no worse than max_others_worse" in v.failed and "own_level" not in v.numbers()
 
 
 def test_a_vertical_rigs_asymmetry_moves_with_the_weight_it_trades_with_held_and_the_setting_switches_it():

@@ -104,6 +104,40 @@ def test_of_a_candidates_coordinates_only_one_that_holds_at_its_fit_is_judged():
     assert "holds at its fit" in trace.decisions[-1].rule and trace.decisions[-1].candidate == gain.label
 
 
+def test_a_finding_whose_coordinate_no_longer_holds_at_the_model_goes_in_the_backward_check():
+    """The backward check re-asks `Candidate.holds` where the model stands at its end: a finding
+    whose coordinate no longer holds there (a weighed asymmetry whose mass later refits moved to
+    its floor) goes — refitted without it, the trace naming the rule — as its fit would not have
+    been judged there; with no such test the single finding stands (weighed when it was made)."""
+    import dataclasses
+
+    from htm.ident import search as S
+
+    prob, base, _, gain = _sensor_problem()
+
+    def checked(cand):
+        sel = S.Selector(prob, base.nominal, [cand], 1e3, log=lambda *a: None, trace=S.Trace(), stages=S.Stages())
+        sel.x0, sel.xn = base.x.copy(), base.start()
+        before = base.at(np.array([2.0 / 0.1]))
+        pred0 = prob.predict([before.params()], whole=True)[0]
+        model = before.with_candidate(cand, -0.05 / 0.01).at(np.array([2.0 / 0.1, -0.05 / 0.01]))  # the truth: 0.95
+        pred = prob.predict([model.params()], whole=True)[0]
+        verdict = S.pays_off(prob, pred0, model, pred, before, cand)
+        assert verdict.ok
+        sel.findings = [S.Finding(cand, cand.report(model.params()), prob.rmse(pred0), prob.rmse(pred), "toy", before, pred0,
+                                  pred, "a", ("a", prob.meas["a"]), verdict)]
+        sel.model, sel.pred, sel.work_pred, sel.jac = model, pred, pred, np.zeros((1, 2))
+        sel.backward_check()
+        return sel
+
+    sel = checked(dataclasses.replace(gain, holds=None))
+    assert [f.effect for f in sel.findings] == ["sensor_gain"] and not sel.trace.decisions
+    sel = checked(dataclasses.replace(gain, holds=lambda p: p["gain_a"] > 0.96))
+    assert sel.findings == [] and abs(sel.model.params()["gain_a"] - 1.0) < 1e-12  # refitted without it
+    last = sel.trace.decisions[-1]
+    assert last.stage == "backward check" and last.outcome == "dropped" and "no longer holds" in last.rule
+
+
 def test_an_offset_a_tolerated_gain_would_read_is_not_claimed():
     # A supply gauge reads nearly constant: an offset under 1 % of its reading is a gain inside
     # calibration tolerance; a chamber pressure that swings tells an offset from a gain.

@@ -71,6 +71,7 @@ class Verdict:
     close_rules: tuple[str, ...] = ()
     alternative: str = ""
     others_worse: float = 0.0
+    own_level: float | None = None  # a phase fault's reading against the worst other before it (`own_level`), where asked
     shows: dict[str, float] | None = None  # where the effect stands apart from the base's form (`gains_where_it_shows`)
 
     def __getitem__(self, key: str) -> Any:
@@ -84,6 +85,8 @@ class Verdict:
                "claimable": self.claimable}
         if self.others_worse:
             out["others_worse"] = self.others_worse
+        if self.own_level is not None:
+            out["own_level"] = self.own_level
         if self.shows is not None:
             out["where_it_shows"] = self.shows
         return out
@@ -634,10 +637,20 @@ class Selector:
         prob, st, tr = self.prob, self.st, self.trace
         tr.round += 1
 
-        def too_small(f: Finding) -> bool:
-            # Refits after a finding move its parameters too: one that ends below a claimable size goes;
-            # so does one whose sibling reading wanted the same fault since (sibling_check).
-            return f in self.common or (f.cand.claimable is not None and not f.cand.claimable(f.cand.report(self.model.params())))
+        def goes(f: Finding) -> str | None:
+            """Why a finding goes whatever the model without it would give, or None. Refits after a
+            finding move its parameters too: one that ends below a claimable size goes; so does one
+            whose sibling reading wanted the same fault since (sibling_check), and one whose
+            coordinate no longer holds where the model now stands (`Candidate.holds`: the weighed
+            asymmetry's mass moved to its floor) — as its fit would not have been judged there."""
+            params = self.model.params()
+            if f in self.common:
+                return "common to both sibling readings (sibling_ratio)"
+            if f.cand.claimable is not None and not f.cand.claimable(f.cand.report(params)):
+                return "below a claimable size"
+            if f.cand.holds is not None and not f.cand.holds(params):
+                return "its coordinate no longer holds at the model (Candidate.holds)"
+            return None
 
         def refit_all(fs: list[Finding], early: list[bool]) -> list[tuple[Model, dict, dict, np.ndarray, list[int]]]:
             """The model without each of `fs` refitted from both restarts, the better kept, every
@@ -672,9 +685,10 @@ class Selector:
         # With two findings or more, every one's refit without it runs side by side at once (each
         # from the model as it stands): used while no drop has moved the model.
         order = list(reversed(self.findings))
-        ahead = dict(zip(map(id, order), refit_all(order, [not too_small(f) for f in order]))) if len(order) >= 2 else {}
+        ahead = dict(zip(map(id, order), refit_all(order, [goes(f) is None for f in order]))) if len(order) >= 2 else {}
         for f in order:
-            small = too_small(f)
+            why = goes(f)
+            small = why is not None
             if len(self.findings) < 2 and not small:
                 break  # a single finding was weighed against the model without it when it was made
             got = ahead.pop(id(f), None)
@@ -693,9 +707,7 @@ class Selector:
             # a close decision, and the simpler model (without it) stands.
             close = not small and abs(dcost + st.min_gain) < st.close_margin * st.min_gain
             keep = not small and dbic < 0 and dcost < -st.min_gain and not close
-            rule = ("common to both sibling readings (sibling_ratio)" if f in self.common else "below a claimable size"
-                    if small else "dBIC < 0 and dcost < -min_gain (by more than close_margin) "
-                    "against the model refitted without it")
+            rule = why or "dBIC < 0 and dcost < -min_gain (by more than close_margin) against the model refitted without it"
             if early:
                 rule += (f"; its refit stopped early at {', '.join(map(str, early))} iteration(s) of {st.refit_iters} "
                          "(backward_stop: it could no longer come near the model with it)")
@@ -709,10 +721,12 @@ class Selector:
                 self.jac_at = wmodel.x
                 ahead.clear()  # the model moved: the refits run ahead of the drop no longer apply
         # A drop refits the model, which moves the findings checked before it: one it left below a
-        # claimable size (a leak gone to zero once the dead band beside it went) goes too.
-        while small_ones := [f for f in self.findings if too_small(f)]:
-            self.log("below a claimable size after a drop", small_ones[-1].cand.label)
-            tr.add("backward check", small_ones[-1].cand.label, "below a claimable size after a drop", "dropped")
+        # claimable size (a leak gone to zero once the dead band beside it went), or where its
+        # coordinate no longer holds, goes too.
+        while small_ones := [f for f in self.findings if goes(f) is not None]:
+            why = f"{goes(small_ones[-1])} after a drop"
+            self.log(why, small_ones[-1].cand.label)
+            tr.add("backward check", small_ones[-1].cand.label, why, "dropped")
             self.model, self.pred, self.work_pred, self.jac = refit_without(small_ones[-1])
             self.jac_at = self.model.x
             self.findings.remove(small_ones[-1])
@@ -958,9 +972,12 @@ def pays_off(prob: Problem, pred0: dict, trial: Model, tpred: dict, before: Mode
     share = prob.explained(pred0, tpred, only=own)
     big = cand.claimable is None or cand.claimable(cand.report(trial.params()))
     worse = others_worse(prob, pred0, tpred, cand)
+    # The others worse: still the reading's own fault where it takes most of the systematic error
+    # of the model's worst reading away and leaves it far below where the model stands on the others.
+    level = own_level(prob, pred0, tpred, cand) if worse > st.max_others_worse and share > 0.5 else None
     shown, shows = gains_where_it_shows(prob, pred0, tpred, cand)
     met = (dbic < 0, dcost < -st.min_gain, abic < 0, acost < -st.min_gain, share >= st.min_share, big,
-           worse <= st.max_others_worse, shown)
+           worse <= st.max_others_worse or (level is not None and level <= st.delay_own_level), shown)
     near = _near(st, dcost, acost, share)
     failed = [i for i, ok in enumerate(met) if not ok]
     # Close: a graded number within close_margin of its threshold (the ΔBIC and the size are not
@@ -969,7 +986,7 @@ def pays_off(prob: Problem, pred0: dict, trial: Model, tpred: dict, before: Mode
     close = any(near) if not failed else all(near[i] for i in failed)
     close_rules = tuple(RULES[i] for i, n in enumerate(near) if n and met[i])
     return Verdict(all(met) and not close_rules, dbic, dcost, acost, share, bool(big), tuple(RULES[i] for i in failed),
-                   bool(close), close_rules=close_rules, others_worse=worse, shows=shows)
+                   bool(close), close_rules=close_rules, others_worse=worse, own_level=level, shows=shows)
 
 
 def gains_where_it_shows(prob: Problem, pred0: dict, tpred: dict, cand: Candidate) -> tuple[bool, dict[str, float] | None]:
@@ -1024,6 +1041,27 @@ def others_worse(prob: Problem, pred0: dict, tpred: dict, cand: Candidate) -> fl
     others = [c for c in prob.channels if c != cand.channel]
     n = sum(s0[c][1] for c in others)
     return sum(s1[c][0] - s0[c][0] for c in others) / n if n > 0 else 0.0
+
+
+def own_level(prob: Problem, pred0: dict, tpred: dict, cand: Candidate) -> float | None:
+    """For a fault of one reading that trades with the loop's phase (`PHASE_FAULTS`), where that
+    reading was the model's worst (its held-out mean square over its noise, `pred0`, no less than
+    any other reading's): its mean square with the fault (`tpred`) against the worst of the
+    others' without it; else None. A true delay of a moving reading is that reading's whole
+    misfit, a time shift, which makes it the worst one; fitted, it takes the reading far below
+    where the model stands on the others, whose rise is then the base's own form that parameters
+    bent around the delay had hidden (a foreign rig's lines). A delay standing in for another
+    phase (a valve's lag, the base's form) leaves its reading about as far off as the others, or
+    further: what was not a time shift remains. (Against the others as they were: their rise earns
+    nothing; a reading already fit better than the others is no such case.)"""
+    if cand.effect not in PHASE_FAULTS or not cand.own_reading or cand.channel not in prob.channels:
+        return None
+    mine, before = prob.channel_ssr(tpred, prob.val_mask), prob.channel_ssr(pred0, prob.val_mask)
+    others = [s / n for c, (s, n) in before.items() if c != cand.channel and n > 0]
+    (s1, n), (s0, _) = mine[cand.channel], before[cand.channel]
+    if n == 0 or not others or max(others) <= 0 or s0 / n < max(others):
+        return None
+    return s1 / n / max(others)
 
 
 def _against(v: Verdict, st: SearchSettings) -> dict[str, Any]:

@@ -164,6 +164,17 @@ class SearchSettings:
                                    "by a sliver of their noise). A delay that buys its own reading at the cost of the others "
                                    "(a ripple, a lag of the valve) is the loop's phase moved into one reading: not claimed "
                                    "where the others' mean square rises by more than this")
+    delay_own_level: float = knob(0.25, "x the worst other reading's held-out mean square before it (both over their noise)",
+                                  "a sensor delay that leaves the others worse by more than max_others_worse is still its "
+                                  "reading's fault where that reading was the model's worst, and it takes most of its "
+                                  "systematic error away and leaves it this far below the worst other reading (half its RMS "
+                                  "or less): a time shift that was "
+                                  "the reading's whole misfit, the others' rise the base's own form that parameters bent "
+                                  "around the delay had hidden. A delay standing in for another phase leaves its reading "
+                                  "about as far off as the others or further (measured: 2.2-220 x on the foreign and "
+                                  "external records it was refused on, 0.034 and 0.065 x for the two true delays; a y "
+                                  "delay standing in for a valve's lag passed at 0.028 and 0.213 on two foreign records, "
+                                  "where the lag won the tie-break)")
     signature_contrast: float = knob(2.0, "x the effect's size at the record's typical state",
                                      "an effect whose size varies over the record (entrained air: its compliance, "
                                      "~1/p^2) must cut the held-out error on the samples where it is at least this "
