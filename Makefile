@@ -22,10 +22,11 @@ test-rust:
 	cargo test --release --quiet
 
 # the campaign tests need PostgreSQL and a Dask cluster: started here unless already running
-# (.ci/run starts them once for the whole run)
+# (.ci/run starts them once for the whole run); the slowest 20 tests are listed at the end (the run's
+# budget is about 15 minutes on 2 cores: where to trim first)
 test-python: setup
-	if [ -n "$${HTM_TEST_PG:-}" ] && [ -n "$${HTM_TEST_DASK:-}" ]; then $(PY) -m pytest -q; \
-	else HTM_VENV=$(VENV) bash tools/services.sh $(PY) -m pytest -q; fi
+	if [ -n "$${HTM_TEST_PG:-}" ] && [ -n "$${HTM_TEST_DASK:-}" ]; then $(PY) -m pytest -q --durations=20; \
+	else HTM_VENV=$(VENV) bash tools/services.sh $(PY) -m pytest -q --durations=20; fi
 
 bench: setup
 	$(PY) benchmarks/plant_throughput.py
