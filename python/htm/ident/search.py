@@ -71,7 +71,7 @@ class Verdict:
     close_rules: tuple[str, ...] = ()
     alternative: str = ""
     others_worse: float = 0.0
-    own_level: float | None = None  # a phase fault's reading against the worst other before it (`own_level`), where asked
+    own_level: float | None = None  # a phase fault's reading against the worst other before it (`phase_fault`), where asked
     shows: dict[str, float] | None = None  # where the effect stands apart from the base's form (`gains_where_it_shows`)
 
     def __getitem__(self, key: str) -> Any:
@@ -109,7 +109,7 @@ class Verdict:
 RULES = ("dBIC < 0", "dcost < -min_gain", "ablation dBIC < 0", "ablation dcost < -min_gain", "explained >= min_share",
          "claimable size", "others no worse than max_others_worse", "gains where it shows")
 # The effects whose fault is one reading's and that trade with the loop's phase (every channel):
-# judged also by what they do to the other readings (`others_worse`).
+# judged also by what they do to the other readings (`phase_fault`).
 PHASE_FAULTS = ("sensor_delay",)
 
 
@@ -971,10 +971,11 @@ def pays_off(prob: Problem, pred0: dict, trial: Model, tpred: dict, before: Mode
     own = cand.channel if cand.own_reading and cand.channel in prob.channels else None
     share = prob.explained(pred0, tpred, only=own)
     big = cand.claimable is None or cand.claimable(cand.report(trial.params()))
-    worse = others_worse(prob, pred0, tpred, cand)
+    worse, level = phase_fault(prob, pred0, tpred, cand)
     # The others worse: still the reading's own fault where it takes most of the systematic error
     # of the model's worst reading away and leaves it far below where the model stands on the others.
-    level = own_level(prob, pred0, tpred, cand) if worse > st.max_others_worse and share > 0.5 else None
+    if not (worse > st.max_others_worse and share > 0.5):
+        level = None
     shown, shows = gains_where_it_shows(prob, pred0, tpred, cand)
     met = (dbic < 0, dcost < -st.min_gain, abic < 0, acost < -st.min_gain, share >= st.min_share, big,
            worse <= st.max_others_worse or (level is not None and level <= st.delay_own_level), shown)
@@ -1025,43 +1026,38 @@ def gains_where_it_shows(prob: Problem, pred0: dict, tpred: dict, cand: Candidat
     return ok, out
 
 
-def others_worse(prob: Problem, pred0: dict, tpred: dict, cand: Candidate) -> float:
-    """For a fault of one reading that trades with the loop's phase (`PHASE_FAULTS`): how much the
-    other readings' held-out mean square rises from `pred0` to `tpred`, in units of their noise
-    variance (noise-weighted residuals, summed over the other channels). A true delay of one
-    reading reaches the others only through the loop (the controller acts on the delayed
-    reading), and fitted there it leaves them as they were or fits them better (a refit's base
-    parameters move them by a sliver of their noise); a delay that fits its own reading while
-    the others get systematically worse stands in for the phase of something else — a valve's
-    lag, a ripple, the base's form. 0 for other candidates."""
+def phase_fault(prob: Problem, pred0: dict, tpred: dict, cand: Candidate) -> tuple[float, float | None]:
+    """For a fault of one reading that trades with the loop's phase (`PHASE_FAULTS`), from the
+    channels' held-out squares without it (`pred0`) and with it (`tpred`, noise-weighted):
+
+    * how much the other readings' mean square rises, in units of their noise variance (summed
+      over the other channels). A true delay of one reading reaches the others only through the
+      loop (the controller acts on the delayed reading), and fitted there it leaves them as they
+      were or fits them better (a refit's base parameters move them by a sliver of their noise);
+      a delay that fits its own reading while the others get systematically worse stands in for
+      the phase of something else — a valve's lag, a ripple, the base's form;
+    * where its own reading was the model's worst (its mean square no less than any other's
+      without it): its mean square with the fault against the worst of the others' without it,
+      else None. A true delay of a moving reading is that reading's whole misfit, a time shift,
+      which makes it the worst one; fitted, it takes the reading far below where the model stands
+      on the others, whose rise is then the base's own form that parameters bent around the delay
+      had hidden (a foreign rig's lines). A delay standing in for another phase leaves its reading
+      about as far off as the others, or further: what was not a time shift remains. (Against the
+      others as they were: their rise earns nothing.)
+
+    (0, None) for other candidates."""
     if cand.effect not in PHASE_FAULTS or not cand.own_reading or cand.channel not in prob.channels:
-        return 0.0
+        return 0.0, None
     s0 = prob.channel_ssr(pred0, prob.val_mask)
     s1 = prob.channel_ssr(tpred, prob.val_mask)
     others = [c for c in prob.channels if c != cand.channel]
     n = sum(s0[c][1] for c in others)
-    return sum(s1[c][0] - s0[c][0] for c in others) / n if n > 0 else 0.0
-
-
-def own_level(prob: Problem, pred0: dict, tpred: dict, cand: Candidate) -> float | None:
-    """For a fault of one reading that trades with the loop's phase (`PHASE_FAULTS`), where that
-    reading was the model's worst (its held-out mean square over its noise, `pred0`, no less than
-    any other reading's): its mean square with the fault (`tpred`) against the worst of the
-    others' without it; else None. A true delay of a moving reading is that reading's whole
-    misfit, a time shift, which makes it the worst one; fitted, it takes the reading far below
-    where the model stands on the others, whose rise is then the base's own form that parameters
-    bent around the delay had hidden (a foreign rig's lines). A delay standing in for another
-    phase (a valve's lag, the base's form) leaves its reading about as far off as the others, or
-    further: what was not a time shift remains. (Against the others as they were: their rise earns
-    nothing; a reading already fit better than the others is no such case.)"""
-    if cand.effect not in PHASE_FAULTS or not cand.own_reading or cand.channel not in prob.channels:
-        return None
-    mine, before = prob.channel_ssr(tpred, prob.val_mask), prob.channel_ssr(pred0, prob.val_mask)
-    others = [s / n for c, (s, n) in before.items() if c != cand.channel and n > 0]
-    (s1, n), (s0, _) = mine[cand.channel], before[cand.channel]
-    if n == 0 or not others or max(others) <= 0 or s0 / n < max(others):
-        return None
-    return s1 / n / max(others)
+    worse = sum(s1[c][0] - s0[c][0] for c in others) / n if n > 0 else 0.0
+    levels = [s0[c][0] / s0[c][1] for c in others if s0[c][1] > 0]
+    (own0, n_own), own1 = s0[cand.channel], s1[cand.channel][0]
+    if n_own == 0 or not levels or max(levels) <= 0 or own0 / n_own < max(levels):
+        return worse, None
+    return worse, own1 / n_own / max(levels)
 
 
 def _against(v: Verdict, st: SearchSettings) -> dict[str, Any]:
