@@ -351,6 +351,9 @@ def test_a_delay_that_fits_its_own_reading_at_the_others_cost_is_not_claimed_and
     assert v.numbers()["own_level"] == pytest.approx(1.0 / 51.0, rel=0.1)
     v = verdict("sensor_delay", dataclasses.replace(DEFAULT, delay_own_level=0.0), after=to_noise)
     assert not v.ok and v.failed == ("others no worse than max_others_worse",)
+    # ...and it must take more than `delay_own_share` of the reading's systematic error away
+    v = verdict("sensor_delay", dataclasses.replace(DEFAULT, delay_own_share=1.0), after=to_noise)
+    assert not v.ok and v.failed == ("others no worse than max_others_worse",) and "own_level" not in v.numbers()
     # p_a was not the model's worst reading (y was): a delay that takes it to its noise while y
     # rises is no such case, and the rule refuses it
     v = verdict("sensor_delay", after={"y": meas["y"] + 2.2e-5 * wave, "p_a": meas["p_a"]}, channel="p_a")

@@ -974,7 +974,7 @@ def pays_off(prob: Problem, pred0: dict, trial: Model, tpred: dict, before: Mode
     worse, level = phase_fault(prob, pred0, tpred, cand)
     # The others worse: still the reading's own fault where it takes most of the systematic error
     # of the model's worst reading away and leaves it far below where the model stands on the others.
-    if not (worse > st.max_others_worse and share > 0.5):
+    if not (worse > st.max_others_worse and share > st.delay_own_share):
         level = None
     shown, shows = gains_where_it_shows(prob, pred0, tpred, cand)
     met = (dbic < 0, dcost < -st.min_gain, abic < 0, acost < -st.min_gain, share >= st.min_share, big,

@@ -175,6 +175,10 @@ class SearchSettings:
                                   "external records it was refused on, 0.034 and 0.065 x for the two true delays; a y "
                                   "delay standing in for a valve's lag passed at 0.028 and 0.213 on two foreign records, "
                                   "where the lag won the tie-break)")
+    delay_own_share: float = knob(0.5, "share of the delayed reading's systematic residual",
+                                  "...and the share of that reading's systematic error (its held-out mean square above "
+                                  "the noise) the delay must take away for `delay_own_level` to apply: most of it, the "
+                                  "reading's whole misfit a time shift (the two true delays took 0.999 and 0.98)")
     signature_contrast: float = knob(2.0, "x the effect's size at the record's typical state",
                                      "an effect whose size varies over the record (entrained air: its compliance, "
                                      "~1/p^2) must cut the held-out error on the samples where it is at least this "
