@@ -723,13 +723,13 @@ class Selector:
         # A drop refits the model, which moves the findings checked before it: one it left below a
         # claimable size (a leak gone to zero once the dead band beside it went), or where its
         # coordinate no longer holds, goes too.
-        while small_ones := [f for f in self.findings if goes(f) is not None]:
-            why = f"{goes(small_ones[-1])} after a drop"
-            self.log(why, small_ones[-1].cand.label)
-            tr.add("backward check", small_ones[-1].cand.label, why, "dropped")
-            self.model, self.pred, self.work_pred, self.jac = refit_without(small_ones[-1])
+        while gone := [(f, why) for f in self.findings if (why := goes(f)) is not None]:
+            f, why = gone[-1]
+            self.log(f"{why} after a drop", f.cand.label)
+            tr.add("backward check", f.cand.label, f"{why} after a drop", "dropped")
+            self.model, self.pred, self.work_pred, self.jac = refit_without(f)
             self.jac_at = self.model.x
-            self.findings.remove(small_ones[-1])
+            self.findings.remove(f)
 
     def result(self) -> Result:
         findings, prob = self.findings, self.prob
