@@ -219,6 +219,11 @@ class Candidate:
     # where it shows at most `SearchSettings.shows_ratio` times the share it leaves elsewhere, or
     # the share it takes there at least `shows_gain` times the share it takes elsewhere.
     shows_against_rest: bool = False
+    # The samples where the effect acts alone in the record (a leak: the actuator standing still,
+    # where its flow has no motion or line dynamics beside it), as a mask over the record (None: no
+    # such test): it must take at least `SearchSettings.still_share` of the held-out error there
+    # (`search.takes_at_standstill`).
+    still: Callable[[], np.ndarray] | None = None
     # Values (parameter key, value: base parameters or the effect's own) at which a refit also
     # starts, beside the current fit and the nominal base (`search._restarts`): what the record
     # itself shows of the effect and of the base parameters it trades with (a closure's spring

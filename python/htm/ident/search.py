@@ -73,6 +73,7 @@ class Verdict:
     others_worse: float = 0.0
     own_level: float | None = None  # a phase fault's reading against the worst other before it (`phase_fault`), where asked
     shows: dict[str, float] | None = None  # where the effect stands apart from the base's form (`gains_where_it_shows`)
+    still: dict[str, float] | None = None  # what it takes where the actuator stands still (`takes_at_standstill`)
 
     def __getitem__(self, key: str) -> Any:
         return getattr(self, key)
@@ -89,6 +90,8 @@ class Verdict:
             out["own_level"] = self.own_level
         if self.shows is not None:
             out["where_it_shows"] = self.shows
+        if self.still is not None:
+            out["at_standstill"] = self.still
         return out
 
     @property
@@ -107,7 +110,7 @@ class Verdict:
 
 # The rules of `pays_off`, by the names the trace uses.
 RULES = ("dBIC < 0", "dcost < -min_gain", "ablation dBIC < 0", "ablation dcost < -min_gain", "explained >= min_share",
-         "claimable size", "others no worse than max_others_worse", "gains where it shows")
+         "claimable size", "others no worse than max_others_worse", "gains where it shows", "takes the error at standstill")
 # The effects whose fault is one reading's and that trade with the loop's phase (every channel):
 # judged also by what they do to the other readings (`phase_fault`).
 PHASE_FAULTS = ("sensor_delay",)
@@ -429,7 +432,7 @@ class Selector:
                 tr.add("judge", cand.label, "gains where it shows (signature_contrast)",
                        "left the pool: it stands in for the base's own parameters", **(verdict.shows or {}),
                        signature_contrast=st.signature_contrast)
-            if verdict.dcost < -st.min_gain and RULES[6] not in verdict.failed and RULES[7] not in verdict.failed:
+            if verdict.dcost < -st.min_gain and not {RULES[6], RULES[7], RULES[8]} & set(verdict.failed):
                 # Not the effect but a better fit of the base parameters: remember those — not a
                 # phase fault's, dropped for what it does to the other readings: its base
                 # parameters were bent around it and would carry it into the next round. (A refit
@@ -977,8 +980,9 @@ def pays_off(prob: Problem, pred0: dict, trial: Model, tpred: dict, before: Mode
     if not (worse > st.max_others_worse and share > st.delay_own_share):
         level = None
     shown, shows = gains_where_it_shows(prob, pred0, tpred, cand)
+    stood, still = takes_at_standstill(prob, pred0, tpred, cand)
     met = (dbic < 0, dcost < -st.min_gain, abic < 0, acost < -st.min_gain, share >= st.min_share, big,
-           worse <= st.max_others_worse or (level is not None and level <= st.delay_own_level), shown)
+           worse <= st.max_others_worse or (level is not None and level <= st.delay_own_level), shown, stood)
     near = _near(st, dcost, acost, share)
     failed = [i for i, ok in enumerate(met) if not ok]
     # Close: a graded number within close_margin of its threshold (the ΔBIC and the size are not
@@ -987,7 +991,7 @@ def pays_off(prob: Problem, pred0: dict, trial: Model, tpred: dict, before: Mode
     close = any(near) if not failed else all(near[i] for i in failed)
     close_rules = tuple(RULES[i] for i, n in enumerate(near) if n and met[i])
     return Verdict(all(met) and not close_rules, dbic, dcost, acost, share, bool(big), tuple(RULES[i] for i in failed),
-                   bool(close), close_rules=close_rules, others_worse=worse, own_level=level, shows=shows)
+                   bool(close), close_rules=close_rules, others_worse=worse, own_level=level, shows=shows, still=still)
 
 
 def gains_where_it_shows(prob: Problem, pred0: dict, tpred: dict, cand: Candidate) -> tuple[bool, dict[str, float] | None]:
@@ -1024,6 +1028,29 @@ def gains_where_it_shows(prob: Problem, pred0: dict, tpred: dict, cand: Candidat
         out.update(left=left, left_elsewhere=left_rest, shows_ratio=ratio, shows_gain=gain)
         ok = ok and (left <= ratio * left_rest or (gain > 0 and 1.0 - left >= gain * (1.0 - left_rest)))
     return ok, out
+
+
+def takes_at_standstill(prob: Problem, pred0: dict, tpred: dict, cand: Candidate) -> tuple[bool, dict[str, float] | None]:
+    """For an effect with samples where it acts alone (`Candidate.still`: an internal leak where
+    the actuator stands still, its flow with no motion or line dynamics beside it): does it take
+    at least `still_share` of the held-out error there (noise-scaled squares summed over the
+    channels, `pred0` -> `tpred`)? A leak standing in for the dynamics a foreign rig's base form
+    misses (line damping, a valve lag) gains in motion and little at rest. Not tested (True) where
+    fewer than `still_min_samples` of the held-out samples stand still or the model without it
+    has no error there; (True, None) for an effect without such samples."""
+    st = prob.settings
+    if cand.still is None or st.still_share <= 0:
+        return True, None
+    where = np.asarray(cand.still(), dtype=bool)[: len(prob.val_mask)]
+    mask = prob.val_mask & where
+    n, n_val = int(mask.sum()), int(prob.val_mask.sum())
+    out: dict[str, float] = {"samples": n, "share_of_held_out": n / max(n_val, 1), "still_share": st.still_share}
+    s0 = sum(v for v, _ in prob.channel_ssr(pred0, mask).values()) if n else 0.0
+    if n < st.still_min_samples * n_val or s0 <= 0:
+        return True, out
+    s1 = sum(v for v, _ in prob.channel_ssr(tpred, mask).values())
+    out.update(before=s0 / n, after=s1 / n, taken=1.0 - s1 / s0)
+    return bool(1.0 - s1 / s0 >= st.still_share), out
 
 
 def phase_fault(prob: Problem, pred0: dict, tpred: dict, cand: Candidate) -> tuple[float, float | None]:
@@ -1073,7 +1100,7 @@ def _near(st: SearchSettings, dcost: float, acost: float, share: float) -> tuple
     """Per rule of `RULES`: does its graded number lie within close_margin of its threshold?"""
     m = st.close_margin
     return (False, abs(dcost + st.min_gain) < m * st.min_gain, False, abs(acost + st.min_gain) < m * st.min_gain,
-            abs(share - st.min_share) < m * st.min_share, False, False, False)
+            abs(share - st.min_share) < m * st.min_share, False, False, False, False)
 
 
 def screen(prob: Problem, model: Model, work_pred: dict, jac: np.ndarray,

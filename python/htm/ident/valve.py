@@ -187,17 +187,31 @@ class ValveFamily(Family):
             return self._shown["leak"]
         cols = self.rec.columns
         dp = np.abs(np.asarray(cols["p_a"], dtype=float) - np.asarray(cols["p_b"], dtype=float))
-        if "v" in self.channels:
-            v = np.asarray(cols["v"], dtype=float)
-            floor = ft.noise_floor(v, ft.declared_resolution(self.rec.meta, "v"))
-        else:
-            v = np.gradient(np.asarray(cols["y"], dtype=float), np.asarray(cols["t"], dtype=float))
-            floor = ft.noise_floor(v)
+        v, floor = self._velocity()
         ok = np.isfinite(v) & np.isfinite(dp)
         share = np.where(ok, dp / (np.abs(np.where(ok, v, 0.0)) + floor), 0.0)
         typical = float(np.median(share[ok])) if ok.any() else 0.0
         self._shown["leak"] = ok & (share >= self.settings.signature_contrast * typical) & (share > 0)
         return self._shown["leak"]
+
+    def standstill(self) -> np.ndarray:
+        """The samples where the actuator stands still: |v| within twice the velocity reading's
+        noise floor (v differenced from y where no velocity is read). Computed once."""
+        if "still" in self._shown:
+            return self._shown["still"]
+        v, floor = self._velocity()
+        ok = np.isfinite(v)
+        self._shown["still"] = ok & (np.abs(np.where(ok, v, np.inf)) <= 2.0 * floor)
+        return self._shown["still"]
+
+    def _velocity(self) -> tuple[np.ndarray, float]:
+        """The record's velocity (read, or differenced from y) and its noise floor."""
+        cols = self.rec.columns
+        if "v" in self.channels:
+            v = np.asarray(cols["v"], dtype=float)
+            return v, ft.noise_floor(v, ft.declared_resolution(self.rec.meta, "v"))
+        v = np.gradient(np.asarray(cols["y"], dtype=float), np.asarray(cols["t"], dtype=float))
+        return v, ft.noise_floor(v)
 
     def start(self, base: Model) -> np.ndarray:
         """Coordinates the fit starts from: the nominal values, the spool as fast as its bound
@@ -280,7 +294,8 @@ class ValveFamily(Family):
             cand("internal_leakage", None, (lin("leakage_coeff_m3_per_s_pa", 1e-12, 0.0, 1e3),), "load pressure",
                  claimable=_share_of("coeff_m3_per_s_pa", st.min_leakage * p["valve_rated_flow_m3_s"]
                                      / max(p["supply_pressure_pa"], 1.0)),
-                 shows=self.leak_flow_share if leak_shows else None, shows_against_rest=leak_shows),
+                 shows=self.leak_flow_share if leak_shows else None, shows_against_rest=leak_shows,
+                 still=self.standstill if st.still_share > 0 else None),
             cand("friction_asymmetry", None, (lin("friction_coulomb_diff_n", 50.0, -100.0, 100.0),), "sign(v)",
                  claimable=_asymmetric(st.min_asymmetry),
                  alternate=cand("friction_asymmetry", None, (lin("friction_coulomb_diff_weighed_n", 50.0, -100.0, 100.0),),
