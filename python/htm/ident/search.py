@@ -82,7 +82,7 @@ class Verdict:
         return getattr(self, key, default)
 
     def numbers(self) -> dict[str, Any]:
-        out = {"dbic": self.dbic, "dcost": self.dcost, "ablation_dcost": self.ablation_dcost, "explained": self.explained,
+        out: dict[str, Any] = {"dbic": self.dbic, "dcost": self.dcost, "ablation_dcost": self.ablation_dcost, "explained": self.explained,
                "claimable": self.claimable}
         if self.others_worse:
             out["others_worse"] = self.others_worse
