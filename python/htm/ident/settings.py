@@ -205,7 +205,7 @@ class SearchSettings:
                               "share of the held-out error where the actuator stands still (|v| within twice its reading's "
                               "noise floor): there its flow has no motion, compressibility or line dynamics beside it in "
                               "the flow balance, so a leak the record holds takes most of the error there (foreign leak "
-                              "records, the 18 verdicts of true leaks that paid off: 0.67-0.98 taken), while a leak "
+                              "records, the 22 verdicts of true leaks that paid off: 0.67-0.98 taken), while a leak "
                               "standing in for a foreign rig's line damping or a valve lag gains in motion and little at "
                               "rest (foreign quick seed 4 fr28: 0.14-0.16 taken at rest against 0.51-0.69 of the whole; "
                               "fr18 0.21; a leak beside a supply sag, delay set seed 1 fr14: 0.42 and, refitted larger, "
