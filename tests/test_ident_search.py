@@ -516,6 +516,32 @@ def test_an_effect_that_does_not_gain_at_all_is_not_dropped_for_where_it_shows()
     assert not good and better is None and not too_small and len(pool) == 1
 
 
+def _toy_leak_trial(f, record_a, rng, settings, **cand_kw):
+    """A toy leak: an effect `s` that adds s * f to channel `a` (channel `b` noise alone), over a
+    record whose `a` is `record_a` plus noise; the base (s = 0) and the trial at s = 1, each
+    predicted over the whole record: (prob, pred0, trial, tpred, base, cand)."""
+    from htm.ident.fit import Problem, blocks
+    from htm.ident.model import Candidate, lin
+    from htm.ident.records import Record
+
+    n = len(f)
+    t = np.arange(n) * 1e-3
+
+    def simulate(plist, rec, **opts):
+        m = len(rec.columns["t"])
+        return [{"a": q["s"] * f[:m], "b": np.zeros(m)} for q in plist]
+
+    fit_mask, val_mask = blocks(n, n, 1e3)
+    rec = Record({"t": t, "y": t, "a": record_a + rng.normal(0, 0.02, n), "b": rng.normal(0, 0.02, n)}, {}, "toy")
+    prob = Problem(rec, simulate, ["a", "b"], {"a": 0.02, "b": 0.02}, n, fit_mask, val_mask, settings=settings)
+    cand = Candidate("internal_leakage", None, (lin("s", 1.0, 0.0, 10.0),), "load pressure", fields=(("s", "s"),), **cand_kw)
+    base = Model({"s": 0.0, "k": 1.0}, [lin("k", 1.0, 0.0, 2.0)], np.ones(1))
+    pred0 = prob.predict([base.params()], whole=True)[0]
+    trial = base.with_candidate(cand, 1.0)
+    tpred = prob.predict([trial.params()], whole=True)[0]
+    return prob, pred0, trial, tpred, base, cand
+
+
 def test_a_leak_must_cut_the_error_where_its_flow_shows_about_as_well_as_elsewhere():
     # Toy: an effect `s` adds s * f(t) to channel `a`; its flow "shows" on every tenth block of
     # samples (slow motion under load, for a leak). A record whose misfit is f everywhere (a true
@@ -526,9 +552,6 @@ def test_a_leak_must_cut_the_error_where_its_flow_shows_about_as_well_as_elsewhe
     # `shows_ratio` = 0 takes the comparison out (only the gain there is asked).
     import dataclasses
 
-    from htm.ident.fit import Problem, blocks
-    from htm.ident.model import Candidate, lin
-    from htm.ident.records import Record
     from htm.ident.search import RULES, gains_where_it_shows, pays_off
     from htm.ident.settings import DEFAULT
 
@@ -539,21 +562,9 @@ def test_a_leak_must_cut_the_error_where_its_flow_shows_about_as_well_as_elsewhe
     g = np.cos(2 * np.pi * 7.0 * t)  # structure the effect does not make
     where = (np.arange(n) // 20) % 10 == 0
 
-    def simulate(plist, rec, **opts):
-        m = len(rec.columns["t"])
-        return [{"a": q["s"] * f[:m], "b": np.zeros(m)} for q in plist]
-
-    fit_mask, val_mask = blocks(n, n, 1e3)
-
     def verdict(record_a, settings=DEFAULT):
-        rec = Record({"t": t, "y": t, "a": record_a + rng.normal(0, 0.02, n), "b": rng.normal(0, 0.02, n)}, {}, "toy")
-        prob = Problem(rec, simulate, ["a", "b"], {"a": 0.02, "b": 0.02}, n, fit_mask, val_mask, settings=settings)
-        cand = Candidate("internal_leakage", None, (lin("s", 1.0, 0.0, 10.0),), "load pressure", fields=(("s", "s"),),
-                         shows=lambda: where, shows_against_rest=True)
-        base = Model({"s": 0.0, "k": 1.0}, [lin("k", 1.0, 0.0, 2.0)], np.ones(1))
-        pred0 = prob.predict([base.params()], whole=True)[0]
-        trial = base.with_candidate(cand, 1.0)
-        tpred = prob.predict([trial.params()], whole=True)[0]
+        prob, pred0, trial, tpred, base, cand = _toy_leak_trial(f, record_a, rng, settings, shows=lambda: where,
+                                                                shows_against_rest=True)
         return pays_off(prob, pred0, trial, tpred, base, cand), gains_where_it_shows(prob, pred0, tpred, cand)
 
     v, (shown, numbers) = verdict(f)  # a true leak
@@ -622,9 +633,7 @@ def test_a_leak_must_take_most_of_the_error_where_the_actuator_stands_still():
     # not yet found is refitted again in a later round).
     import dataclasses
 
-    from htm.ident.fit import Problem, blocks
     from htm.ident.model import Candidate, lin
-    from htm.ident.records import Record
     from htm.ident.search import RULES, Verdict, pays_off, takes_at_standstill
     from htm.ident.settings import DEFAULT
 
@@ -635,21 +644,8 @@ def test_a_leak_must_take_most_of_the_error_where_the_actuator_stands_still():
     g = np.cos(2 * np.pi * 7.0 * t)  # structure the effect does not make
     still = (np.arange(n) // 40) % 5 == 0
 
-    def simulate(plist, rec, **opts):
-        m = len(rec.columns["t"])
-        return [{"a": q["s"] * f[:m], "b": np.zeros(m)} for q in plist]
-
-    fit_mask, val_mask = blocks(n, n, 1e3)
-
     def verdict(record_a, settings=DEFAULT, where=still):
-        rec = Record({"t": t, "y": t, "a": record_a + rng.normal(0, 0.02, n), "b": rng.normal(0, 0.02, n)}, {}, "toy")
-        prob = Problem(rec, simulate, ["a", "b"], {"a": 0.02, "b": 0.02}, n, fit_mask, val_mask, settings=settings)
-        cand = Candidate("internal_leakage", None, (lin("s", 1.0, 0.0, 10.0),), "load pressure", fields=(("s", "s"),),
-                         still=lambda: where)
-        base = Model({"s": 0.0, "k": 1.0}, [lin("k", 1.0, 0.0, 2.0)], np.ones(1))
-        pred0 = prob.predict([base.params()], whole=True)[0]
-        trial = base.with_candidate(cand, 1.0)
-        tpred = prob.predict([trial.params()], whole=True)[0]
+        prob, pred0, trial, tpred, base, cand = _toy_leak_trial(f, record_a, rng, settings, still=lambda: where)
         return pays_off(prob, pred0, trial, tpred, base, cand), takes_at_standstill(prob, pred0, tpred, cand)
 
     v, (stood, numbers) = verdict(f)  # a true leak
