@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from htm.cli import main
+from htm.errors import InputError
 from htm.ident import proving
 from htm.ident.diagnose import diagnose
 from htm.ident.records import write_record
@@ -234,6 +235,38 @@ def test_a_chamber_readings_fault_is_weighed_against_its_sibling_and_the_setting
     off = diagnose(rec, settings=dataclasses.replace(DEFAULT, sibling_ratio=0.0))
     assert [(f["effect"], f["channel"]) for f in off["findings"]] == [("sensor_delay", "p_a")]
     assert not [d for d in off["trace"] if d["stage"] == "sibling check"]
+
+
+def test_a_chamber_readings_level_fault_is_weighed_against_the_siblings_other_kind_and_the_setting_switches_it():
+    """A -3 bar offset on p_b on a rig whose return line holds an undeclared 5 bar: the base's
+    pressure levels move both chambers together, so the offset could also be fitted as a gain on
+    p_a (a foreign rig's record was, before this check). The chosen offset is refitted against the
+    sibling's other level fault, both compared on a common base, and the trace names the rule with
+    both ΔBICs; the offset on p_b stands. Switched off (sibling_other_kind), no such comparison. On
+    the same rig without the back-pressure the same fault refitted on p_a comes to a few percent of
+    the offset's size: the chambers are not interchangeable and the other kind is not weighed."""
+    rec, truth = proving.make_record({"sensor_offset": {"channel": "p_b", "offset_pa": -3e5}}, seed=1, duration_s=8,
+                                     tank_pa=5e5)
+    assert truth["params"]["tank_pressure_pa"] == 5e5 and rec.meta["rig"].get("tank_pressure_pa", 0.0) == 0.0
+    with pytest.raises(InputError, match="tank_pa"):
+        proving.make_record({}, seed=1, duration_s=2, tank_pa=float("nan"))
+    report = diagnose(rec)
+    [(effect, channel, params)] = [(f["effect"], f["channel"], f["params"]) for f in report["findings"]]
+    assert (effect, channel) == ("sensor_offset", "p_b") and params["offset_pa"] == pytest.approx(-3e5, rel=0.1)
+    [check] = [d for d in report["trace"] if d["stage"] == "sibling check" and "other level fault" in d["rule"]]
+    assert check["candidate"] == "sensor_offset on p_b" and check["other"] == "sensor_gain on p_a"
+    assert check["outcome"] == "chosen" and check["numbers"]["dbic"] < check["numbers"]["other_dbic"]
+    assert any(d["stage"] == "judge" and d["candidate"] == "sensor_gain on p_a" for d in report["trace"])
+    off = diagnose(rec, settings=dataclasses.replace(DEFAULT, sibling_other_kind=False))
+    assert [(f["effect"], f["channel"]) for f in off["findings"]] == [("sensor_offset", "p_b")]
+    assert not [d for d in off["trace"] if "other level fault" in d["rule"]]
+    plain, _ = proving.make_record({"sensor_offset": {"channel": "p_b", "offset_pa": -3e5}}, seed=1, duration_s=8)
+    report = diagnose(plain)
+    assert [(f["effect"], f["channel"]) for f in report["findings"]] == [("sensor_offset", "p_b")]
+    [gate] = [d for d in report["trace"] if d["stage"] == "sibling check" and "interchangeable" in d["rule"]]
+    assert gate["outcome"] == "it does not: the other kind not weighed"
+    assert gate["numbers"]["mirror"] * gate["numbers"]["sibling_ratio"] < 1.0
+    assert not [d for d in report["trace"] if "other level fault" in d["rule"]]
 
 
 def test_a_sag_or_a_leak_below_its_claimable_size_is_the_bases_form_and_the_settings_move_the_line():

@@ -19,6 +19,8 @@ from htm.ident.settings import DEFAULT, SearchSettings
 # Effects that are faults of one sensor's reading (EFFECTS.md's sensor effects): a family names
 # them on a channel and the search judges them in that reading.
 SENSOR_EFFECTS = ("sensor_offset", "sensor_gain", "sensor_delay")
+# Of those, the faults of a reading's level (`Candidate.level`).
+LEVEL_FAULTS = ("sensor_offset", "sensor_gain")
 # Where along the travel the closure of a specimen is first placed (percentiles of the position).
 CLOSURE_PERCENTILES = (10, 30, 50, 70, 90)
 # The closure stays inside the travel the record visits (these percentiles): a kink beyond it is a
@@ -74,7 +76,8 @@ class Family:
         fields = tuple(self.effect_fields(effect, channel).items())
         sensor = effect in SENSOR_EFFECTS
         return Candidate(effect, channel, frees, signature, fields=fields, own_reading=sensor,
-                         sibling=self.siblings.get(channel or "") if sensor else None, **kw)
+                         sibling=self.siblings.get(channel or "") if sensor else None,
+                         level=effect in LEVEL_FAULTS, **kw)
 
     def sensor_candidate(self, effect: str, channel: str, unit: float, *, bound: float = 1e3,
                          claimable: Claim | None = None) -> Candidate:

@@ -204,6 +204,10 @@ class Candidate:
     # The channel of a reading measured alike (the other chamber's pressure): the same fault on
     # both readings is the plant's form (lines, the valve), not two sensors' (`Selector.sibling_check`).
     sibling: str | None = None
+    # The fault shifts or scales the reading's level (an offset, a gain): the sibling's other level
+    # fault contends with it too (`Selector.other_kind`; the base's pressure levels move both
+    # chambers together, so one chamber's offset can be fitted as the other's gain).
+    level: bool = False
     # A composite (effects that pay off only together, as a play with the friction behind it): its
     # parts, each a candidate on a contiguous run of these frees; refitted beside the single
     # candidates every round, and found as one finding per part.

@@ -134,7 +134,7 @@ def supply_profile(ref: np.ndarray, rate_hz: float) -> np.ndarray:
 def make_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, seed: int, rate_hz: float = 500,
                 duration_s: float = 20, rig_spread: float = 0.3, noise: bool = True, experiment: str = "rich",
                 specimen: bool | None = None, effect_outside_table: str | None = None,
-                supply_pa: float | None = None) -> tuple[Record, dict[str, Any]]:
+                supply_pa: float | None = None, tank_pa: float = 0.0) -> tuple[Record, dict[str, Any]]:
     """A closed-loop position record of the simulated rig with `effects` on (EFFECTS.md ids ->
     parameter dicts in EFFECTS.md names; sensor effects carry `channel`; empty dicts take
     `DEFAULT_EFFECTS`). The experiment is position control (`rich_reference`, "rich") or force
@@ -145,7 +145,8 @@ def make_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, seed:
     column) is fitted when asked, or when an effect needs one. `effect_outside_table`:
     "friction_bump" adds a position-dependent friction bump, "supply_ripple" a pump's ripple on the
     supply: structure that no EFFECTS.md id describes. `supply_pa` sets the power unit's nominal
-    pressure (default: the thesis rig's), declared in the metadata like any rig's.
+    pressure (default: the thesis rig's), declared in the metadata like any rig's. `tank_pa` adds a
+    back-pressure in the return line that the metadata does not state (rigs' usually go undeclared).
 
     Returns (record, truth) with truth = {"effects": {id: {"channel", "params"}}, "params": the
     true Params as a dict, "spread": {field: factor}, "outside": name or None}.
@@ -157,6 +158,8 @@ def make_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, seed:
         raise InputError(f"rate_hz = {rate_hz}: allowed [100, 10000] Hz")
     if not (1.0 <= duration_s <= 3600):
         raise InputError(f"duration_s = {duration_s}: allowed [1, 3600] s")
+    if not (0 <= tank_pa <= 1e6):
+        raise InputError(f"tank_pa = {tank_pa}: allowed [0, 1e6] Pa")
     if not (0 <= rig_spread < 1):
         raise InputError(f"rig_spread = {rig_spread}: allowed [0, 1)")
     if effect_outside_table not in (None, *OUTSIDE):
@@ -192,6 +195,7 @@ def make_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, seed:
     if "load_pressure_feedback" in resolved:
         meta["rig"]["valve_flow_law"] = "linear"
     truth = params_from_meta(meta)
+    truth["tank_pressure_pa"] = truth["tank_pressure_pa"] + float(tank_pa)
     spread = {f: float(rng.uniform(1 - rig_spread, 1 + rig_spread)) for f in SPREAD_FIELDS}
     for f, k in spread.items():
         if f == "friction_coulomb_n":

@@ -229,6 +229,7 @@ class Selector:
         self.findings: list[Finding] = []
         self.refitted: list[Trial] = []  # the last refit's trials, judged
         self.common: list[Finding] = []  # findings whose sibling reading showed the same fault since (sibling_check)
+        self.mirror: float | None = None  # the last sibling check's refitted size over the chosen's (interchangeable)
 
     # --- the loop --------------------------------------------------------------------------
     def run(self, base: Model, first: frozenset[str], max_findings: int, max_refits: int) -> Result:
@@ -329,6 +330,9 @@ class Selector:
                 if checked is None:
                     continue
                 chosen = checked
+                if chosen.verdict.ok and chosen.cand.level and self.st.sibling_other_kind and self.interchangeable(chosen):
+                    with self.stages("sibling check", f"{chosen.cand.label}: the other kind on {chosen.cand.sibling}"):
+                        chosen = self.other_kind(chosen, {sc.cand.key: sc for sc in ranked})
             self.pool = [c for c in self.pool if not c.keys & chosen.cand.keys]
             if not chosen.verdict.ok:
                 # Polished, the effect no longer matters: keep the better-fitted model without it.
@@ -489,6 +493,7 @@ class Selector:
         record decides the chamber (smaller ΔBIC). Returns the trial to add, or None."""
         st, tr, c = self.st, self.trace, chosen.cand
         mine = _size(chosen.model, c)
+        self.mirror = None
         rule = "the same fault on the sibling reading pays off, same sign, sizes within sibling_ratio"
         sib_key = (c.effect, c.sibling)
         found = next((f for f in self.findings if f.cand.key == sib_key), None)
@@ -514,6 +519,7 @@ class Selector:
                params=sib.report(t.model.params()), **t.verdict.numbers(), **_against(t.verdict, st))
         theirs = _size(t.model, sib)
         ratio = _ratio(mine, theirs)
+        self.mirror = abs(theirs / mine) if mine else math.inf
         mine_pins, their_pins = self.stated_pins(chosen.model), self.stated_pins(t.model)
         if mine_pins and not their_pins and t.verdict.dbic < 0 and t.verdict.dcost < 0 and mine * theirs < 0:
             # Two offsets of opposite sign, one per chamber, trade with the weight a stated mass
@@ -541,21 +547,90 @@ class Selector:
                    close=_near_ratio(ratio, st), other=sib.label, size=mine, sibling_size=theirs, ratio=ratio,
                    sibling_ratio=st.sibling_ratio)
             return None
+        return self.chamber_decided(chosen, t, "not alike: the chambers compared on a common base, smaller dBIC "
+                                    "(the own-reading share waived between them)", size=mine, sibling_size=theirs)
+
+    def interchangeable(self, chosen: Trial) -> bool:
+        """Whether the chambers' readings are interchangeable for `chosen`'s level fault on this
+        record: the same fault refitted on the sibling (`sibling_check`) came to a size within
+        sibling_ratio of the chosen one's, of either sign (the base's levels then carry one
+        chamber's fault into the other's reading); unknown (no such refit) counts as yes. A
+        sibling that fits only a small fault leaves the chosen reading's own, and the other kind
+        is not weighed (`other_kind`: a refit saved)."""
+        if self.mirror is None or self.mirror * self.st.sibling_ratio >= 1.0:
+            return True
+        self.trace.add("sibling check", chosen.cand.label, "the same fault on the sibling fits within sibling_ratio of "
+                       "its size (the chambers interchangeable: the other kind weighed too)",
+                       "it does not: the other kind not weighed", mirror=self.mirror, sibling_ratio=self.st.sibling_ratio)
+        return False
+
+    def other_kind(self, chosen: Trial, screened: dict[tuple[str, str | None], Screened]) -> Trial:
+        """A level fault (offset, gain) chosen on a reading with a sibling is weighed also against
+        the sibling's other level fault (the same kind is `sibling_check`'s): the base's pressure
+        levels (supply, tank) move both chambers together, so an offset on one chamber can be
+        fitted, nearly as well, as a gain (or offset) on the other. The other kind is refitted
+        from its screened size when the screen found evidence for it; if it contends (`contends`)
+        the two are compared on a common base and the smaller ΔBIC decides the chamber. Where the
+        fault moves, that reading's own two level faults are then weighed as one sensor's (tied
+        within min_gain, the preference names it). Returns the trial to add."""
+        c = chosen.cand
+        t = self.contends(chosen, screened, c.sibling, lambda e: e != c.effect, "the sibling's other level fault pays "
+                          "off too", "it does not: this reading's own fault")
+        if t is None:
+            return chosen
+        won = self.chamber_decided(chosen, t, "the sibling's other level fault: the chambers compared on a common "
+                                   "base, smaller dBIC (the own-reading share waived between them)")
+        if won.cand is c or not won.verdict.ok:
+            return won
+        t = self.contends(won, screened, won.cand.channel, lambda e: e == c.effect, "that reading's other level "
+                          "fault pays off too", "it does not: the fault moved")
+        if t is None:
+            return won
+        return self.chamber_decided(won, t, "one sensor's two level faults compared on a common base: tied within "
+                                    "min_gain, the preference names it, else smaller dBIC", prefer=True)
+
+    def contends(self, chosen: Trial, screened: dict[tuple[str, str | None], Screened], channel: str | None,
+                 kind: Callable[[str], bool], rule: str, outcome: str) -> Trial | None:
+        """The level fault on `channel` whose effect id passes `kind`, refitted from its screened
+        size (None where the screen found no evidence for it), judged: it contends with `chosen`
+        if it pays off or misses only the own-reading share (no judge between two readings)."""
+        alt = next((d for d in self.pool if d.level and d.channel == channel and kind(d.effect) and d.frees), None)
+        sc = screened.get(alt.key) if alt is not None else None
+        if sc is None:
+            return None
+        t = self.refit_one(sc, np.linalg.qr(self.jac)[0])
+        self.log("sibling", sc.cand.label, sc.cand.report(t.model.params()), t.verdict)
+        self.trace.add("judge", sc.cand.label, t.verdict.rule, "pays off" if t.verdict.ok else "does not pay off",
+                       close=t.verdict.close, params=sc.cand.report(t.model.params()), **t.verdict.numbers(),
+                       **_against(t.verdict, self.st))
+        if not t.verdict.ok and t.verdict.failed != ("explained >= min_share",):
+            self.trace.add("sibling check", chosen.cand.label, rule, outcome, other=sc.cand.label)
+            return None
+        return t
+
+    def chamber_decided(self, chosen: Trial, t: Trial, rule: str, prefer: bool = False, **numbers: float) -> Trial:
+        """`chosen` against `t`, a fault on the sibling reading refitted (or, `prefer`, the other
+        fault of the same reading), both polished and compared on a common base: the smaller ΔBIC
+        is added; a pair tied within min_gain is reported as close with the other named (and with
+        `prefer`, the more common effect of the two is the one added)."""
+        st = self.st
         both = on_common_base(self.prob, self.pred, self.model, [chosen, self.polish(t)], self.log)
         won = min(both, key=lambda g: g.verdict.dbic)
         lost = both[1] if won is both[0] else both[0]
+        tied = _tied(dataclasses.replace(won.verdict, ok=True), dataclasses.replace(lost.verdict, ok=True), st.min_gain)
+        if tied and prefer and _rank(lost.cand.effect, st) < _rank(won.cand.effect, st):
+            won, lost = lost, won
         v = won.verdict
         if not v.ok and v.failed == ("explained >= min_share",) and not v.close_rules:
             v = dataclasses.replace(v, ok=True, failed=())  # judged against its sibling on the whole record
-        tied = _tied(dataclasses.replace(v, ok=True), dataclasses.replace(lost.verdict, ok=True), st.min_gain)
         if tied:
             v.alternative = (f" {lost.cand.label} ({', '.join(f'{k} = {x:.4g}' for k, x in lost.cand.report(lost.model.params()).items())})"
-                             " explains the record about as well; this record barely tells the two chambers apart.")
+                             " explains the record about as well; this record barely tells the two "
+                             + ("faults" if won.cand.channel == lost.cand.channel else "chambers") + " apart.")
         won = Trial(won.cand, won.model, won.work, won.pred, v, won.jac, won.jac_at)
-        tr.add("sibling check", won.cand.label, "not alike: the chambers compared on a common base, smaller dBIC "
-               "(the own-reading share waived between them)", "chosen" if v.ok else "chosen, but no longer pays off",
-               other=lost.cand.label, close=tied, size=mine, sibling_size=theirs, dbic=v.dbic, other_dbic=lost.verdict.dbic,
-               dcost=v.dcost, other_dcost=lost.verdict.dcost)
+        self.trace.add("sibling check", won.cand.label, rule, "chosen" if v.ok else "chosen, but no longer pays off",
+                       other=lost.cand.label, close=tied, **numbers, dbic=v.dbic, other_dbic=lost.verdict.dbic,
+                       dcost=v.dcost, other_dcost=lost.verdict.dcost)
         return won
 
     def settle(self, good: list[Trial], better_base: _BetterBase) -> list[Trial]:
@@ -615,7 +690,7 @@ class Selector:
             at_floor = polished
             rule = "one sensor's faults tied within min_gain: preference"
         if len(at_floor) == 2:
-            at_floor.sort(key=lambda g: st.preference.index(g.cand.effect) if g.cand.effect in st.preference else len(st.preference))
+            at_floor.sort(key=lambda g: _rank(g.cand.effect, st))
             chosen, other = at_floor
             chosen.verdict.alternative = (
                 f" {other.cand.label} ({', '.join(f'{k} = {v:.4g}' for k, v in other.cand.report(other.model.params()).items())}) "
@@ -849,6 +924,11 @@ def _size(model: Model, cand: Candidate) -> float:
     """The size of a candidate's first parameter in `model` (its value less its "off" value)."""
     f = cand.frees[0]
     return float(get_value(model.params(), f.key)) - f.origin
+
+
+def _rank(effect: str, st: SearchSettings) -> int:
+    """An effect's place in the preference (more common first; unlisted last)."""
+    return st.preference.index(effect) if effect in st.preference else len(st.preference)
 
 
 def _ratio(a: float, b: float) -> float:

@@ -102,6 +102,18 @@ class SearchSettings:
                                                        "chamber's, measured alike) pays off with the same fault, same sign "
                                                        "and within this factor in size, is common to both: the plant's form "
                                                        "(lines, the valve), not two faults (0: no sibling check)")
+    sibling_other_kind: bool = knob(True, "switch", "a level fault (offset, gain) chosen on a reading with a sibling "
+                                                    "is weighed also against the sibling's other level fault, refitted "
+                                                    "and compared on a common base: the base's pressure levels (supply, "
+                                                    "tank) move both chambers together, so one chamber's offset can be "
+                                                    "fitted as the other chamber's gain (foreign rig quick seed 4 fr25: "
+                                                    "an offset on p_b found as a gain on p_a). Where the fault moves, "
+                                                    "that reading's own offset and gain are weighed as one sensor's "
+                                                    "(seed 2 fr16: offset p_b -> gain p_a -> offset p_a, the truth). "
+                                                    "Weighed only where the same fault refitted on the sibling came within "
+                                                    "sibling_ratio of the chosen one's size, of either sign (0.56-1.01 on "
+                                                    "the records where it moved the fault or was close; 0.03 on benchmarks/diagnose.py's "
+                                                    "p_a offset, whose 97 simulations it saves)")
     resettle: bool = knob(True, "switch", "a round whose model is the very point where the last round's refit without a "
                                           "new effect ended converged (two gains below ftol: a candidate left the pool "
                                           "as too small, nothing else changed) does not refit it again (it would gain "
