@@ -770,7 +770,7 @@ def test_between_two_chambers_offsets_the_one_that_keeps_the_stated_rig_inside_i
         sel = S.Selector.__new__(S.Selector)
         sel.prob, sel.st, sel.trace, sel.log = None, DEFAULT, S.Trace(), lambda *a: None
         sel.findings, sel.stated, sel.x0 = [], frozenset({"mass"}), np.zeros(1)
-        sel.pool = list(off.values())
+        sel.pool, sel.sibling_refits = list(off.values()), {}
         sel.jac = np.eye(3, 1)
         chosen = S.Trial(off["p_b"], pinned.with_candidate(off["p_b"], 5.3), {}, {}, S.Verdict(True, -3e4, -0.77, -0.64, 0.79))
         sib_model = Model(pinned.nominal, frees, np.array([sibling_mass_x])).with_candidate(off["p_a"], -3.6)

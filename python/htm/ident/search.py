@@ -230,6 +230,7 @@ class Selector:
         self.refitted: list[Trial] = []  # the last refit's trials, judged
         self.common: list[Finding] = []  # findings whose sibling reading showed the same fault since (sibling_check)
         self.mirror: float | None = None  # the last sibling check's refitted size over the chosen's (interchangeable)
+        self.sibling_refits: dict[tuple, Trial] = {}  # the sibling checks' refits for the chosen fault (sibling_refit)
 
     # --- the loop --------------------------------------------------------------------------
     def run(self, base: Model, first: frozenset[str], max_findings: int, max_refits: int) -> Result:
@@ -325,14 +326,16 @@ class Selector:
             with self.stages("break ties", ", ".join(g.cand.label for g in good)):
                 chosen = self.break_ties(good)
             if chosen.verdict.ok and chosen.cand.sibling and self.st.sibling_ratio > 0:
+                screened = {sc.cand.key: sc for sc in ranked}
+                self.sibling_refits = {}
                 with self.stages("sibling check", f"{chosen.cand.label} against {chosen.cand.sibling}"):
-                    checked = self.sibling_check(chosen, {sc.cand.key: sc for sc in ranked})
+                    checked = self.sibling_check(chosen, screened)
                 if checked is None:
                     continue
                 chosen = checked
                 if chosen.verdict.ok and chosen.cand.level and self.st.sibling_other_kind and self.interchangeable(chosen):
                     with self.stages("sibling check", f"{chosen.cand.label}: the other kind on {chosen.cand.sibling}"):
-                        chosen = self.other_kind(chosen, {sc.cand.key: sc for sc in ranked})
+                        chosen = self.other_kind(chosen, screened)
             self.pool = [c for c in self.pool if not c.keys & chosen.cand.keys]
             if not chosen.verdict.ok:
                 # Polished, the effect no longer matters: keep the better-fitted model without it.
@@ -513,7 +516,7 @@ class Selector:
             return chosen
         f = sib.frees[0]
         sc = screened.get(sib.key) or Screened(sib, 0.0, float(np.clip(f.coord(f.origin + mine, 0.0), f.lo, f.hi)))
-        t = self.refit_one(sc, np.linalg.qr(self.jac)[0])
+        t = self.sibling_refit(sc)
         self.log("sibling", sib.label, sib.report(t.model.params()), t.verdict)
         tr.add("judge", sib.label, t.verdict.rule, "pays off" if t.verdict.ok else "does not pay off", close=t.verdict.close,
                params=sib.report(t.model.params()), **t.verdict.numbers(), **_against(t.verdict, st))
@@ -549,6 +552,15 @@ class Selector:
             return None
         return self.chamber_decided(chosen, t, "not alike: the chambers compared on a common base, smaller dBIC "
                                     "(the own-reading share waived between them)", size=mine, sibling_size=theirs)
+
+    def sibling_refit(self, sc: Screened) -> Trial:
+        """`refit_one` of a candidate the sibling checks weigh, once per chosen fault: the model
+        they refit from does not change between them (a fault that moves chamber meets its
+        reading's other kind again, already refitted by `sibling_check`)."""
+        key = (sc.cand.key, sc.step)
+        if key not in self.sibling_refits:
+            self.sibling_refits[key] = self.refit_one(sc, np.linalg.qr(self.jac)[0])
+        return self.sibling_refits[key]
 
     def interchangeable(self, chosen: Trial) -> bool:
         """Whether the chambers' readings are interchangeable for `chosen`'s level fault on this
@@ -598,7 +610,7 @@ class Selector:
         sc = screened.get(alt.key) if alt is not None else None
         if sc is None:
             return None
-        t = self.refit_one(sc, np.linalg.qr(self.jac)[0])
+        t = self.sibling_refit(sc)
         self.log("sibling", sc.cand.label, sc.cand.report(t.model.params()), t.verdict)
         self.trace.add("judge", sc.cand.label, t.verdict.rule, "pays off" if t.verdict.ok else "does not pay off",
                        close=t.verdict.close, params=sc.cand.report(t.model.params()), **t.verdict.numbers(),
