@@ -479,3 +479,83 @@ def test_the_systematic_ratio_a_person_reads_in_the_search_log_is_a_plain_number
 
     r = ft.systematic_ratio(np.sin(np.linspace(0.0, 20.0, 2000)), np.float64(0.1), 500.0)
     assert type(r) is float and "np." not in repr({"y": round(r, 2)})
+
+
+def test_a_reading_delay_the_spools_own_lag_makes_leaves_the_pool_and_a_true_one_stands():
+    """A base fit can leave its spool too fast (a foreign rig's lines pulled it to 335 Hz, the
+    true one at 101 Hz), and a delay on y then takes the spool's lag. The delay must pay off also
+    against the model without it refitted from the spool slowed by the delay
+    (`Selector.own_form`, `delay_against_form`): on a record whose every reading lags with the
+    spool it does not — it leaves the pool, that refit (its spool's lag found) is the better base,
+    and the trace names the rule; on a record whose y alone lags (a true transport delay) the
+    slowed spool makes the pressure lag too, and the delay stands. A toy plant: y and p_a follow
+    one multi-sine through the spool's low-frequency lag 2*zeta/omega_n, y through the delay too."""
+    import numpy as np
+
+    from htm.ident.fit import Problem, blocks, fit
+    from htm.ident.model import Candidate, Model, lin, logf
+    from htm.ident.records import Record
+    from htm.ident.search import Selector, Trial, judge
+    from htm.ident.trace import Stages, Trace
+    from htm.ident.valve import spool_lag, spool_slowed_by
+
+    rate, n = 500.0, 6000
+    t = np.arange(n) / rate
+    waves = [(1.3, 0.0), (3.1, 0.7), (7.3, 1.9), (13.7, 0.4)]
+
+    def plant(p: dict) -> dict[str, np.ndarray]:
+        lag, delay = spool_lag(p), p["sensor_delay_y_s"]
+        x = lambda s: sum(np.sin(2 * np.pi * f * (t - s) + ph) for f, ph in waves)  # noqa: E731
+        return {"y": 0.01 * x(lag + delay), "p_a": 1e7 + 1e6 * x(lag)}
+
+    def simulate(plist: list, rec: Record) -> list[dict[str, np.ndarray]]:  # no lockstep option: alone
+        return [plant(p) for p in plist]
+
+    sigma = {"y": 1e-6, "p_a": 1e3}
+    nominal = {"valve_natural_hz": 150.0, "valve_damping": 0.7, "sensor_delay_y_s": 0.0}
+    fast = {**nominal, "valve_natural_hz": 1100.0}  # where the base fit left the spool
+    delay = Candidate("sensor_delay", "y", (lin("sensor_delay_y_s", 1 / rate, 0.0, 100.0),), "d(predicted y)/dt",
+                      fields=(("delay_s", "sensor_delay_y_s"),), own_reading=True, form=spool_slowed_by)
+
+    def weighed(truth: dict, settings: SearchSettings = DEFAULT):
+        rng = np.random.default_rng(3)
+        meas = plant(truth)
+        cols = {"t": t, "u": np.zeros(n), **{c: meas[c] + sigma[c] * rng.standard_normal(n) for c in meas}}
+        rec = Record(cols, {"sample_rate_hz": rate, "rig": {}}, "toy")
+        fit_mask, val_mask = blocks(n, n, rate)
+        prob = Problem(rec, simulate, list(meas), sigma, n, fit_mask, val_mask, settings=settings)
+        model = Model(nominal, [logf("valve_natural_hz", 0.4, 60.0, step=0.05)], np.zeros(1)).moved_to(fast)
+        sel = Selector(prob, nominal, [delay], rate, log=lambda *a: None, trace=Trace(), stages=Stages())
+        sel.model, sel.work_pred = model, prob.predict([model.params()])[0]
+        sel.pred = sel.work_pred
+        # the trial's spool held where the base left it (a rig's form the toy lacks held it there)
+        trial, twork, _ = fit(prob, model.with_candidate(delay, 1.0), iters=8, hold=frozenset({"valve_natural_hz"}))
+        tpred, verdict = judge(prob, sel.pred, trial, twork, model, delay)
+        assert verdict.ok, verdict  # against the model it was fitted beside, the delay pays off
+        kept, left, formed = sel.own_form([Trial(delay, trial, twork, tpred, verdict)])
+        [d] = [d for d in sel.trace.to_json() if "delay_against_form" in d["rule"]]
+        return trial.params()["sensor_delay_y_s"], kept, left, formed, d, sel
+
+    # every reading lags 2.4 ms with a 101 Hz spool at damping 0.77: the delay stands in for it
+    slow = {**nominal, "valve_natural_hz": 101.0, "valve_damping": 0.77}
+    found, kept, left, formed, d, sel = weighed(slow)
+    assert found == pytest.approx(spool_lag(slow) - spool_lag(fast), rel=0.05)
+    assert kept == [] and left and sel.pool == []
+    assert d["outcome"] == "left the pool: the base's own form" and d["candidate"] == "sensor_delay on y"
+    assert d["numbers"]["form"]["valve_natural_hz"] == pytest.approx(2 * 0.7 / (2 * np.pi * spool_lag(slow)), rel=0.05)
+    assert formed is not None and formed.cost < d["numbers"]["fit_cost_before"]
+    assert spool_lag(formed.model.params()) == pytest.approx(spool_lag(slow), rel=0.02)
+    # y alone lags 2.1 ms (a transport delay), the spool as fast as the model has it: it stands
+    true = {**fast, "sensor_delay_y_s": 0.0021}
+    found, kept, left, formed, d, sel = weighed(true)
+    assert found == pytest.approx(0.0021, rel=0.02)
+    assert [k.cand.label for k in kept] == ["sensor_delay on y"] and not left and formed is None, str(d["numbers"])
+    assert d["outcome"] == "kept" and sel.pool == [delay]
+    # htm's own proving rig with a 100 Hz spool its metadata does not state: the base fit finds the
+    # spool itself (nothing bends it away), and no delay is claimed in its place
+    rec, truth = proving.make_record({}, seed=4, duration_s=8, spool_hz=100.0)
+    assert "valve_natural_hz" not in rec.meta["rig"] and truth["params"]["valve_natural_hz"] == 100.0
+    report = diagnose(rec)
+    assert report["findings"] == [] and report["final"]["params"]["valve_natural_hz"] == pytest.approx(100.0, rel=0.05)
+    with pytest.raises(InputError, match="spool_hz"):
+        proving.make_record({}, seed=1, duration_s=2, spool_hz=5.0)

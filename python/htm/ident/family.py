@@ -12,7 +12,7 @@ from typing import Any, Callable
 import numpy as np
 
 from htm.core import closure_spring
-from htm.ident.model import Candidate, Free, Model, lin
+from htm.ident.model import Candidate, Form, Free, Model, lin
 from htm.ident.records import Record, displacement_input, machine_position
 from htm.ident.settings import DEFAULT, SearchSettings
 
@@ -80,7 +80,7 @@ class Family:
                          level=effect in LEVEL_FAULTS, **kw)
 
     def sensor_candidate(self, effect: str, channel: str, unit: float, *, bound: float = 1e3,
-                         claimable: Claim | None = None) -> Candidate:
+                         claimable: Claim | None = None, form: Form | None = None) -> Candidate:
         """A fault of one sensor's reading (EFFECTS.md): `sensor_offset` (in units of `unit`,
         the channel's scale, within ±`bound` of them), `sensor_gain` (in 1 % steps, 0.5-1.5 and
         beyond) or `sensor_delay` (in units of `unit`, the sample period, up to 100 of them);
@@ -93,7 +93,7 @@ class Family:
             free, signature = lin(f"sensor_delay_{channel}_s", unit, 0.0, 100.0), f"d(predicted {channel})/dt"
         else:
             raise ValueError(f"`{effect}` is not a sensor effect ({', '.join(SENSOR_EFFECTS)})")
-        return self.candidate(effect, channel, (free,), signature, claimable=claimable)
+        return self.candidate(effect, channel, (free,), signature, claimable=claimable, form=form)
 
     def closure_candidates(self, y: np.ndarray, zero_position_m: float, stiffness_n_m: float,
                            f: np.ndarray | None = None) -> list[Candidate]:

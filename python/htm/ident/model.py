@@ -178,6 +178,11 @@ class Model:
         return out
 
 
+# The base values a refit without an effect starts from, where the base's own form can make what
+# the effect makes (`Candidate.form`): given that model's parameter set and the effect's parameters.
+Form = Callable[[Any, dict[str, float]], "dict[str, float] | None"]
+
+
 @dataclass(frozen=True)
 class Candidate:
     """An effect the model can take on: free parameters (the first is screened, the others start
@@ -241,6 +246,12 @@ class Candidate:
     # its setter clamps at; a fit beyond that is the plain asymmetry with the mass moved, not this
     # coordinate's, and `Selector.judged` judges the other coordinate's fit instead.
     holds: Callable[[Any], bool] | None = None
+
+    # The base's own form that can make what the effect makes (a reading's delay: the base's spool
+    # slower by the delay), as the base values (parameter key: value) a refit of the model without
+    # the effect starts from, given that model's parameter set and the effect's reported parameters
+    # (None: no such form). The effect must pay off against that refit too (`Selector.own_form`).
+    form: "Form | None" = None
 
     def report(self, p: Any) -> dict[str, float]:
         return {name: float(p[key]) for name, key in self.fields}

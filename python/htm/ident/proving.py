@@ -134,7 +134,8 @@ def supply_profile(ref: np.ndarray, rate_hz: float) -> np.ndarray:
 def make_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, seed: int, rate_hz: float = 500,
                 duration_s: float = 20, rig_spread: float = 0.3, noise: bool = True, experiment: str = "rich",
                 specimen: bool | None = None, effect_outside_table: str | None = None,
-                supply_pa: float | None = None, tank_pa: float = 0.0) -> tuple[Record, dict[str, Any]]:
+                supply_pa: float | None = None, tank_pa: float = 0.0, spool_hz: float | None = None
+                ) -> tuple[Record, dict[str, Any]]:
     """A closed-loop position record of the simulated rig with `effects` on (EFFECTS.md ids ->
     parameter dicts in EFFECTS.md names; sensor effects carry `channel`; empty dicts take
     `DEFAULT_EFFECTS`). The experiment is position control (`rich_reference`, "rich") or force
@@ -147,6 +148,9 @@ def make_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, seed:
     supply: structure that no EFFECTS.md id describes. `supply_pa` sets the power unit's nominal
     pressure (default: the thesis rig's), declared in the metadata like any rig's. `tank_pa` adds a
     back-pressure in the return line that the metadata does not state (rigs' usually go undeclared).
+    `spool_hz` gives the valve's spool a second-order response of that natural frequency (damping
+    0.7; default: a static valve), which the metadata does not state either (a servo-valve's
+    data sheet value rarely reaches a record).
 
     Returns (record, truth) with truth = {"effects": {id: {"channel", "params"}}, "params": the
     true Params as a dict, "spread": {field: factor}, "outside": name or None}.
@@ -160,6 +164,8 @@ def make_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, seed:
         raise InputError(f"duration_s = {duration_s}: allowed [1, 3600] s")
     if not (0 <= tank_pa <= 1e6):
         raise InputError(f"tank_pa = {tank_pa}: allowed [0, 1e6] Pa")
+    if spool_hz is not None and not (20.0 <= spool_hz <= 5000.0):
+        raise InputError(f"spool_hz = {spool_hz}: allowed [20, 5000] Hz")
     if not (0 <= rig_spread < 1):
         raise InputError(f"rig_spread = {rig_spread}: allowed [0, 1)")
     if effect_outside_table not in (None, *OUTSIDE):
@@ -196,6 +202,8 @@ def make_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, seed:
         meta["rig"]["valve_flow_law"] = "linear"
     truth = params_from_meta(meta)
     truth["tank_pressure_pa"] = truth["tank_pressure_pa"] + float(tank_pa)
+    if spool_hz is not None:
+        truth["valve_natural_hz"] = float(spool_hz)
     spread = {f: float(rng.uniform(1 - rig_spread, 1 + rig_spread)) for f in SPREAD_FIELDS}
     for f, k in spread.items():
         if f == "friction_coulomb_n":

@@ -123,7 +123,7 @@ def _write_markdown(out: Path, rec: Record, report: dict[str, Any], before: dict
 
 
 # Stages of the trace shown in report.md (report.json's `trace` holds every decision).
-_MD_STAGES = ("finding", "break ties", "backward check", "stop", "verdict")
+_MD_STAGES = ("finding", "break ties", "own form", "backward check", "stop", "verdict")
 
 
 def decision_lines(trace: Trace | None) -> list[str]:

@@ -308,6 +308,12 @@ class Selector:
                         better_base = more_base
             if better_base is not None and good:
                 good = self.settle(good, better_base)
+            if good and st.delay_against_form and any(g.cand.form is not None for g in good):
+                with self.stages("own form", ", ".join(g.cand.label for g in good if g.cand.form is not None)):
+                    good, left, formed = self.own_form(good)
+                too_small = too_small or left  # an effect left the pool as the base's own form: screen the others
+                if formed is not None and (better_base is None or formed.cost < better_base.cost):
+                    better_base = formed
             if not good:
                 if (better_base is None or kept_base) and not too_small:
                     tr.add("stop", None, "no candidate pays off on the held-out data", "search ends")
@@ -661,6 +667,49 @@ class Selector:
                            "kept" if v.ok else "dropped: only the base's convergence", close=v.close, **v.numbers(),
                            **_against(v, self.st))
         return settled
+
+    def own_form(self, good: list[Trial]) -> tuple[list[Trial], bool, _BetterBase | None]:
+        """A trial whose effect the base's own form can also make (`Candidate.form`: a reading's
+        delay, the spool slowed by it) must pay off also against the model without it refitted
+        from that form; where it does not, it is the base's form, not an effect: it leaves the
+        pool. Returns the trials kept, whether one left, and the best such refit that cut the
+        fit cost (a better base)."""
+        prob, st, tr = self.prob, self.st, self.trace
+        kept: list[Trial] = []
+        left = False
+        formed: _BetterBase | None = None
+        cost0 = prob.fit_cost(self.work_pred)
+        for g in good:
+            form = g.cand.form(self.model.params(), g.cand.report(g.model.params())) if g.cand.form is not None else None
+            start = self.model.moved_to(form) if form else self.model
+            if _at(start.x, self.model):  # no form, or the model already there (its bound): nothing to weigh
+                kept.append(g)
+                continue
+            m, work, _ = fit(prob, start, iters=st.refit_iters)
+            cost = prob.fit_cost(work)
+            # The record as a whole must prefer the effect (ΔBIC, min_gain), and its own reading
+            # must be no worse with it than that form leaves it (by more than min_share of the
+            # reading's systematic error): a delay whose gain against the form lies in the other
+            # readings while its own gets worse is not that reading's fault.
+            dbic, dcost = prob.bic_delta(fpred := prob.whole(m, work), g.pred, max(1, len(g.cand.frees)))
+            own = g.cand.channel if g.cand.own_reading and g.cand.channel in prob.channels else None
+            share = prob.explained(fpred, g.pred, only=own)
+            ok = dbic < 0 and dcost < -st.min_gain and share >= -st.min_share
+            close = abs(dcost + st.min_gain) < st.close_margin * st.min_gain or abs(share + st.min_share) < st.close_margin * st.min_share
+            tr.add("own form", g.cand.label, "against the model without it refitted from the base's own form that makes it: "
+                   "dBIC < 0, dcost < -min_gain, its own reading no worse by more than min_share (delay_against_form)",
+                   "kept" if ok else "left the pool: the base's own form", close=close, form=dict(form or {}),
+                   refitted={k: v for k, v in m.values().items() if k in (form or {})}, fit_cost=cost, fit_cost_before=cost0, dbic=dbic, dcost=dcost, explained=share,
+                   min_gain=st.min_gain, min_share=st.min_share)
+            self.log("own form", g.cand.label, "kept" if ok else "the base's form", dbic, dcost, share)
+            if ok:
+                kept.append(g)
+                continue
+            self.pool = [c for c in self.pool if c.key != g.cand.key]
+            left = True
+            if cost < cost0 and (formed is None or cost < formed.cost):
+                formed = _BetterBase(cost, m, g.cand.label + " as the base's own form")
+        return kept, left, formed
 
     def polish(self, g: Trial) -> Trial:
         prob, st = self.prob, self.st

@@ -242,6 +242,17 @@ class SearchSettings:
                                                                              "(declared; undeclared, the slowest its bound "
                                                                              "admits, 60 Hz at damping 0.7) is the spool's "
                                                                              "form, not a lag of its own")
+    delay_against_form: bool = knob(True, "switch", "a reading's delay that pays off is weighed also against the model "
+                                                    "without it refitted from the base's own form that lags so (the "
+                                                    "family's `Candidate.form`: the spool slowed by the delay): the record "
+                                                    "must prefer the delay (dBIC, min_gain) and its own reading be no "
+                                                    "worse with it than that form leaves it (by min_share). The base fit "
+                                                    "can leave its spool too fast, and a delay on one reading then takes "
+                                                    "the spool's lag (foreign quick seed 4 fr14: a 2.2 ms y delay, the "
+                                                    "base spool at 335 Hz, the true one at 101 Hz: y 0.55 worse than "
+                                                    "with the spool at 147 Hz); a true delay stands against a spool "
+                                                    "that lags every reading (the 5 true delays found before, kept: the "
+                                                    "foreign delay set's 3, the external rec_f5 on both seed sets)")
     min_sensor_delay: float = knob(0.0, "sample periods", "a reading's transport delay shorter than this is not claimed "
                                                           "(where in its sample period a reading is taken, a sub-sample "
                                                           "phase the base model's form leaves). Off: at 0.25 the clean "

@@ -254,7 +254,7 @@ class ValveFamily(Family):
             offset = self.sensor_candidate("sensor_offset", c, scales[c], claimable=_not_a_tolerated_gain(rec, c, st.min_gain_error))
             gain = self.sensor_candidate("sensor_gain", c, 0.01, claimable=_calibrated_off(st.min_gain_error))
             delay = self.sensor_candidate("sensor_delay", c, dt, claimable=_share_of("delay_s", st.min_sensor_delay * dt)
-                                          if st.min_sensor_delay > 0 else None)
+                                          if st.min_sensor_delay > 0 else None, form=spool_slowed_by)
             # The loop regulates what its own sensor reads: an offset or gain of that sensor only
             # moves the true state, which nothing else measures — unless a specimen ties position
             # and force: its zero-force position is trusted, so the force's offset shows against
@@ -365,6 +365,16 @@ def spool_lag(p: Any) -> float:
     (0 for a static valve): a first-order lag shorter than it is the spool's form."""
     hz = float(p["valve_natural_hz"])
     return 2.0 * float(p["valve_damping"]) / (2.0 * np.pi * hz) if hz > 0 else 0.0
+
+
+def spool_slowed_by(p: Any, delay: dict[str, float]) -> dict[str, float] | None:
+    """The base's own form that lags as a reading's delay does (`Candidate.form`): its spool with
+    the low-frequency lag 2*zeta/omega_n lengthened by the delay, the damping kept (within the
+    spool's bounds, which `Model.moved_to` keeps)."""
+    lag = spool_lag(p) + float(delay.get("delay_s", 0.0))
+    if not (lag > 0.0 and np.isfinite(lag)):
+        return None
+    return {"valve_natural_hz": 2.0 * float(p["valve_damping"]) / (2.0 * np.pi * lag)}
 
 
 def _calibrated_off(least: float) -> Callable[[dict[str, float]], bool]:
