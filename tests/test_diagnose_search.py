@@ -551,6 +551,20 @@ def test_a_reading_delay_the_spools_own_lag_makes_leaves_the_pool_and_a_true_one
     assert found == pytest.approx(0.0021, rel=0.02)
     assert [k.cand.label for k in kept] == ["sensor_delay on y"] and not left and formed is None, str(d["numbers"])
     assert d["outcome"] == "kept" and sel.pool == [delay]
+    # the whole search on that record: the delay found, the rule named in the trace; switched off
+    # (delay_against_form), the same finding with no such decision
+    from htm.ident.search import search
+
+    for on in (True, False):
+        prob = Problem(sel.prob.rec, simulate, ["y", "p_a"], sigma, n, *blocks(n, n, rate),
+                       settings=dataclasses.replace(DEFAULT, delay_against_form=on))
+        trace = Trace()
+        res = search(prob, Model(nominal, [logf("valve_natural_hz", 0.4, 60.0, step=0.05)], np.zeros(1)), nominal, [delay],
+                     rate, trace=trace)
+        assert [f.cand.label for f in res.findings] == ["sensor_delay on y"]
+        assert res.findings[0].params["delay_s"] == pytest.approx(0.0021, rel=0.02)
+        named = [d for d in trace.to_json() if d["stage"] == "own form" and "delay_against_form" in d["rule"]]
+        assert [d["outcome"] for d in named] == (["kept"] if on else [])
     # htm's own proving rig with a 100 Hz spool its metadata does not state: the base fit finds the
     # spool itself (nothing bends it away), and no delay is claimed in its place
     rec, truth = proving.make_record({}, seed=4, duration_s=8, spool_hz=100.0)
