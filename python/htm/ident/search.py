@@ -681,8 +681,8 @@ class Selector:
         cost0 = prob.fit_cost(self.work_pred)
         for g in good:
             form = g.cand.form(self.model.params(), g.cand.report(g.model.params())) if g.cand.form is not None else None
-            start = self.model.moved_to(form) if form else self.model
-            if _at(start.x, self.model):  # no form, or the model already there (its bound): nothing to weigh
+            start = self.model.moved_to(form) if form else None
+            if form is None or start is None or _at(start.x, self.model):  # no form, or the model already there (its bound)
                 kept.append(g)
                 continue
             m, work, _ = fit(prob, start, iters=st.refit_iters)
@@ -692,15 +692,14 @@ class Selector:
             # reading's systematic error): a delay whose gain against the form lies in the other
             # readings while its own gets worse is not that reading's fault.
             dbic, dcost = prob.bic_delta(fpred := prob.whole(m, work), g.pred, max(1, len(g.cand.frees)))
-            own = g.cand.channel if g.cand.own_reading and g.cand.channel in prob.channels else None
-            share = prob.explained(fpred, g.pred, only=own)
+            share = own_share(prob, fpred, g.pred, g.cand)
             ok = dbic < 0 and dcost < -st.min_gain and share >= -st.min_share
             close = abs(dcost + st.min_gain) < st.close_margin * st.min_gain or abs(share + st.min_share) < st.close_margin * st.min_share
             tr.add("own form", g.cand.label, "against the model without it refitted from the base's own form that makes it: "
                    "dBIC < 0, dcost < -min_gain, its own reading no worse by more than min_share (delay_against_form)",
-                   "kept" if ok else "left the pool: the base's own form", close=close, form=dict(form or {}),
-                   refitted={k: v for k, v in m.values().items() if k in (form or {})}, fit_cost=cost, fit_cost_before=cost0, dbic=dbic, dcost=dcost, explained=share,
-                   min_gain=st.min_gain, min_share=st.min_share)
+                   "kept" if ok else "left the pool: the base's own form", close=close, form=dict(form),
+                   refitted={k: v for k, v in m.values().items() if k in form}, fit_cost=cost, fit_cost_before=cost0,
+                   dbic=dbic, dcost=dcost, explained=share, min_gain=st.min_gain, min_share=st.min_share)
             self.log("own form", g.cand.label, "kept" if ok else "the base's form", dbic, dcost, share)
             if ok:
                 kept.append(g)
@@ -1112,8 +1111,7 @@ def pays_off(prob: Problem, pred0: dict, trial: Model, tpred: dict, before: Mode
     abic, acost = prob.bic_delta(abl, tpred, k)
     # A sensor's fault is in its own reading: there is its signature. (Through the restarts from the
     # measured state it also moves the other channels, so there it can buy a fit it does not explain.)
-    own = cand.channel if cand.own_reading and cand.channel in prob.channels else None
-    share = prob.explained(pred0, tpred, only=own)
+    share = own_share(prob, pred0, tpred, cand)
     big = cand.claimable is None or cand.claimable(cand.report(trial.params()))
     worse, level = phase_fault(prob, pred0, tpred, cand)
     # The others worse: still the reading's own fault where it takes most of the systematic error
@@ -1133,6 +1131,14 @@ def pays_off(prob: Problem, pred0: dict, trial: Model, tpred: dict, before: Mode
     close_rules = tuple(RULES[i] for i, n in enumerate(near) if n and met[i])
     return Verdict(all(met) and not close_rules, dbic, dcost, acost, share, bool(big), tuple(RULES[i] for i in failed),
                    bool(close), close_rules=close_rules, others_worse=worse, own_level=level, shows=shows, still=still)
+
+
+def own_share(prob: Problem, pred0: dict, tpred: dict, cand: Candidate) -> float:
+    """The share of the systematic error that going from `pred0` to `tpred` removes: in the
+    candidate's own reading for a sensor's fault (`Candidate.own_reading`, the reading measured),
+    else the largest over the channels (`Problem.explained`)."""
+    own = cand.channel if cand.own_reading and cand.channel in prob.channels else None
+    return prob.explained(pred0, tpred, only=own)
 
 
 def gains_where_it_shows(prob: Problem, pred0: dict, tpred: dict, cand: Candidate) -> tuple[bool, dict[str, float] | None]:
