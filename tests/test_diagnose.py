@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from htm.cli import main
+from htm.ident import features as ft
 from htm.ident import proving
 from htm.ident.diagnose import IdentificationError, diagnose
 from htm.ident.records import Record, write_record
@@ -206,3 +207,23 @@ def test_under_force_control_a_missed_position_with_a_pinned_rig_parameter_is_un
     assert "at its bound" in said and "under force control the specimen sets the motion" in said, said
     rules = [e for e in report["trace"] if e["stage"] == "verdict" and "where the rig sets the motion" in e["rule"]]
     assert rules and rules[0]["numbers"]["pinned"] and "y" in rules[0]["numbers"]["beyond_form"], report["trace"]
+
+
+def test_a_reading_whose_quantum_dwarfs_its_declared_noise_is_weighed_by_both():
+    """A declared `noise_std` is the sensor's white noise; the reading is that signal quantized, so
+    its noise is both, added in quadrature (features.reading_noise). A position read at a 5 µm
+    quantum with 0.05 µm of declared noise weighed by the 0.05 µm alone made the true model's
+    position 57 times its noise (and a foreign force-controlled record's position outweigh its
+    load-cell offset 10,000-fold); weighed by both, the true model sits at the floor."""
+    meta = {"sensors": {"y": {"resolution_m": 5e-6, "noise_std": 5e-8}, "p_a": {"noise_std": 3e4}}}
+    assert ft.reading_noise(meta, "y", np.zeros(10)) == pytest.approx(np.hypot(5e-8, 5e-6 / np.sqrt(12)))
+    assert ft.reading_noise(meta, "p_a", np.zeros(10)) == 3e4  # no quantum declared: the noise as declared
+    x = np.random.default_rng(0).normal(0.0, 1e-3, 5000)
+    assert ft.reading_noise(meta, "v", x) == ft.noise_floor(x)  # nothing declared: estimated from the record
+
+    rec, _ = proving.make_record({}, seed=7, duration_s=10, sensors={"y": {"resolution": 5e-6, "noise_std": 5e-8}})
+    stats: dict = {}
+    report = diagnose(rec, stats=stats)
+    assert stats["noise_floor"]["y"] == pytest.approx(np.hypot(5e-8, 5e-6 / np.sqrt(12)))
+    assert stats["systematic_ratio"]["y"] < 2.0, stats["systematic_ratio"]
+    assert not report["findings"] and not report["unexplained"]

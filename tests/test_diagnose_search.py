@@ -573,3 +573,65 @@ def test_a_reading_delay_the_spools_own_lag_makes_leaves_the_pool_and_a_true_one
     assert report["findings"] == [] and report["final"]["params"]["valve_natural_hz"] == pytest.approx(100.0, rel=0.05)
     with pytest.raises(InputError, match="spool_hz"):
         proving.make_record({}, seed=1, duration_s=2, spool_hz=5.0)
+
+
+def test_a_sibling_polished_away_in_an_earlier_round_is_still_weighed_against_the_chamber_chosen_later():
+    """Both chamber readings lag alike (the plant's form: lines the model lacks), so a delay pays
+    off on each. When the first one chosen is polished away (a foreign rig's p_a delay failed the
+    others' rise after its polish) it leaves the pool; the other chosen in a later round must still
+    be weighed against it (`Selector.sibling_check`): the same delay on the sibling pays off alike,
+    so neither is claimed. Before, a sibling out of the pool was not looked at and the second
+    delay was claimed (a foreign record, seed 3 `fr10`)."""
+    import numpy as np
+
+    from htm.ident.fit import Problem, blocks, fit
+    from htm.ident.model import Candidate, Model, lin, logf
+    from htm.ident.records import Record
+    from htm.ident.search import Selector, Trial, judge
+    from htm.ident.trace import Stages, Trace
+
+    rate, n = 500.0, 6000
+    t = np.arange(n) / rate
+    waves = [(1.3, 0.0), (3.1, 0.7), (7.3, 1.9), (13.7, 0.4)]
+    common = 0.004  # both chambers' readings lag 4 ms behind what the model's form gives
+
+    def plant(p: dict) -> dict[str, np.ndarray]:
+        x = lambda s: sum(np.sin(2 * np.pi * f * (t - s) + ph) for f, ph in waves)  # noqa: E731
+        return {"y": 0.01 * p["gain"] * x(0.0), "p_a": 1e7 + 1e6 * p["gain"] * x(p["delay_p_a"] + p["lag"]),
+                "p_b": 1e7 - 1e6 * p["gain"] * x(p["delay_p_b"] + p["lag"])}
+
+    def simulate(plist: list, rec: Record) -> list[dict[str, np.ndarray]]:
+        return [plant(p) for p in plist]
+
+    sigma = {"y": 1e-6, "p_a": 1e3, "p_b": 1e3}
+    nominal = {"gain": 1.0, "lag": 0.0, "delay_p_a": 0.0, "delay_p_b": 0.0}
+    rng = np.random.default_rng(5)
+    meas = plant({**nominal, "lag": common})
+    rec = Record({"t": t, "u": np.zeros(n), **{c: meas[c] + sigma[c] * rng.standard_normal(n) for c in meas}},
+                 {"sample_rate_hz": rate, "rig": {}}, "toy")
+    prob = Problem(rec, simulate, list(meas), sigma, n, *blocks(n, n, rate))
+    delay = {c: Candidate("sensor_delay", c, (lin(f"delay_{c}", 1 / rate, 0.0, 100.0),), f"d(predicted {c})/dt",
+                          fields=(("delay_s", f"delay_{c}"),), own_reading=True, sibling=s)
+             for c, s in (("p_a", "p_b"), ("p_b", "p_a"))}
+    model, work, jac = fit(prob, Model(nominal, [logf("gain", 0.5, 2.0)], np.zeros(1)), iters=4)
+
+    def selector() -> Selector:
+        sel = Selector(prob, nominal, [], rate, log=lambda *a: None, trace=Trace(), stages=Stages())
+        sel.model, sel.work_pred, sel.pred, sel.jac = model, work, work, jac
+        sel.x0, sel.xn = model.x.copy(), model.x.copy()
+        return sel
+
+    trial, twork, _ = fit(prob, model.with_candidate(delay["p_b"], 2.0), iters=6)
+    tpred, verdict = judge(prob, work, trial, twork, model, delay["p_b"])
+    assert verdict.ok and trial.params()["delay_p_b"] == pytest.approx(common, rel=0.05)
+    chosen = Trial(delay["p_b"], trial, twork, tpred, verdict)
+    # the sibling out of the pool and never chosen: nothing to weigh, the delay stands
+    sel = selector()
+    assert sel.sibling_check(chosen, {}) is chosen and not sel.trace.to_json()
+    # the sibling chosen and polished away in an earlier round: weighed, alike, neither claimed
+    sel = selector()
+    sel.polished_away[delay["p_a"].key] = delay["p_a"]
+    assert sel.sibling_check(chosen, {}) is None
+    [check] = [d for d in sel.trace.to_json() if d["stage"] == "sibling check"]
+    assert check["outcome"] == "common to both readings: the plant's form, neither claimed"
+    assert check["numbers"]["sibling_size"] == pytest.approx(common, rel=0.05)

@@ -123,3 +123,17 @@ def test_bad_requests_are_named():
         proving.make_record({}, seed=0, rate_hz=5)
     with pytest.raises(InputError, match="resonance"):
         proving.make_record({}, seed=0, effect_outside_table="resonance")
+    for bad in ({"q": {"resolution": 1e-6}}, {"y": {"resolution": -1.0}}, {"y": {"noise_std": float("nan")}},
+                {"y": {"bits": 12}}):
+        with pytest.raises(InputError, match="sensors"):
+            proving.make_record({}, seed=0, sensors=bad)
+
+
+def test_a_sensor_given_its_own_quantum_and_noise_reads_so_and_declares_them():
+    """`sensors`: y read at a 5 µm quantum with 0.05 µm of noise — the reading moves in whole
+    quanta and the metadata states both; the other channels keep the proving rig's."""
+    rec, _ = proving.make_record({}, seed=3, duration_s=4, sensors={"y": {"resolution": 5e-6, "noise_std": 5e-8}})
+    y = np.asarray(rec.columns["y"])
+    assert np.allclose(y / 5e-6, np.round(y / 5e-6), atol=1e-6)
+    assert rec.meta["sensors"]["y"] == {"resolution": 5e-6, "noise_std": 5e-8}
+    assert rec.meta["sensors"]["p_a"] == {"resolution": proving.QUANTUM["p_a"], "noise_std": proving.NOISE_STD["p_a"]}

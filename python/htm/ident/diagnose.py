@@ -91,9 +91,8 @@ def diagnose(rec: Record, *, out_dir: str | Path | None = None, max_findings: in
         raise IdentificationError(f"cannot identify: {e}") from None
     rate = float(rec.meta.get("sample_rate_hz") or 1.0 / float(np.median(np.diff(rec.columns["t"]))))
     channels = ft.measured_channels(rec.columns)
-    # A declared sensor noise (datasheet) is the floor; else it is estimated from the record.
-    sigma = {c: ft.declared_noise(rec.meta, c) or ft.noise_floor(rec.columns[c], ft.declared_resolution(rec.meta, c))
-             for c in channels}
+    # A declared sensor noise (datasheet) with its quantum is the floor; else it is estimated from the record.
+    sigma = {c: ft.reading_noise(rec.meta, c, rec.columns[c]) for c in channels}
     _check_excitation(rec, sigma, st)
     with stages("prepare", f"{rec.name}: {len(rec.columns['t'])} samples at {rate:g} Hz, channels {', '.join(channels)}"):
         fitting = every = _Fitting(rec, channels, sigma, rate, horizon_s, verbose, t_start, st)

@@ -61,6 +61,17 @@ def declared_noise(meta: Mapping, channel: str) -> float | None:
     return float(v) if isinstance(v, (int, float)) and v > 0 else None
 
 
+def reading_noise(meta: Mapping, channel: str, x: np.ndarray) -> float:
+    """The noise of a channel's reading [channel unit]: a declared `noise_std` (the sensor's white
+    noise, DATA_FORMAT.md) with the quantization noise q/sqrt(12) of its declared resolution q added
+    in quadrature (the reading is the noisy signal quantized: both are in it, and a quantum far
+    above the declared noise is most of it); else estimated from the record (`noise_floor`)."""
+    declared, q = declared_noise(meta, channel), declared_resolution(meta, channel)
+    if declared is None:
+        return noise_floor(x, q)
+    return float(np.hypot(declared, (q or 0.0) / np.sqrt(12.0)))
+
+
 def declared_resolution(meta: Mapping, channel: str) -> float | None:
     """The quantum of a channel's reading from the metadata: `sensors.<channel>.resolution_*`,
     else `bits` over the declared `range_*` ([min, max]), if any."""

@@ -134,8 +134,8 @@ def supply_profile(ref: np.ndarray, rate_hz: float) -> np.ndarray:
 def make_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, seed: int, rate_hz: float = 500,
                 duration_s: float = 20, rig_spread: float = 0.3, noise: bool = True, experiment: str = "rich",
                 specimen: bool | None = None, effect_outside_table: str | None = None,
-                supply_pa: float | None = None, tank_pa: float = 0.0, spool_hz: float | None = None
-                ) -> tuple[Record, dict[str, Any]]:
+                supply_pa: float | None = None, tank_pa: float = 0.0, spool_hz: float | None = None,
+                sensors: Mapping[str, Mapping[str, float]] | None = None) -> tuple[Record, dict[str, Any]]:
     """A closed-loop position record of the simulated rig with `effects` on (EFFECTS.md ids ->
     parameter dicts in EFFECTS.md names; sensor effects carry `channel`; empty dicts take
     `DEFAULT_EFFECTS`). The experiment is position control (`rich_reference`, "rich") or force
@@ -150,7 +150,9 @@ def make_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, seed:
     back-pressure in the return line that the metadata does not state (rigs' usually go undeclared).
     `spool_hz` gives the valve's spool a second-order response of that natural frequency (damping
     0.7; default: a static valve), which the metadata does not state either (a servo-valve's
-    data sheet value rarely reaches a record).
+    data sheet value rarely reaches a record). `sensors` sets a channel's `resolution` (its
+    quantum) and `noise_std` in place of `QUANTUM` and `NOISE_STD` (a finer or coarser reading),
+    both applied and declared as given.
 
     Returns (record, truth) with truth = {"effects": {id: {"channel", "params"}}, "params": the
     true Params as a dict, "spread": {field: factor}, "outside": name or None}.
@@ -158,6 +160,14 @@ def make_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, seed:
     effects = dict(effects or {})
     if experiment not in ("rich", "force"):
         raise InputError(f"experiment = {experiment!r}: use \"rich\" (position control) or \"force\" (force control of a specimen)")
+    wanted: dict[str, dict[str, Any]] = {str(ch): dict(spec) for ch, spec in (sensors or {}).items()}
+    for ch, spec in wanted.items():
+        if ch not in CHANNELS or set(spec) - {"resolution", "noise_std"} or not all(
+                isinstance(x, (int, float)) and np.isfinite(x) and x > 0 for x in spec.values()):
+            raise InputError(f"sensors[{ch!r}] = {spec!r}: give a channel of {', '.join(CHANNELS)} a positive "
+                             "`resolution` and/or `noise_std` in its unit")
+    quantum = {ch: float(wanted.get(ch, {}).get("resolution", QUANTUM[ch])) for ch in CHANNELS}
+    noise_std = {ch: float(wanted.get(ch, {}).get("noise_std", NOISE_STD[ch])) for ch in CHANNELS}
     if not (100 <= rate_hz <= 10000):
         raise InputError(f"rate_hz = {rate_hz}: allowed [100, 10000] Hz")
     if not (1.0 <= duration_s <= 3600):
@@ -229,9 +239,9 @@ def make_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, seed:
     kw: dict[str, Any] = {}
     meta["sensors"] = {}
     if noise:
-        kw["noise"] = {c: rng.normal(0.0, NOISE_STD[c], n) for c in chans}
-        kw["quantum"] = {c: QUANTUM[c] for c in chans}
-        meta["sensors"] = {c: {"resolution": QUANTUM[c], "noise_std": NOISE_STD[c]} for c in chans}
+        kw["noise"] = {c: rng.normal(0.0, noise_std[c], n) for c in chans}
+        kw["quantum"] = {c: quantum[c] for c in chans}
+        meta["sensors"] = {c: {"resolution": quantum[c], "noise_std": noise_std[c]} for c in chans}
     out = replay([truth], dt, np.zeros(n), controller=meta["controller"], reference=ref, preroll_s=PREROLL_S, rtol=1e-6,
                  supply=supply_profile(ref, rate_hz), threads=1, **kw)[0]
     if isinstance(out, HtmError):

@@ -231,6 +231,8 @@ class Selector:
         self.common: list[Finding] = []  # findings whose sibling reading showed the same fault since (sibling_check)
         self.mirror: float | None = None  # the last sibling check's refitted size over the chosen's (interchangeable)
         self.sibling_refits: dict[tuple, Trial] = {}  # the sibling checks' refits for the chosen fault (sibling_refit)
+        # candidates chosen (they paid off) and polished away: out of the pool, still a sibling to weigh
+        self.polished_away: dict[tuple, Candidate] = {}
 
     # --- the loop --------------------------------------------------------------------------
     def run(self, base: Model, first: frozenset[str], max_findings: int, max_refits: int) -> Result:
@@ -345,6 +347,7 @@ class Selector:
             self.pool = [c for c in self.pool if not c.keys & chosen.cand.keys]
             if not chosen.verdict.ok:
                 # Polished, the effect no longer matters: keep the better-fitted model without it.
+                self.polished_away[chosen.cand.key] = chosen.cand
                 self.model = chosen.model.truncated(len(self.model.x))
                 self.work_pred = prob.predict([self.model.params()])[0]
                 assert chosen.jac is not None
@@ -517,7 +520,9 @@ class Selector:
                        other=found.cand.label, size=mine, sibling_size=theirs, ratio=ratio, sibling_ratio=st.sibling_ratio)
                 return None
             return chosen
-        sib = next((d for d in self.pool if d.key == sib_key), None)
+        # A sibling polished away in an earlier round paid off there: it is weighed again (its
+        # leaving the pool says nothing of whether the chosen reading's fault is common to both).
+        sib = next((d for d in self.pool if d.key == sib_key), None) or self.polished_away.get(sib_key)
         if sib is None or not sib.frees:
             return chosen
         f = sib.frees[0]

@@ -392,7 +392,7 @@ def _not_a_tolerated_gain(rec: Record, channel: str, min_gain_error: float) -> C
     y = y[np.isfinite(y)]
     median = float(np.median(np.abs(y))) if y.size else 0.0
     spread = float(np.std(y)) if y.size else 0.0
-    noise = ft.declared_noise(rec.meta, channel) or ft.noise_floor(y, ft.declared_resolution(rec.meta, channel))
+    noise = ft.reading_noise(rec.meta, channel, y)
 
     def claimable(p: dict[str, float]) -> bool:
         o = abs(next(iter(p.values())))
