@@ -124,7 +124,7 @@ def test_bad_requests_are_named():
     with pytest.raises(InputError, match="resonance"):
         proving.make_record({}, seed=0, effect_outside_table="resonance")
     for bad in ({"q": {"resolution": 1e-6}}, {"y": {"resolution": -1.0}}, {"y": {"noise_std": float("nan")}},
-                {"y": {"bits": 12}}):
+                {"y": {"bits": 12}}, {"y": 5e-6}):
         with pytest.raises(InputError, match="sensors"):
             proving.make_record({}, seed=0, sensors=bad)
 

@@ -160,9 +160,9 @@ def make_record(effects: Mapping[str, Mapping[str, Any]] | None = None, *, seed:
     effects = dict(effects or {})
     if experiment not in ("rich", "force"):
         raise InputError(f"experiment = {experiment!r}: use \"rich\" (position control) or \"force\" (force control of a specimen)")
-    wanted: dict[str, dict[str, Any]] = {str(ch): dict(spec) for ch, spec in (sensors or {}).items()}
+    wanted: dict[str, Any] = dict(sensors or {})
     for ch, spec in wanted.items():
-        if ch not in CHANNELS or set(spec) - {"resolution", "noise_std"} or not all(
+        if ch not in CHANNELS or not isinstance(spec, Mapping) or set(spec) - {"resolution", "noise_std"} or not all(
                 isinstance(x, (int, float)) and np.isfinite(x) and x > 0 for x in spec.values()):
             raise InputError(f"sensors[{ch!r}] = {spec!r}: give a channel of {', '.join(CHANNELS)} a positive "
                              "`resolution` and/or `noise_std` in its unit")

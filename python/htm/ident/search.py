@@ -686,8 +686,7 @@ class Selector:
         cost0 = prob.fit_cost(self.work_pred)
         for g in good:
             form = g.cand.form(self.model.params(), g.cand.report(g.model.params())) if g.cand.form is not None else None
-            start = self.model.moved_to(form) if form else None
-            if form is None or start is None or _at(start.x, self.model):  # no form, or the model already there (its bound)
+            if not form or _at((start := self.model.moved_to(form)).x, self.model):  # no form, or the model already there
                 kept.append(g)
                 continue
             m, work, _ = fit(prob, start, iters=st.refit_iters)
