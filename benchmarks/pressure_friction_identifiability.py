@@ -13,7 +13,10 @@ apart. Against it, `bic_one_parameter` = ln(number of readings), the least gain 
 parameter pays (BIC). Then `chi2_refit`: the same after the effect-free run's Coulomb, Stribeck,
 static and viscous friction are refitted to the first run (SciPy least squares, the generator's own
 model structure: the best any model of that exact form can do without the effect), and where the
-difference lies (`chi2_share_by_speed`: shares of chi2 by |v| band, m/s).
+difference lies (`chi2_share_by_speed`: shares of chi2 by |v| band, m/s). Beside it `chi2_floor`:
+the same sum between the run with the effect and itself with a perturbation no estimator should
+see (mass x (1 + 1e-6); Coulomb + 1 mN): the generator's loop, fed a 5 um position quantum, takes
+another path at standstill for any difference, so a chi2 of that size tells nothing apart.
 
 Run: .venv/bin/python benchmarks/pressure_friction_identifiability.py [--shift 0 --shift 1000 ...] [--no-refit]
 """
@@ -47,6 +50,12 @@ def twin_of(case: extrig.Case, **rig: float) -> dict:
     return extrig.simulate(alt)[1]
 
 
+def _with_effect(case: extrig.Case, **rig: float) -> dict:
+    alt = copy.deepcopy(case)
+    alt.rig_overrides = {**case.rig_overrides, **rig}
+    return extrig.simulate(alt)[1]
+
+
 def chi2_of(truth: dict, twin: dict) -> np.ndarray:
     return np.concatenate([(truth[ch] - twin[ch]) / sd for ch, sd in NOISE.items()])
 
@@ -70,6 +79,13 @@ def compare(case: extrig.Case, refit: bool) -> dict:
         n += len(d)
     out["chi2"] = round(chi2, 2)
     out["bic_one_parameter"] = round(math.log(n), 2)
+    # What no simulator but the generator itself can reproduce: the same run with the effect and a
+    # perturbation no estimator should see (the mass one part in a million heavier; the Coulomb
+    # level 1 mN higher). The loop feeds back a position quantized to 5 um, so at standstill the
+    # command steps on a quantum's edge and tiny differences grow into a different path.
+    rig0 = extrig.Rig(**case.rig_overrides)
+    floor = {"mass_1e-6": _with_effect(case, mass=rig0.mass * (1 + 1e-6)), "coulomb_1mN": _with_effect(case, fc=rig0.fc + 1e-3)}
+    out["chi2_floor"] = {k: round(float(np.sum(chi2_of(truth, tw) ** 2)), 1) for k, tw in floor.items()}
     out["identifiable"] = chi2 > math.log(n)
     speed = np.abs(truth["v"])
     z = chi2_of(truth, twin).reshape(len(NOISE), -1)
@@ -103,7 +119,9 @@ def main() -> int:
             rows.append(r)
             print(json.dumps(r), flush=True)
     print(json.dumps({"records": len(rows), "identifiable": sum(r["identifiable"] for r in rows),
-                      "max_chi2": max(r["chi2"] for r in rows), "min_chi2_refit": min((r["chi2_refit"] for r in rows if "chi2_refit" in r), default=None),
+                      "max_chi2": max(r["chi2"] for r in rows),
+                      "max_chi2_floor": max(max(r["chi2_floor"].values()) for r in rows),
+                      "min_chi2_refit": min((r["chi2_refit"] for r in rows if "chi2_refit" in r), default=None),
                       "bic_one_parameter": rows[0]["bic_one_parameter"]}))
     return 0
 

@@ -56,6 +56,35 @@ def test_params_from_meta_rejects_bad_metadata_by_name():
         sim.params_from_meta(bad)
 
 
+def test_a_rig_that_states_its_metering_edges_and_friction_sign_is_replayed_in_that_form():
+    """A record's metadata may state the base model's form where a rig's is known: the width over
+    which the valve's metering edges open and the form of friction's smoothed sign (0: the thesis's
+    v/(|v| + eps), 1: tanh(v/eps)). The shared external generator builds both so (sharp edges, tanh):
+    its record `rec_h8` re-simulated at the generator's parameters in htm's base form is 3.0 times
+    y's noise off, in the stated form 0.6 (`benchmarks/external_form.py`)."""
+    rec, truth = proving.make_record({}, seed=3, duration_s=6, noise=False)
+    rig = rec.meta["rig"]
+    p = sim.params_from_meta(rec.meta)
+    assert p["friction_sign_shape"] == 0.0 and p["valve_lap_smoothing_v"] == Params("base")["valve_lap_smoothing_v"]
+    stated = {**rec.meta, "rig": {**rig, "friction_sign_shape": 1.0, "valve_lap_smoothing_v": 1e-5, "friction_smoothing_m_s": 2e-4}}
+    q = sim.params_from_meta(stated)
+    assert (q["friction_sign_shape"], q["valve_lap_smoothing_v"], q["friction_smoothing_m_s"]) == (1.0, 1e-5, 2e-4)
+    # the thesis form stated is the default form, bit for bit; tanh moves the readings where the
+    # piston reverses (the friction force crosses its level within a few eps instead of tens)
+    base = sim.predict(truth_params(rec, truth), rec)
+    same = truth_params(rec, truth)
+    same["friction_sign_shape"] = 0.0
+    assert all(np.array_equal(base[c], sim.predict(same, rec)[c]) for c in base)
+    tanh = truth_params(rec, truth)
+    tanh["friction_sign_shape"] = 1.0
+    moved = sim.predict(tanh, rec)
+    assert rmse(moved["p_a"], base["p_a"]) > 1e3, "the sign's form moves the chamber pressures by kPa"
+    assert rmse(moved["y"], base["y"]) < 1e-4, "and leaves the position loop following its reference"
+    for key, value in (("friction_sign_shape", 2.0), ("valve_lap_smoothing_v", 0.0), ("friction_sign_shape", "tanh")):
+        with pytest.raises(RecordError, match=key):
+            sim.params_from_meta({**rec.meta, "rig": {**rig, key: value}})
+
+
 def test_effect_table_maps_every_effects_id_to_params_fields():
     p = Params("base")
     for eid in sim.EFFECT_IDS:

@@ -1,10 +1,24 @@
-//! Stribeck friction with the thesis's smoothed sign (eq. 3.2, 3.19), plus the asymmetric and
-//! pressure-dependent variants named in EFFECTS.md.
+//! Stribeck friction with the thesis's smoothed sign (eq. 3.2, 3.19) or a sign that saturates
+//! sooner (tanh), plus the asymmetric and pressure-dependent variants named in EFFECTS.md.
 
 /// Smoothed sign `sig(v) = v / (|v| + eps)` (thesis eq. 3.19): continuous through v = 0.
 #[inline]
 pub fn sig(v: f64, eps: f64) -> f64 {
     v / (v.abs() + eps)
+}
+
+/// The smoothed sign of form `shape` (0: the thesis's `sig`, 1: `tanh(v/eps)`, between: the
+/// blend) and its derivative d/dv.
+#[inline]
+pub fn sign_and_slope(v: f64, eps: f64, shape: f64) -> (f64, f64) {
+    let d = v.abs() + eps;
+    let (s0, ds0) = (v / d, eps / (d * d));
+    if shape == 0.0 {
+        return (s0, ds0);
+    }
+    let th = (v / eps).tanh();
+    let ds1 = (1.0 - th * th) / eps;
+    ((1.0 - shape) * s0 + shape * th, (1.0 - shape) * ds0 + shape * ds1)
 }
 
 /// Friction parameters, SI.
@@ -23,6 +37,8 @@ pub struct Friction {
     pub stribeck_m_s: f64,
     /// smoothing velocity eps of sig() [m/s]
     pub smoothing_m_s: f64,
+    /// form of the smoothed sign (0: thesis, 1: tanh; `sign_and_slope`)
+    pub sign_shape: f64,
     /// Coulomb growth with chamber pressure sum [N/Pa]
     pub pressure_coeff_n_per_pa: f64,
 }
@@ -36,17 +52,24 @@ impl From<&crate::params::Params> for Friction {
             static_n: p.friction_static_n,
             stribeck_m_s: p.friction_stribeck_m_s,
             smoothing_m_s: p.friction_smoothing_m_s,
+            sign_shape: p.friction_sign_shape,
             pressure_coeff_n_per_pa: p.friction_pressure_coeff_n_per_pa,
         }
     }
 }
 
 impl Friction {
+    /// The smoothed sign of `v` and its slope d/dv (`sign_and_slope` of this friction's form).
+    #[inline]
+    pub fn sign(&self, v: f64) -> (f64, f64) {
+        sign_and_slope(v, self.smoothing_m_s, self.sign_shape)
+    }
+
     /// Friction force opposing motion [N] at velocity `v` [m/s] and chamber pressure sum
     /// `p_sum` = p_a + p_b [Pa].
     #[inline]
     pub fn force(&self, v: f64, p_sum: f64) -> f64 {
-        let s = sig(v, self.smoothing_m_s);
+        let s = self.sign(v).0;
         // The Coulomb level of the direction of motion (a seal grips harder one way as soon as
         // it slides that way), through the smoothed sign: continuous, with a kink at v = 0 when
         // the two levels differ.
@@ -69,8 +92,34 @@ mod tests {
             static_n: 102.61,
             stribeck_m_s: 0.01,
             smoothing_m_s: 1e-3,
+            sign_shape: 0.0,
             pressure_coeff_n_per_pa: 0.0,
         }
+    }
+
+    #[test]
+    fn the_sign_forms_take_their_levels_and_slopes() {
+        let eps = 2e-4;
+        for v in [-3e-3, -2e-4, -1e-5, 0.0, 1e-5, 2e-4, 1e-3, 0.05] {
+            // form 0 is the thesis's sig(); form 1 is tanh(v/eps); the blend is linear in the form
+            assert_eq!(sign_and_slope(v, eps, 0.0).0, sig(v, eps));
+            assert!((sign_and_slope(v, eps, 1.0).0 - (v / eps).tanh()).abs() < 1e-15);
+            let mid = 0.5 * (sign_and_slope(v, eps, 0.0).0 + sign_and_slope(v, eps, 1.0).0);
+            assert!((sign_and_slope(v, eps, 0.5).0 - mid).abs() < 1e-15);
+            // the slope is the derivative (central difference)
+            for k in [0.0, 0.3, 1.0] {
+                let h = 1e-9;
+                let fd = (sign_and_slope(v + h, eps, k).0 - sign_and_slope(v - h, eps, k).0) / (2.0 * h);
+                let (_, ds) = sign_and_slope(v, eps, k);
+                assert!((fd - ds).abs() <= 1e-5 * ds.abs().max(1.0), "v {v} form {k}: {fd} vs {ds}");
+            }
+        }
+        // tanh takes 76 % of the level at eps where the thesis's form takes half, 99.9 % at 4 eps (80 %)
+        assert!((sign_and_slope(eps, eps, 1.0).0 - 0.7616).abs() < 1e-4 && sign_and_slope(eps, eps, 0.0).0 == 0.5);
+        assert!(sign_and_slope(4.0 * eps, eps, 1.0).0 > 0.999 && (sign_and_slope(4.0 * eps, eps, 0.0).0 - 0.8).abs() < 1e-12);
+        let mut f = thesis();
+        f.sign_shape = 1.0;
+        assert!((f.force(1e-3, 0.0) - (5017.35e-3 + (1e-3f64 / 1e-3).tanh() * (792.33 + 102.61 * (-0.1f64).exp()))).abs() < 1e-9);
     }
 
     #[test]

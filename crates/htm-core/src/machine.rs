@@ -3,7 +3,6 @@
 //! command sample at a time.
 use crate::error::{Error, Result};
 use crate::friction::Friction;
-use crate::friction::sig;
 use crate::hydraulics::{orifice_flow, orifice_flow_ddp, smooth_opening, smooth_opening_dx, BulkModulus, ValveMap};
 use crate::params::Params;
 use crate::solver::{fd_jacobian, OdeSystem, Rodas4, Stats};
@@ -165,7 +164,7 @@ impl Plant {
             return 0.0;
         }
         let p = &self.p;
-        g * (p.force_bump_n - p.friction_bump_n * sig(v, self.friction.smoothing_m_s) - p.damping_bump_n_s_m * v)
+        g * (p.force_bump_n - p.friction_bump_n * self.friction.sign(v).0 - p.damping_bump_n_s_m * v)
     }
 
     /// d(specimen_force)/dy [N/m].
@@ -389,9 +388,7 @@ impl OdeSystem<NX> for Plant {
         jac[Y] = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0];
         // friction derivatives
         let fr = &self.friction;
-        let eps = fr.smoothing_m_s;
-        let s = sig(v, eps);
-        let ds = eps / ((v.abs() + eps) * (v.abs() + eps));
+        let (s, ds) = fr.sign(v);
         let coulomb = if v >= 0.0 { fr.coulomb_pos_n } else { fr.coulomb_neg_n };
         let e = fr.static_n * (-v.abs() / fr.stribeck_m_s).exp();
         let level = coulomb + fr.pressure_coeff_n_per_pa * (pa + pb) + e;

@@ -162,6 +162,10 @@ define_params! {
     friction_stribeck_m_s ["m/s"] = 0.01, open 0.0, 10.0;
     /// Smoothing velocity eps of sig() (section 3.4.4: 1e-3 m/s)
     friction_smoothing_m_s ["m/s"] = 1.0e-3, open 0.0, 1.0;
+    /// Form of that smoothed sign: 0 = the thesis's v/(|v| + eps) (eq. 3.19: half the level at
+    /// eps, 91 % at 10 eps), 1 = tanh(v/eps) (the whole level within a few eps: a seal that grips
+    /// at once); between, the blend (1 - k) v/(|v| + eps) + k tanh(v/eps)
+    friction_sign_shape ["-"] = 0.0, closed 0.0, 1.0;
     /// Coulomb growth with p_a + p_b (EFFECTS pressure_dependent_friction)
     friction_pressure_coeff_n_per_pa ["N/Pa"] = 0.0, closed 0.0, 1.0e-2;
     /// Extra friction in a band of positions (a scored rod or bore). Not an EFFECTS.md id: the

@@ -105,7 +105,9 @@ def params_from_meta(meta: Mapping[str, Any]) -> Params:
     at the thesis rig's values (the metadata has none; they are identified). Optional `rig` keys
     beyond DATA_FORMAT: `valve_polarity` (else inferred from the sign of a declared position
     controller's kp — a stable loop has kp*polarity > 0 — else -1 as on the thesis rig),
-    `valve_underlap_v`, `valve_flow_law` ("orifice" or "linear"), `friction_*` fields.
+    `valve_underlap_v`, `valve_lap_smoothing_v` (the width over which a metering edge opens),
+    `valve_flow_law` ("orifice" or "linear"), `friction_*` fields (`friction_sign_shape`: the form
+    of friction's smoothed sign, 0 the thesis's, 1 tanh). A stated form is the base model's form.
     """
     rig = meta.get("rig")
     if not isinstance(rig, Mapping):
@@ -127,7 +129,7 @@ def params_from_meta(meta: Mapping[str, Any]) -> Params:
                "valve_rated_dp_pa", "valve_max_command_v", "moving_mass_kg", "bulk_modulus_pa", "dead_volume_a_m3",
                "dead_volume_b_m3", "oil_density_kg_m3", "valve_underlap_v", "valve_polarity",
                "friction_viscous_n_s_m", "friction_coulomb_pos_n", "friction_coulomb_neg_n", "friction_static_n",
-               "friction_stribeck_m_s")
+               "friction_stribeck_m_s", "friction_smoothing_m_s", "friction_sign_shape", "valve_lap_smoothing_v")
     for k in numeric:
         if k in rig and rig[k] is not None:
             p[k] = _number(rig[k], f"rig.{k}")
