@@ -43,15 +43,12 @@ LSB_P = 400e5 / 10.0 * (20.0 / 65536)
 NOISE = {"y": 5e-6 / math.sqrt(12.0), "p_a": math.hypot(3e3, LSB_P / math.sqrt(12.0)), "p_b": math.hypot(3e3, LSB_P / math.sqrt(12.0))}
 
 
-def twin_of(case: extrig.Case, **rig: float) -> dict:
+def twin_of(case: extrig.Case, keep_effect: bool = False, **rig: float) -> dict:
+    """The generator's noise-free run of `case` with its rig changed by `rig`, without its hidden
+    effect (or with it, `keep_effect`)."""
     alt = copy.deepcopy(case)
-    alt.effect, alt.true_params = None, {}
-    alt.rig_overrides = {**case.rig_overrides, **rig}
-    return extrig.simulate(alt)[1]
-
-
-def _with_effect(case: extrig.Case, **rig: float) -> dict:
-    alt = copy.deepcopy(case)
+    if not keep_effect:
+        alt.effect, alt.true_params = None, {}
     alt.rig_overrides = {**case.rig_overrides, **rig}
     return extrig.simulate(alt)[1]
 
@@ -84,7 +81,7 @@ def compare(case: extrig.Case, refit: bool) -> dict:
     # level 1 mN higher). The loop feeds back a position quantized to 5 um, so at standstill the
     # command steps on a quantum's edge and tiny differences grow into a different path.
     rig0 = extrig.Rig(**case.rig_overrides)
-    floor = {"mass_1e-6": _with_effect(case, mass=rig0.mass * (1 + 1e-6)), "coulomb_1mN": _with_effect(case, fc=rig0.fc + 1e-3)}
+    floor = {"mass_1e-6": twin_of(case, True, mass=rig0.mass * (1 + 1e-6)), "coulomb_1mN": twin_of(case, True, fc=rig0.fc + 1e-3)}
     out["chi2_floor"] = {k: round(float(np.sum(chi2_of(truth, tw) ** 2)), 1) for k, tw in floor.items()}
     out["identifiable"] = chi2 > math.log(n)
     speed = np.abs(truth["v"])
