@@ -36,11 +36,11 @@ sys.path.insert(0, str(HERE / "external_rig"))
 
 import cases as external  # noqa: E402
 import rig as extrig  # noqa: E402
+from external_form import NOISE as GENERATOR_NOISE  # noqa: E402
 
-# The generator's measurement noise (rig.py `simulate`): position quantized to 5 um (uniform,
-# sd 5e-6/sqrt(12)); pressures with 3 kPa Gaussian noise and a 16-bit 400 bar range.
-LSB_P = 400e5 / 10.0 * (20.0 / 65536)
-NOISE = {"y": 5e-6 / math.sqrt(12.0), "p_a": math.hypot(3e3, LSB_P / math.sqrt(12.0)), "p_b": math.hypot(3e3, LSB_P / math.sqrt(12.0))}
+# The generator's measurement noise of the channels compared here (external_form.py: y quantized
+# to 5 um; pressures with 3 kPa noise on a 16-bit 400 bar range).
+NOISE = {c: GENERATOR_NOISE[c] for c in ("y", "p_a", "p_b")}
 
 
 def twin_of(case: extrig.Case, keep_effect: bool = False, **rig: float) -> dict:

@@ -7,18 +7,26 @@ pub fn sig(v: f64, eps: f64) -> f64 {
     v / (v.abs() + eps)
 }
 
-/// The smoothed sign of form `shape` (0: the thesis's `sig`, 1: `tanh(v/eps)`, between: the
-/// blend) and its derivative d/dv.
+/// The smoothed sign of form `shape`: 0 the thesis's `sig`, 1 `tanh(v/eps)`, between the blend.
 #[inline]
-pub fn sign_and_slope(v: f64, eps: f64, shape: f64) -> (f64, f64) {
-    let d = v.abs() + eps;
-    let (s0, ds0) = (v / d, eps / (d * d));
+pub fn smoothed_sign(v: f64, eps: f64, shape: f64) -> f64 {
+    let s0 = sig(v, eps);
     if shape == 0.0 {
-        return (s0, ds0);
+        return s0;
+    }
+    (1.0 - shape) * s0 + shape * (v / eps).tanh()
+}
+
+/// d/dv of [`smoothed_sign`].
+#[inline]
+pub fn smoothed_sign_slope(v: f64, eps: f64, shape: f64) -> f64 {
+    let d = v.abs() + eps;
+    let ds0 = eps / (d * d);
+    if shape == 0.0 {
+        return ds0;
     }
     let th = (v / eps).tanh();
-    let ds1 = (1.0 - th * th) / eps;
-    ((1.0 - shape) * s0 + shape * th, (1.0 - shape) * ds0 + shape * ds1)
+    (1.0 - shape) * ds0 + shape * (1.0 - th * th) / eps
 }
 
 /// Friction parameters, SI.
@@ -37,7 +45,7 @@ pub struct Friction {
     pub stribeck_m_s: f64,
     /// smoothing velocity eps of sig() [m/s]
     pub smoothing_m_s: f64,
-    /// form of the smoothed sign (0: thesis, 1: tanh; `sign_and_slope`)
+    /// form of the smoothed sign (0: thesis, 1: tanh; [`smoothed_sign`])
     pub sign_shape: f64,
     /// Coulomb growth with chamber pressure sum [N/Pa]
     pub pressure_coeff_n_per_pa: f64,
@@ -59,17 +67,23 @@ impl From<&crate::params::Params> for Friction {
 }
 
 impl Friction {
-    /// The smoothed sign of `v` and its slope d/dv (`sign_and_slope` of this friction's form).
+    /// The smoothed sign of `v` in this friction's form ([`smoothed_sign`]).
     #[inline]
-    pub fn sign(&self, v: f64) -> (f64, f64) {
-        sign_and_slope(v, self.smoothing_m_s, self.sign_shape)
+    pub fn sign(&self, v: f64) -> f64 {
+        smoothed_sign(v, self.smoothing_m_s, self.sign_shape)
+    }
+
+    /// Its slope d/dv ([`smoothed_sign_slope`]; the Jacobian's, not the right-hand side's).
+    #[inline]
+    pub fn sign_slope(&self, v: f64) -> f64 {
+        smoothed_sign_slope(v, self.smoothing_m_s, self.sign_shape)
     }
 
     /// Friction force opposing motion [N] at velocity `v` [m/s] and chamber pressure sum
     /// `p_sum` = p_a + p_b [Pa].
     #[inline]
     pub fn force(&self, v: f64, p_sum: f64) -> f64 {
-        let s = self.sign(v).0;
+        let s = self.sign(v);
         // The Coulomb level of the direction of motion (a seal grips harder one way as soon as
         // it slides that way), through the smoothed sign: continuous, with a kink at v = 0 when
         // the two levels differ.
@@ -102,21 +116,21 @@ mod tests {
         let eps = 2e-4;
         for v in [-3e-3, -2e-4, -1e-5, 0.0, 1e-5, 2e-4, 1e-3, 0.05] {
             // form 0 is the thesis's sig(); form 1 is tanh(v/eps); the blend is linear in the form
-            assert_eq!(sign_and_slope(v, eps, 0.0).0, sig(v, eps));
-            assert!((sign_and_slope(v, eps, 1.0).0 - (v / eps).tanh()).abs() < 1e-15);
-            let mid = 0.5 * (sign_and_slope(v, eps, 0.0).0 + sign_and_slope(v, eps, 1.0).0);
-            assert!((sign_and_slope(v, eps, 0.5).0 - mid).abs() < 1e-15);
+            assert_eq!(smoothed_sign(v, eps, 0.0), sig(v, eps));
+            assert!((smoothed_sign(v, eps, 1.0) - (v / eps).tanh()).abs() < 1e-15);
+            let mid = 0.5 * (smoothed_sign(v, eps, 0.0) + smoothed_sign(v, eps, 1.0));
+            assert!((smoothed_sign(v, eps, 0.5) - mid).abs() < 1e-15);
             // the slope is the derivative (central difference)
             for k in [0.0, 0.3, 1.0] {
                 let h = 1e-9;
-                let fd = (sign_and_slope(v + h, eps, k).0 - sign_and_slope(v - h, eps, k).0) / (2.0 * h);
-                let (_, ds) = sign_and_slope(v, eps, k);
+                let fd = (smoothed_sign(v + h, eps, k) - smoothed_sign(v - h, eps, k)) / (2.0 * h);
+                let ds = smoothed_sign_slope(v, eps, k);
                 assert!((fd - ds).abs() <= 1e-5 * ds.abs().max(1.0), "v {v} form {k}: {fd} vs {ds}");
             }
         }
         // tanh takes 76 % of the level at eps where the thesis's form takes half, 99.9 % at 4 eps (80 %)
-        assert!((sign_and_slope(eps, eps, 1.0).0 - 0.7616).abs() < 1e-4 && sign_and_slope(eps, eps, 0.0).0 == 0.5);
-        assert!(sign_and_slope(4.0 * eps, eps, 1.0).0 > 0.999 && (sign_and_slope(4.0 * eps, eps, 0.0).0 - 0.8).abs() < 1e-12);
+        assert!((smoothed_sign(eps, eps, 1.0) - 0.7616).abs() < 1e-4 && smoothed_sign(eps, eps, 0.0) == 0.5);
+        assert!(smoothed_sign(4.0 * eps, eps, 1.0) > 0.999 && (smoothed_sign(4.0 * eps, eps, 0.0) - 0.8).abs() < 1e-12);
         let mut f = thesis();
         f.sign_shape = 1.0;
         assert!((f.force(1e-3, 0.0) - (5017.35e-3 + (1e-3f64 / 1e-3).tanh() * (792.33 + 102.61 * (-0.1f64).exp()))).abs() < 1e-9);

@@ -164,7 +164,7 @@ impl Plant {
             return 0.0;
         }
         let p = &self.p;
-        g * (p.force_bump_n - p.friction_bump_n * self.friction.sign(v).0 - p.damping_bump_n_s_m * v)
+        g * (p.force_bump_n - p.friction_bump_n * self.friction.sign(v) - p.damping_bump_n_s_m * v)
     }
 
     /// d(specimen_force)/dy [N/m].
@@ -388,7 +388,7 @@ impl OdeSystem<NX> for Plant {
         jac[Y] = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0];
         // friction derivatives
         let fr = &self.friction;
-        let (s, ds) = fr.sign(v);
+        let (s, ds) = (fr.sign(v), fr.sign_slope(v));
         let coulomb = if v >= 0.0 { fr.coulomb_pos_n } else { fr.coulomb_neg_n };
         let e = fr.static_n * (-v.abs() / fr.stribeck_m_s).exp();
         let level = coulomb + fr.pressure_coeff_n_per_pa * (pa + pb) + e;
